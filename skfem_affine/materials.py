@@ -1,0 +1,272 @@
+r"""Hyperelastic materials, vectorised over elements.
+
+Each material gives, for deformation gradients ``F`` of shape ``(m, 3, 3)``,
+
+* :meth:`~Material.energy_density` psi(F), shape ``(m,)``;
+* :meth:`~Material.stress`, the first Piola-Kirchhoff stress P = d psi / dF, ``(m, 3, 3)``;
+* :meth:`~Material.stress_derivative`, ``dP[e, i, j, k, l] = d P_ij / d F_kl``,
+  ``(m, 3, 3, 3, 3)``, optionally projected to positive semi-definite.
+
+Parameters ``E`` and ``nu`` may be scalars or ``(m,)`` arrays (one value per
+element), so a heterogeneous body is evaluated in one call per material kind.
+Lame parameters come from :func:`lame`, the one place they are computed.
+Each material is also available as scikit-fem forms, :meth:`Material.forms`.
+
+Models (paper sec. 4, [SGK18]):
+
+* :class:`StVK`: psi = mu E:E + lam/2 tr(E)^2, E = (F^T F - I)/2;
+* :class:`Corotational`: psi = mu |F - R|^2 + lam/2 tr(R^T F - I)^2, F = R S;
+* :class:`NeoHookean` (stable Neo-Hookean, Smith, de Goes & Kim 2018):
+  psi = mu/2 (tr F^T F - 3) - mu (J - 1) + lam'/2 (J - 1)^2, lam' = lam + mu
+  so that it linearises to the same Lame parameters; defined for J <= 0.
+"""
+import numpy as np
+
+# Levi-Civita symbol, used for the cofactor and the Hessian of det F.
+_EPS = np.zeros((3, 3, 3))
+_EPS[0, 1, 2] = _EPS[1, 2, 0] = _EPS[2, 0, 1] = 1.0
+_EPS[0, 2, 1] = _EPS[2, 1, 0] = _EPS[1, 0, 2] = -1.0
+_I3 = np.eye(3)
+
+
+def lame(E, nu):
+    """Lame parameters (mu, lam) from Young's modulus and Poisson ratio, validated."""
+    E = np.asarray(E, dtype=float)
+    nu = np.asarray(nu, dtype=float)
+    if not (np.all(np.isfinite(E)) and np.all(np.isfinite(nu))):
+        raise ValueError("material parameters must be finite (got NaN or inf in E or nu)")
+    if np.any(E <= 0):
+        raise ValueError(f"Young's modulus E must be > 0, got min E = {E.min():g}")
+    if np.any(nu >= 0.5) or np.any(nu <= -1.0):
+        raise ValueError(f"Poisson ratio nu must lie in (-1, 0.5), got nu in [{nu.min():g}, {nu.max():g}]")
+    mu = E / (2.0 * (1.0 + nu))
+    lam = E * nu / ((1.0 + nu) * (1.0 - 2.0 * nu))
+    return mu, lam
+
+
+def _col(a, nd=2):
+    """Append ``nd`` singleton axes to a per-element parameter for broadcasting."""
+    a = np.asarray(a, dtype=float)
+    return a.reshape(a.shape + (1,) * nd)
+
+
+def determinant(F):
+    """det F for (m, 3, 3) arrays."""
+    return (F[:, 0, 0] * (F[:, 1, 1] * F[:, 2, 2] - F[:, 1, 2] * F[:, 2, 1])
+            - F[:, 0, 1] * (F[:, 1, 0] * F[:, 2, 2] - F[:, 1, 2] * F[:, 2, 0])
+            + F[:, 0, 2] * (F[:, 1, 0] * F[:, 2, 1] - F[:, 1, 1] * F[:, 2, 0]))
+
+
+def cofactor(F):
+    """d(det F)/dF = cof F, (m, 3, 3)."""
+    return 0.5 * np.einsum("ikp,jlq,ekl,epq->eij", _EPS, _EPS, F, F, optimize=True)
+
+
+def det_hessian(F):
+    """d^2(det F)/dF_ij dF_kl = eps_ikp eps_jlq F_pq, (m, 3, 3, 3, 3)."""
+    return np.einsum("ikp,jlq,epq->eijkl", _EPS, _EPS, F, optimize=True)
+
+
+def project_psd(C):
+    """Project symmetric (m, 9, 9) or (m, 3, 3, 3, 3) tensors to PSD by clamping eigenvalues."""
+    shape = C.shape
+    C = C.reshape(shape[0], 9, 9)
+    C = 0.5 * (C + C.transpose(0, 2, 1))
+    w, Q = np.linalg.eigh(C)
+    neg = w.min(axis=1) < 0.0
+    if np.any(neg):
+        Qn, wn = Q[neg], np.maximum(w[neg], 0.0)
+        C = C.copy()
+        C[neg] = np.einsum("eik,ek,ejk->eij", Qn, wn, Qn, optimize=True)
+    return C.reshape(shape)
+
+
+class Material:
+    """Base class: a hyperelastic energy from (E, nu). Subclasses define the kernels."""
+
+    name = "material"
+
+    def __init__(self, E, nu):
+        self.E = np.asarray(E, dtype=float)
+        self.nu = np.asarray(nu, dtype=float)
+        self.mu, self.lam = lame(self.E, self.nu)
+
+    def __repr__(self):
+        def fmt(a):
+            return f"{float(a):g}" if a.ndim == 0 else f"array({a.shape[0]})"
+        return f"{type(self).__name__}(E={fmt(self.E)}, nu={fmt(self.nu)})"
+
+    @classmethod
+    def merged(cls, materials):
+        """One material of this kind whose (E, nu) are per-element arrays."""
+        return cls(E=np.array([float(m.E) for m in materials]), nu=np.array([float(m.nu) for m in materials]))
+
+    def energy_density(self, F):
+        """psi(F), shape (m,)."""
+        raise NotImplementedError
+
+    def stress(self, F):
+        """First Piola-Kirchhoff stress P(F), shape (m, 3, 3)."""
+        raise NotImplementedError
+
+    def stress_derivative(self, F, project=False):
+        """dP/dF, shape (m, 3, 3, 3, 3); ``project=True`` clamps it to PSD."""
+        C = self._stress_derivative(F)
+        return project_psd(C) if project else C
+
+    def _stress_derivative(self, F):
+        raise NotImplementedError
+
+    def forms(self, project=False):
+        """scikit-fem forms ``(tangent, force)`` for a displacement field ``w['disp']``.
+
+        ``tangent`` is the ``BilinearForm`` of the (positive) stiffness
+        ``int grad v : dP/dF : grad u``; ``force`` is the ``LinearForm`` of the
+        internal force ``-int P : grad v``; F = I + grad(disp). Usage::
+
+            basis = Basis(mesh, ElementVector(ElementTetP1()))
+            K = asm(tangent, basis, disp=basis.interpolate(u))
+            f = asm(force, basis, disp=basis.interpolate(u))
+
+        Only for materials with scalar (E, nu). These forms re-evaluate the
+        material for each of the 144 basis-function pairs: they are the
+        reference and the user-facing path, the simulator uses
+        :mod:`skfem_affine.assembly`.
+        """
+        from skfem import BilinearForm, LinearForm
+        from skfem.helpers import grad, ddot
+
+        if self.E.ndim or self.nu.ndim:
+            raise ValueError("forms() needs a material with scalar E and nu")
+
+        def at_points(disp):
+            G = grad(disp)  # (3, 3, m, q)
+            F = np.eye(3)[:, :, None, None] + G
+            shape = F.shape[2:]
+            return np.moveaxis(F, (0, 1), (-2, -1)).reshape(-1, 3, 3), shape
+
+        @BilinearForm
+        def tangent(u, v, w):
+            F, shape = at_points(w["disp"])
+            C = self.stress_derivative(F, project=project).reshape(shape + (3, 3, 3, 3))
+            return np.einsum("ij...,...ijkl,kl...->...", grad(v), C, grad(u))
+
+        @LinearForm
+        def force(v, w):
+            F, shape = at_points(w["disp"])
+            P = np.moveaxis(self.stress(F).reshape(shape + (3, 3)), (-2, -1), (0, 1))
+            return -ddot(P, grad(v))
+
+        return tangent, force
+
+
+class StVK(Material):
+    """Saint-Venant Kirchhoff: psi = mu E:E + lam/2 tr(E)^2 (not stable under compression)."""
+
+    name = "stvk"
+
+    def _green(self, F):
+        return 0.5 * (np.einsum("eki,ekj->eij", F, F) - _I3)
+
+    def energy_density(self, F):
+        E = self._green(F)
+        tr = np.trace(E, axis1=1, axis2=2)
+        return self.mu * np.einsum("eij,eij->e", E, E) + 0.5 * self.lam * tr ** 2
+
+    def _pk2(self, F):
+        E = self._green(F)
+        tr = np.trace(E, axis1=1, axis2=2)
+        return 2.0 * _col(self.mu) * E + _col(self.lam * tr) * _I3
+
+    def stress(self, F):
+        return F @ self._pk2(F)
+
+    def _stress_derivative(self, F):
+        # dP_ijkl = d_ik S_lj + mu (F_il F_kj + (F F^T)_ik d_jl) + lam F_ij F_kl
+        S = self._pk2(F)
+        FFt = F @ F.transpose(0, 2, 1)
+        mu, lam = _col(self.mu, 4), _col(self.lam, 4)
+        C = np.einsum("ik,elj->eijkl", _I3, S)
+        C += mu * (np.einsum("eil,ekj->eijkl", F, F) + np.einsum("eik,jl->eijkl", FFt, _I3))
+        C += lam * np.einsum("eij,ekl->eijkl", F, F)
+        return C
+
+
+class NeoHookean(Material):
+    """Stable Neo-Hookean [SGK18], psi = mu/2 (I_C - 3) - mu (J - 1) + lam'/2 (J - 1)^2.
+
+    lam' = lam + mu makes the small-strain limit match linear elasticity with
+    the Lame parameters of (E, nu). Rest-stable and defined for inverted F.
+    """
+
+    name = "neohookean"
+
+    @property
+    def lam_snh(self):
+        return self.lam + self.mu
+
+    def energy_density(self, F):
+        J = determinant(F)
+        Ic = np.einsum("eij,eij->e", F, F)
+        return 0.5 * self.mu * (Ic - 3.0) - self.mu * (J - 1.0) + 0.5 * self.lam_snh * (J - 1.0) ** 2
+
+    def stress(self, F):
+        J = determinant(F)
+        return _col(self.mu) * F + _col(self.lam_snh * (J - 1.0) - self.mu) * cofactor(F)
+
+    def _stress_derivative(self, F):
+        J = determinant(F)
+        g = cofactor(F)
+        mu, lam = _col(self.mu, 4), _col(self.lam_snh, 4)
+        C = mu * np.einsum("ik,jl->ijkl", _I3, _I3)[None]
+        C = C + lam * np.einsum("eij,ekl->eijkl", g, g)
+        C += _col(self.lam_snh * (J - 1.0) - self.mu, 4) * det_hessian(F)
+        return C
+
+
+def rotation_svd(F):
+    """Rotation-variant SVD F = U diag(s) V^T with det U = det V = +1 (s[2] may be < 0)."""
+    U, s, Vt = np.linalg.svd(F)
+    V = Vt.transpose(0, 2, 1).copy()
+    du, dv = np.linalg.det(U) < 0, np.linalg.det(V) < 0
+    U[du, :, 2] *= -1.0
+    s[du, 2] *= -1.0
+    V[dv, :, 2] *= -1.0
+    s[dv, 2] *= -1.0
+    return U, s, V
+
+
+class Corotational(Material):
+    """Corotational: psi = mu |F - R|^2 + lam/2 (tr(R^T F) - 3)^2 with F = R S (polar).
+
+    The exact Hessian differentiates R: dR = U Omega V^T with
+    Omega_ij = ((U^T dF V)_ij - (U^T dF V)_ji) / (s_i + s_j).
+    """
+
+    name = "corotational"
+
+    def energy_density(self, F):
+        U, s, V = rotation_svd(F)
+        return self.mu * np.sum((s - 1.0) ** 2, axis=1) + 0.5 * self.lam * (s.sum(axis=1) - 3.0) ** 2
+
+    def stress(self, F):
+        U, s, V = rotation_svd(F)
+        R = U @ V.transpose(0, 2, 1)
+        return 2.0 * _col(self.mu) * (F - R) + _col(self.lam * (s.sum(axis=1) - 3.0)) * R
+
+    def _stress_derivative(self, F):
+        U, s, V = rotation_svd(F)
+        R = U @ V.transpose(0, 2, 1)
+        den = s[:, :, None] + s[:, None, :]
+        den = np.where(np.abs(den) < 1e-12, np.copysign(1e-12, den), den)
+        M = np.einsum("eki,elj->eklij", U, V)
+        Om = (M - M.transpose(0, 1, 2, 4, 3)) / den[:, None, None]
+        dR = np.einsum("eai,eklij,ebj->eabkl", U, Om, V, optimize=True)
+        mu, lam = _col(self.mu, 4), _col(self.lam, 4)
+        C = 2.0 * mu * (np.einsum("ik,jl->ijkl", _I3, _I3)[None] - dR)
+        C += lam * np.einsum("eij,ekl->eijkl", R, R)
+        C += _col(self.lam * (s.sum(axis=1) - 3.0), 4) * dR
+        return C
+
+
+MATERIALS = {cls.name: cls for cls in (StVK, Corotational, NeoHookean)}
