@@ -58,27 +58,55 @@ def determinant(F):
 
 
 def cofactor(F):
-    """d(det F)/dF = cof F, (m, 3, 3)."""
-    return 0.5 * np.einsum("ikp,jlq,ekl,epq->eij", _EPS, _EPS, F, F, optimize=True)
+    """d(det F)/dF = cof F, (m, 3, 3): columns f1 x f2, f2 x f0, f0 x f1."""
+    c0, c1, c2 = F[:, :, 0], F[:, :, 1], F[:, :, 2]
+    return np.stack([np.cross(c1, c2), np.cross(c2, c0), np.cross(c0, c1)], axis=2)
+
+
+# d^2 J / dF_ij dF_kl = eps_ikp eps_jlq F_pq is linear in F: one (81 x 9) matrix.
+_DET_HESSIAN = np.einsum("ikp,jlq->ijklpq", _EPS, _EPS).reshape(81, 9)
 
 
 def det_hessian(F):
     """d^2(det F)/dF_ij dF_kl = eps_ikp eps_jlq F_pq, (m, 3, 3, 3, 3)."""
-    return np.einsum("ikp,jlq,epq->eijkl", _EPS, _EPS, F, optimize=True)
+    return (F.reshape(-1, 9) @ _DET_HESSIAN.T).reshape(-1, 3, 3, 3, 3)
 
 
-def project_psd(C):
-    """Project symmetric (m, 9, 9) or (m, 3, 3, 3, 3) tensors to PSD by clamping eigenvalues."""
+def _mode_basis():
+    """Orthonormal 3x3 matrices: 3 scalings, 3 twists, 3 flips (Frobenius inner product)."""
+    E = np.zeros((9, 3, 3))
+    for k in range(3):
+        E[k, k, k] = 1.0
+    for k, (i, j) in enumerate([(1, 2), (0, 2), (0, 1)]):
+        E[3 + k, i, j], E[3 + k, j, i] = 1 / np.sqrt(2), -1 / np.sqrt(2)
+        E[6 + k, i, j], E[6 + k, j, i] = 1 / np.sqrt(2), 1 / np.sqrt(2)
+    return E
+
+
+_MODES = _mode_basis()
+
+
+def project_psd(C, F=None):
+    """Project dP/dF, (m, 3, 3, 3, 3) or (m, 9, 9), to positive semi-definite.
+
+    Without ``F``: eigendecomposition of every element tensor (any material).
+    With ``F`` (isotropic materials, all of ours): in the basis Q_k = U E_k V^T
+    from the SVD F = U S V^T (3 scalings, 3 twists, 3 flips) dP/dF is block
+    diagonal, D = Q^T C Q = d^2 psi at S (Smith et al. 2019): six scalar
+    eigenvalues and a 3 x 3 scaling block. Clamping them is the exact
+    projection; a compiled per-element kernel (:mod:`skfem_affine._kernels`)
+    does it without a 9 x 9 eigensolver and leaves PSD elements untouched.
+    """
     shape = C.shape
     C = C.reshape(shape[0], 9, 9)
-    C = 0.5 * (C + C.transpose(0, 2, 1))
-    w, Q = np.linalg.eigh(C)
-    neg = w.min(axis=1) < 0.0
-    if np.any(neg):
-        Qn, wn = Q[neg], np.maximum(w[neg], 0.0)
-        C = C.copy()
-        C[neg] = np.einsum("eik,ek,ejk->eij", Qn, wn, Qn, optimize=True)
-    return C.reshape(shape)
+    if F is None:
+        C = 0.5 * (C + C.transpose(0, 2, 1))
+        w, Q = np.linalg.eigh(C)
+        return np.einsum("eik,ek,ejk->eij", Q, np.maximum(w, 0.0), Q, optimize=True).reshape(shape)
+    from ._kernels import project_isotropic
+    out = np.ascontiguousarray(C, dtype=float).copy()
+    project_isotropic(out, np.ascontiguousarray(F, dtype=float), _MODES.reshape(9, 9))
+    return out.reshape(shape)
 
 
 class Material:
@@ -112,7 +140,7 @@ class Material:
     def stress_derivative(self, F, project=False):
         """dP/dF, shape (m, 3, 3, 3, 3); ``project=True`` clamps it to PSD."""
         C = self._stress_derivative(F)
-        return project_psd(C) if project else C
+        return project_psd(C, F) if project else C
 
     def _stress_derivative(self, F):
         raise NotImplementedError
@@ -218,10 +246,11 @@ class NeoHookean(Material):
         J = determinant(F)
         g = cofactor(F)
         mu, lam = _col(self.mu, 4), _col(self.lam_snh, 4)
-        C = mu * np.einsum("ik,jl->ijkl", _I3, _I3)[None]
-        C = C + lam * np.einsum("eij,ekl->eijkl", g, g)
-        C += _col(self.lam_snh * (J - 1.0) - self.mu, 4) * det_hessian(F)
-        return C
+        gf = g.reshape(-1, 9)
+        C = _col(self.lam_snh, 2) * (gf[:, :, None] * gf[:, None, :])
+        C += _col(self.lam_snh * (J - 1.0) - self.mu, 2) * det_hessian(F).reshape(-1, 9, 9)
+        C[:, np.arange(9), np.arange(9)] += _col(self.mu, 1)
+        return C.reshape(-1, 3, 3, 3, 3)
 
 
 def rotation_svd(F):

@@ -87,15 +87,26 @@ def test_per_element_parameters_broadcast():
         assert np.allclose(het.stress_derivative(F)[e], one.stress_derivative(F[e:e + 1])[0])
 
 
-def test_psd_projection():
-    F = sample_F("inverted", 10)
-    C = sa.NeoHookean(E=1e5, nu=0.3).stress_derivative(F)
-    Cp = project_psd(C).reshape(-1, 9, 9)
-    assert np.linalg.eigvalsh(C.reshape(-1, 9, 9)).min() < 0  # inverted: indefinite
-    assert np.linalg.eigvalsh(Cp).min() > -1e-8 * np.abs(Cp).max()
-    # PSD tensors are unchanged
+@pytest.mark.parametrize("cls", MATERIALS)
+@pytest.mark.parametrize("kind", ["random", "near_singular", "inverted"])
+def test_psd_projection_isotropic_basis_equals_eigendecomposition(cls, kind):
+    F = sample_F(kind, 10)
+    mat = cls(E=1e5, nu=0.3)
+    C = mat.stress_derivative(F)
+    exact = project_psd(C)  # per-element 9x9 eigendecomposition
+    fast = mat.stress_derivative(F, project=True)  # isotropic mode basis from the SVD of F
+    scale = np.abs(C).max()
+    assert np.abs(fast - exact).max() < 1e-8 * scale
+    w = np.linalg.eigvalsh(fast.reshape(-1, 9, 9))
+    assert w.min() > -1e-9 * scale
+    if kind == "inverted" and cls is sa.NeoHookean:
+        assert np.linalg.eigvalsh(C.reshape(-1, 9, 9)).min() < 0  # projection had work to do
+
+
+def test_psd_projection_keeps_psd_tensors():
     Cr = sa.NeoHookean(E=1e5, nu=0.3).stress_derivative(np.eye(3)[None])
     assert np.allclose(project_psd(Cr), Cr)
+    assert np.allclose(project_psd(Cr, np.eye(3)[None]), Cr)
 
 
 def test_rotation_svd_is_proper():
