@@ -62,8 +62,11 @@ class Pardiso:
     iterative = False
 
     def __init__(self):
+        import os
         import pypardiso
         self._ps = pypardiso.PyPardisoSolver(mtype=2)
+        # pypardiso searches site-packages for MKL on every instance (0.5 s); remember where it is
+        os.environ.setdefault("PYPARDISO_MKL_RT", self._ps.libmkl._name)
         self._ps.set_iparm(1, 1)  # user-set iparm
         self._ps.set_iparm(2, 2)  # METIS nested dissection ordering
         self._pattern = None
@@ -82,6 +85,13 @@ class Pardiso:
             self._pattern = None
             raise SolverError(f"Pardiso factorization failed ({err}); is the system positive definite?") from err
         self._pattern = key
+
+    def __del__(self):
+        try:
+            if self._pattern is not None:
+                self._ps.free_memory(everything=True)
+        except Exception:
+            pass
 
     def solve(self, b):
         self._ps.set_phase(33)

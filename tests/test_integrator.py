@@ -1,0 +1,220 @@
+"""Linearized backward Euler: momentum, statics, energy, extremes, divergence."""
+import numpy as np
+import pytest
+
+import skfem_affine as sa
+from skfem_affine.scenes import beam_mesh
+
+
+def momenta(sim, s):
+    m = sim.system.lumped_mass[:, None]
+    return (m * s.v).sum(0), (m * np.cross(s.x, s.v)).sum(0)
+
+
+def test_free_flight_conserves_linear_momentum():
+    sim = sa.scenes.free_body(resolution=3, spin=(1.0, 2.0, 3.0), velocity=(0.3, -0.2, 0.1))
+    p0, _ = momenta(sim, sim.state)
+    for s in sim.run(100):
+        p, _ = momenta(sim, s)
+        assert np.linalg.norm(p - p0) <= 1e-8 * np.linalg.norm(p0)
+    # the centre of mass moves in a straight line at constant speed
+    com = (sim.system.lumped_mass[:, None] * s.x).sum(0) / sim.system.lumped_mass.sum()
+    com0 = (sim.system.lumped_mass[:, None] * sim.system.p0).sum(0) / sim.system.lumped_mass.sum()
+    assert np.allclose(com, com0 + s.time * p0 / sim.system.lumped_mass.sum(), atol=1e-10)
+
+
+def test_angular_momentum_follows_the_discrete_balance_law():
+    """Backward Euler changes L by exactly h^2 sum f(x_t) x v_{t+1} (its numerical damping of spin).
+
+    Unprojected Hessian so the rotational-invariance identity K (w x x) = w x f holds exactly.
+    """
+    sim = sa.scenes.free_body(resolution=3, spin=(0.5, 1.0, 2.0), project_hessian=False)
+    h = sim.dt
+    for _ in range(100):
+        s0 = sim.state
+        f, _ = sim.system.forces_and_stiffness(s0.x, tangent=False)
+        s1 = sim.step()
+        _, L0 = momenta(sim, s0)
+        _, L1 = momenta(sim, s1)
+        torque = h * h * np.cross(f.reshape(-1, 3), s1.v).sum(0)
+        assert np.linalg.norm(L1 - L0 - torque) <= 1e-8 * np.linalg.norm(L0)
+
+
+def test_angular_momentum_drift_is_first_order_in_h():
+    """Relative loss of |L| over time T is about h w^2 T for a spinning body; it halves with h."""
+    loss = []
+    w = 2.0
+    for h in (0.01, 0.005):
+        sim = sa.scenes.free_body(resolution=3, spin=(0.0, 0.0, w), velocity=(0, 0, 0), dt=h)
+        _, L0 = momenta(sim, sim.state)
+        for s in sim.run(int(round(1.0 / h))):
+            pass
+        _, L1 = momenta(sim, s)
+        loss.append(1 - np.linalg.norm(L1) / np.linalg.norm(L0))
+        assert loss[-1] == pytest.approx(h * w * w * 1.0, rel=0.1)
+    assert loss[1] == pytest.approx(loss[0] / 2, rel=0.05)
+
+
+def static_tip_deflection(k, length=10.0, E=1e8):
+    """Converged quasi-static (huge h, Newton) tip deflection of a cantilever under gravity."""
+    mesh = beam_mesh(k, length=length, width=1.0)
+    body = sa.ElasticBody(mesh, sa.NeoHookean(E=E, nu=0.0), density=1000.0,
+                          fixed=mesh.nodes_satisfying(lambda p: p[0] < 1e-9))
+    sim = sa.Simulation(body, dt=1e4, gravity=(0, 0, -9.81), newton_iters=30, newton_tol=1e-12)
+    s = sim.step()
+    tip = mesh.p[0] > length - 1e-9
+    return -s.x[tip, 2].mean() + mesh.p[2, tip].mean(), sim
+
+
+def test_cantilever_static_deflection_converges_to_euler_bernoulli():
+    L, E, rho, g = 10.0, 1e8, 1000.0, 9.81
+    q, I = rho * g * 1.0, 1.0 / 12.0
+    exact = q * L ** 4 / (8 * E * I)
+    errors = []
+    for k in (2, 4, 6):  # P1 tets lock in bending: 45%, 18%, 9% here
+        d, sim = static_tip_deflection(k, L, E)
+        errors.append(abs(d - exact) / exact)
+        assert sim.stats[-1]["newton_iters"] < 30  # converged
+    assert errors[0] > errors[1] > errors[2]
+    assert errors[-1] < 0.10, errors
+
+
+def test_newton_first_iterate_is_the_linearized_step():
+    a = sa.scenes.cantilever(resolution=2, damping=sa.Rayleigh(0.1, 0.01))
+    b = sa.scenes.cantilever(resolution=2, damping=sa.Rayleigh(0.1, 0.01), newton_iters=2, newton_tol=1e30)
+    for _ in range(5):
+        sa_, sb = a.step(), b.step()
+    assert np.allclose(sa_.x, sb.x, rtol=0, atol=1e-12)
+
+
+def test_newton_converges_to_implicit_euler():
+    """At convergence M (v1 - v0) = h f(x0 + h v1) (undamped)."""
+    sim = sa.scenes.cantilever(resolution=2, newton_iters=50, newton_tol=1e-13)
+    for _ in range(3):
+        s0 = sim.state
+        s1 = sim.step()
+        f, _ = sim.system.forces_and_stiffness(s1.x, tangent=False)
+        f += sim.f_gravity
+        free = sim.system.free
+        r = sim.system.Mff @ (s1.v - s0.v).reshape(-1)[free] - sim.dt * f[free]
+        assert np.linalg.norm(r) <= 1e-8 * np.linalg.norm(sim.dt * f[free])
+
+
+def test_damped_energy_decays_and_undamped_does_not_grow():
+    und = sa.scenes.cantilever(resolution=2, material=sa.NeoHookean(E=1e6, nu=0.3))
+    dam = sa.scenes.cantilever(resolution=2, material=sa.NeoHookean(E=1e6, nu=0.3),
+                               damping=sa.Rayleigh(alpha=2.0, beta=0.01))
+    e_und, e_dam = [und.energy()["total"]], [dam.energy()["total"]]
+    k_und, k_dam = [], []
+    for su, sd in zip(und.run(150), dam.run(150)):
+        e_und.append(und.energy(su)["total"])
+        e_dam.append(dam.energy(sd)["total"])
+        k_und.append(und.energy(su)["kinetic"])
+        k_dam.append(dam.energy(sd)["kinetic"])
+    scale = abs(min(e_und))
+    # backward Euler is dissipative: no growth beyond round-off
+    assert max(e_und) <= e_und[0] + 1e-9 * scale
+    assert np.all(np.diff(e_und) <= 1e-6 * scale)
+    # with damping the swinging dies out: far less kinetic energy late in the run, more energy lost
+    assert np.mean(k_dam[-50:]) < 0.3 * np.mean(k_und[-50:])
+    assert e_dam[-1] < e_und[-1]
+    assert np.all(np.diff(e_dam) <= 1e-6 * scale)
+
+
+MATERIALS = [sa.StVK, sa.Corotational, sa.NeoHookean]
+
+
+@pytest.mark.parametrize("cls", MATERIALS)
+@pytest.mark.parametrize("E", [1e2, 1e5, 1e9])
+@pytest.mark.parametrize("nu", [0.0, 0.3, 0.49])
+@pytest.mark.parametrize("h", [1e-4, 1e-2, 5e-2])
+def test_extremes_grid(cls, E, nu, h):
+    sim = sa.scenes.cantilever(resolution=1, material=cls(E=E, nu=nu), dt=h)
+    for s in sim.run(30):
+        assert np.all(np.isfinite(s.x))
+    e = sim.energy()
+    assert np.isfinite(e["total"])
+    # dissipative integrator: total energy never exceeds the initial (zero) by more than round-off
+    assert e["total"] <= 1e-9 * max(abs(e["gravity"]), 1.0)
+
+
+def test_divergence_is_reported_with_the_frame():
+    sim = sa.scenes.cantilever(resolution=1)
+    sim.step()
+    sim.state.v[5] = np.nan  # poison the state as a blow-up would
+    with pytest.raises(sa.SimulationDiverged, match="non-finite state detected at frame 2"):
+        sim.step()
+
+
+def test_fixed_vertices_do_not_move():
+    sim = sa.scenes.cantilever(resolution=2)
+    fixed = sim.system.fixed
+    for s in sim.run(10):
+        pass
+    assert np.array_equal(s.x[fixed], sim.system.p0[fixed])
+    assert np.all(s.v[fixed] == 0)
+    assert s.frame == 10 and s.time == pytest.approx(0.1)
+
+
+@pytest.mark.parametrize("solver", ["superlu", "pardiso", "amg", "auto"])
+def test_solvers_agree(solver):
+    if solver == "pardiso" and not sa.solvers.has_pardiso():
+        pytest.skip("pypardiso not installed")
+    ref = sa.scenes.cantilever(resolution=2, solver="superlu")
+    sim = sa.scenes.cantilever(resolution=2, solver=solver)
+    for a, b in zip(ref.run(10), sim.run(10)):
+        pass
+    assert np.allclose(a.x, b.x, atol=1e-6 * ref.size)
+    assert sim.stats[-1]["solver"] in ("superlu", "pardiso", "amg")
+
+
+def test_auto_solver_switches_to_amg_for_large_systems():
+    sim = sa.scenes.cantilever(resolution=2, solver=sa.solvers.AutoSolver(amg_min_dofs=10))
+    sim.step()
+    assert sim.stats[-1]["solver"] == "amg" and sim.stats[-1]["iterations"] > 0
+
+
+def test_stats_record_phases_and_dofs():
+    sim = sa.scenes.cantilever(resolution=2)
+    for _ in sim.run(3):
+        pass
+    r = sim.stats[-1]
+    for key in ("assembly", "factorization", "solve", "wall", "dofs", "solver"):
+        assert key in r
+    assert r["dofs"] == sim.system.free.size
+    summ = sim.stats.summary()
+    assert summ["frames"] == 3 and summ["wall_s"] > 0
+
+
+def test_multiple_bodies_are_independent_without_contact():
+    a = sa.scenes.cantilever(resolution=2)
+    m2 = beam_mesh(1)
+    b = sa.ElasticBody(m2.translated((0, 3, 0)), sa.StVK(E=1e6, nu=0.3), density=500.0,
+                       velocity=(0, 0, 1.0))
+    both = sa.Simulation([a.bodies[0], b], dt=0.01, gravity=(0, 0, -9.81))
+    for s in both.run(5):
+        pass
+    for s_a in a.run(5):
+        pass
+    xa, xb = both.split(s.x)
+    assert np.allclose(xa, s_a.x, atol=1e-12)
+    # the free body falls ballistically: z = z0 + v t - g t^2/2 with backward Euler's h-shift
+    t = 0.05
+    expected = m2.p[2].mean() + 1.0 * t - 9.81 * sum((k + 1) for k in range(5)) * 0.01 ** 2
+    assert xb[:, 2].mean() == pytest.approx(expected, abs=1e-9)
+
+
+def test_heterogeneous_materials():
+    mesh = beam_mesh(2)
+    mats = [sa.NeoHookean(E=1e5, nu=0.3), sa.NeoHookean(E=1e7, nu=0.3), sa.StVK(E=1e6, nu=0.2)]
+    per_element = [mats[i % 3] for i in range(mesh.t.shape[1])]
+    body = sa.ElasticBody(mesh, per_element, fixed=mesh.nodes_satisfying(lambda p: p[0] < 1e-9))
+    sim = sa.Simulation(body, dt=0.01, gravity=(0, 0, -9.81))
+    assert len(sim.system.groups) == 2
+    for s in sim.run(5):
+        pass
+    # the same forces as evaluating each element with its own material
+    F = sim.system.deformation_gradients(s.x)
+    P, _ = sim.system.stresses(F, tangent=False)
+    for e in (0, 1, 2, 7):
+        assert np.allclose(P[e], per_element[e].stress(F[e:e + 1])[0])
