@@ -102,75 +102,123 @@ def svd3(F, U, s, V, A):
         s[j] = U[0, j] * A[0, j] + U[1, j] * A[1, j] + U[2, j] * A[2, j]
 
 
-@njit(cache=True)
-def _project_one(Ce, Fe, modes, U, V, s, A, Q, T, D, W):
-    svd3(Fe, U, s, V, A)
-    for k in range(9):  # Q[:, k] = vec(U E_k V^T)
+_PAIRS = np.array([[1, 2], [0, 2], [0, 1]])
+_R2 = 1.0 / np.sqrt(2.0)
+
+
+@njit(cache=True, inline="always")
+def _mode(k, U, V, Q):
+    """vec(Q_k), Q_k = U E_k V^T: k < 3 scaling u_k v_k^T, 3..5 twists, 6..8 flips."""
+    if k < 3:
         for a in range(3):
             for b in range(3):
-                acc = 0.0
-                for i in range(3):
-                    for j in range(3):
-                        acc += U[a, i] * modes[k, 3 * i + j] * V[b, j]
-                Q[3 * a + b, k] = acc
-    for i in range(9):  # T = C Q (C symmetrised on the fly)
-        for k in range(9):
+                Q[3 * a + b] = U[a, k] * V[b, k]
+    else:
+        i, j = _PAIRS[(k - 3) % 3, 0], _PAIRS[(k - 3) % 3, 1]
+        sign = -1.0 if k < 6 else 1.0
+        for a in range(3):
+            for b in range(3):
+                Q[3 * a + b] = _R2 * (U[a, i] * V[b, j] + sign * U[a, j] * V[b, i])
+
+
+@njit(cache=True)
+def _project_modes(Ce, Fe, U, V, s, A, W, Q, CQ):
+    """Clamp the eigenvalues of one symmetric isotropic dP/dF (9x9, in place) to >= 0.
+
+    For an isotropic energy the twists and flips Q_k = U E_k V^T are eigenvectors
+    and the three scalings span an invariant subspace (Smith et al. 2019), so
+    Rayleigh quotients give the spectrum; only negative modes are corrected.
+    """
+    svd3(Fe, U, s, V, A)
+    for k in range(9):
+        _mode(k, U, V, Q[k])
+        for i in range(9):
             acc = 0.0
             for j in range(9):
-                acc += 0.5 * (Ce[i, j] + Ce[j, i]) * Q[j, k]
-            T[i, k] = acc
-    for i in range(9):  # D = Q^T T
-        for k in range(9):
-            acc = 0.0
-            for j in range(9):
-                acc += Q[j, i] * T[j, k]
-            D[i, k] = acc
-    for i in range(3):
+                acc += Ce[i, j] * Q[k, j]
+            CQ[k, i] = acc
+    for i in range(3):  # scaling block
         for j in range(3):
-            A[i, j] = D[i, j]
+            acc = 0.0
+            for a in range(9):
+                acc += Q[i, a] * CQ[j, a]
+            A[i, j] = acc
+    A[0, 1] = A[1, 0] = 0.5 * (A[0, 1] + A[1, 0])
+    A[0, 2] = A[2, 0] = 0.5 * (A[0, 2] + A[2, 0])
+    A[1, 2] = A[2, 1] = 0.5 * (A[1, 2] + A[2, 1])
+    for k in range(3, 9):
+        lam = 0.0
+        for a in range(9):
+            lam += Q[k, a] * CQ[k, a]
+        if lam < 0.0:
+            for a in range(9):
+                for b in range(9):
+                    Ce[a, b] -= lam * Q[k, a] * Q[k, b]
     _sym_eig3(A, W)
-    psd = min(A[0, 0], A[1, 1], A[2, 2]) >= 0.0
-    for k in range(3, 9):
-        psd = psd and D[k, k] >= 0.0
-    if psd:
-        return
-    for i in range(9):
-        for j in range(9):
-            D[i, j] = 0.0 if (i >= 3 or j >= 3) and i != j else D[i, j]
-    for i in range(3):
-        for j in range(3):
-            acc = 0.0
-            for k in range(3):
-                acc += W[i, k] * max(A[k, k], 0.0) * W[j, k]
-            D[i, j] = acc
-    for k in range(3, 9):
-        D[k, k] = max(D[k, k], 0.0)
-    for i in range(9):  # C = Q D Q^T
-        for k in range(9):
-            acc = 0.0
-            for j in range(9):
-                acc += Q[i, j] * D[j, k]
-            T[i, k] = acc
-    for i in range(9):
-        for k in range(9):
-            acc = 0.0
-            for j in range(9):
-                acc += T[i, j] * Q[k, j]
-            Ce[i, k] = acc
+    for k in range(3):
+        lam = A[k, k]
+        if lam < 0.0:
+            q = W[0, k] * Q[0] + W[1, k] * Q[1] + W[2, k] * Q[2]
+            for a in range(9):
+                for b in range(9):
+                    Ce[a, b] -= lam * q[a] * q[b]
 
 
 @njit(cache=True, parallel=True)
-def project_isotropic(C, F, modes):
-    """In place: clamp the eigenvalues of each isotropic dP/dF (m, 9, 9) to >= 0.
+def project_isotropic(C, F):
+    """In place: project each isotropic dP/dF (m, 9, 9) to PSD (see :func:`_project_modes`)."""
+    m = C.shape[0]
+    chunks = 64
+    for c in prange(chunks):
+        U, V, A, W = np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3))
+        s = np.empty(3)
+        Q, CQ, Ce = np.empty((9, 9)), np.empty((9, 9)), np.empty((9, 9))
+        for e in range(c * m // chunks, (c + 1) * m // chunks):
+            for i in range(9):
+                for j in range(9):
+                    Ce[i, j] = 0.5 * (C[e, i, j] + C[e, j, i])
+            _project_modes(Ce, F[e], U, V, s, A, W, Q, CQ)
+            C[e] = Ce
 
-    ``modes`` (9, 9): row k is vec(E_k), the scaling/twist/flip basis. See
-    :func:`skfem_affine.materials.project_psd`. PSD elements are left as they are.
+
+@njit(cache=True, parallel=True)
+def element_hessians(C, F, vg, g, project, He):
+    """He[e] = V_e G_e^T C_e G_e (12 x 12, node-major), C_e optionally projected to PSD.
+
+    C (m, 9, 9) = dP/dF, F (m, 3, 3), vg = V_e grad phi (m, 4, 3), g = grad phi (m, 4, 3).
+    H_e[3k+a, 3l+b] = V_e sum_jq grad_k,j C[3a+j, 3b+q] grad_l,q.
     """
     m = C.shape[0]
     chunks = 64
     for c in prange(chunks):
         U, V, A, W = np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3))
         s = np.empty(3)
-        Q, T, D = np.empty((9, 9)), np.empty((9, 9)), np.empty((9, 9))
+        Q, CQ, Ce = np.empty((9, 9)), np.empty((9, 9)), np.empty((9, 9))
+        X = np.empty((9, 12))
         for e in range(c * m // chunks, (c + 1) * m // chunks):
-            _project_one(C[e], F[e], modes, U, V, s, A, Q, T, D, W)
+            for i in range(9):
+                for j in range(9):
+                    Ce[i, j] = 0.5 * (C[e, i, j] + C[e, j, i])
+            if project:
+                _project_modes(Ce, F[e], U, V, s, A, W, Q, CQ)
+            for r in range(9):  # X[3a+j, 3l+b] = sum_q C[3a+j, 3b+q] g[l, q]
+                for l in range(4):
+                    for b in range(3):
+                        X[r, 3 * l + b] = (Ce[r, 3 * b] * g[e, l, 0] + Ce[r, 3 * b + 1] * g[e, l, 1]
+                                           + Ce[r, 3 * b + 2] * g[e, l, 2])
+            for k in range(4):
+                for a in range(3):
+                    for col in range(12):
+                        He[e, 3 * k + a, col] = (vg[e, k, 0] * X[3 * a, col] + vg[e, k, 1] * X[3 * a + 1, col]
+                                                 + vg[e, k, 2] * X[3 * a + 2, col])
+
+
+@njit(cache=True)
+def scatter_add(slot, values, nnz):
+    """out[slot[i]] += values[i] for slot[i] >= 0 (element matrices into CSR data)."""
+    out = np.zeros(nnz)
+    for i in range(slot.size):
+        k = slot[i]
+        if k >= 0:
+            out[k] += values[i]
+    return out

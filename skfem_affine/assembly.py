@@ -16,6 +16,7 @@ import skfem
 from skfem import Basis, BilinearForm, ElementTetP1, ElementVector, asm
 from skfem.helpers import dot
 
+from ._kernels import element_hessians, scatter_add
 from .kinematics import deformation_gradient, deformation_operator, element_dofs
 
 
@@ -31,9 +32,11 @@ class Pattern:
         r = dof_map[edofs[:, :, None]]
         c = dof_map[edofs[:, None, :]]
         r, c = np.broadcast_arrays(r, c)
-        self.keep = ((r >= 0) & (c >= 0)).ravel()
-        key = r.ravel()[self.keep] * size + c.ravel()[self.keep]
-        ukey, self.slot = np.unique(key, return_inverse=True)
+        keep = ((r >= 0) & (c >= 0)).ravel()
+        key = r.ravel()[keep] * size + c.ravel()[keep]
+        ukey, slot = np.unique(key, return_inverse=True)
+        self.slot = np.full(keep.size, -1, dtype=np.int64)  # per element-matrix entry; -1: dropped
+        self.slot[keep] = slot
         rows, cols = ukey // size, ukey % size
         self.indptr = np.concatenate([[0], np.cumsum(np.bincount(rows, minlength=size))])
         self.indices = cols.astype(np.int32)
@@ -46,7 +49,7 @@ class Pattern:
 
     def scatter(self, blocks):
         """Sum element blocks (m, 12, 12) into the pattern's data array."""
-        return np.bincount(self.slot, weights=blocks.reshape(-1)[self.keep], minlength=self.nnz)
+        return scatter_add(self.slot, blocks.reshape(-1), self.nnz)
 
     def matrix(self, data):
         return sp.csr_matrix((data, self.indices, self.indptr), shape=self.shape)
@@ -89,6 +92,7 @@ class ElasticSystem:
         self.body_of_element = np.repeat(np.arange(len(self.bodies)), np.diff(eoffsets))
         self._group_materials()
         self.edofs = element_dofs(self.t)
+        self._vg = self.volumes[:, None, None] * self.grads  # V_e grad phi, (m, 4, 3)
         fixed_dofs = np.repeat(self.fixed, 3)
         self.free = np.flatnonzero(~fixed_dofs)
         dof_map = np.full(3 * self.n, -1, dtype=np.int64)
@@ -163,14 +167,22 @@ class ElasticSystem:
 
     def stresses(self, F, tangent=True, project=True):
         """P (m, 3, 3) and, if asked, dP/dF (m, 3, 3, 3, 3) for all elements."""
+        if len(self.groups) == 1:
+            mat = self.groups[0][0]
+            return mat.stress(F), (mat.stress_derivative(F, project=project) if tangent else None)
         P = np.empty_like(F)
         C = np.empty((F.shape[0], 3, 3, 3, 3)) if tangent else None
         for mat, idx in self.groups:
-            Fi = F[idx] if len(self.groups) > 1 else F
-            P[idx] = mat.stress(Fi)
+            P[idx] = mat.stress(F[idx])
             if tangent:
-                C[idx] = mat.stress_derivative(Fi, project=project)
+                C[idx] = mat.stress_derivative(F[idx], project=project)
         return P, C
+
+    def element_stiffness(self, F, C, project=True):
+        """Element stiffness blocks V G^T C G (m, 12, 12), C projected to PSD if asked."""
+        He = np.empty((self.m, 12, 12))
+        element_hessians(np.ascontiguousarray(C.reshape(-1, 9, 9)), F, self._vg, self.grads, project, He)
+        return He
 
     def forces_and_stiffness(self, x, project=True, full=False, tangent=True):
         """Internal forces f (3n,) and stiffness H = -K at positions x (n, 3).
@@ -180,15 +192,12 @@ class ElasticSystem:
         all 3n DOFs. ``tangent=False`` skips H (returns None).
         """
         F = self.deformation_gradients(x)
-        P, C = self.stresses(F, tangent=tangent, project=project)
-        vg = self.volumes[:, None, None] * self.grads  # (m, 4, 3)
-        fe = -np.einsum("eaj,ekj->eka", P, vg, optimize=True)
+        P, C = self.stresses(F, tangent=tangent, project=False)
+        fe = -np.einsum("eaj,ekj->eka", P, self._vg, optimize=True)
         f = np.bincount(self.edofs.ravel(), weights=fe.ravel(), minlength=3 * self.n)
         if not tangent:
             return f, None
-        # H_e[k a, l b] = V sum_jq grad_k,j C_ajbq grad_l,q
-        T = np.einsum("ekj,eajbq->ekabq", vg, C, optimize=True)
-        He = np.einsum("ekabq,elq->ekalb", T, self.grads, optimize=True)
+        He = self.element_stiffness(F, C, project)
         if full:
             pat = self.full_pattern
             return f, pat.matrix(pat.scatter(He))

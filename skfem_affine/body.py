@@ -156,7 +156,8 @@ def _positive_per_element(value, m, what):
     if a.shape != (m,):
         raise ValueError(f"{what} must be a scalar or an array of length {m}, got shape {a.shape}")
     if not np.all(np.isfinite(a)) or np.any(a <= 0):
-        raise ValueError(f"{what} must be finite and > 0, got min {np.nanmin(a):g}")
+        bad = np.flatnonzero(~(np.isfinite(a) & (a > 0)))
+        raise ValueError(f"{what} must be finite and > 0, got {a[bad[0]]:g} (element {bad[0]})")
     return a
 
 

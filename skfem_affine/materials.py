@@ -72,20 +72,6 @@ def det_hessian(F):
     return (F.reshape(-1, 9) @ _DET_HESSIAN.T).reshape(-1, 3, 3, 3, 3)
 
 
-def _mode_basis():
-    """Orthonormal 3x3 matrices: 3 scalings, 3 twists, 3 flips (Frobenius inner product)."""
-    E = np.zeros((9, 3, 3))
-    for k in range(3):
-        E[k, k, k] = 1.0
-    for k, (i, j) in enumerate([(1, 2), (0, 2), (0, 1)]):
-        E[3 + k, i, j], E[3 + k, j, i] = 1 / np.sqrt(2), -1 / np.sqrt(2)
-        E[6 + k, i, j], E[6 + k, j, i] = 1 / np.sqrt(2), 1 / np.sqrt(2)
-    return E
-
-
-_MODES = _mode_basis()
-
-
 def project_psd(C, F=None):
     """Project dP/dF, (m, 3, 3, 3, 3) or (m, 9, 9), to positive semi-definite.
 
@@ -105,7 +91,7 @@ def project_psd(C, F=None):
         return np.einsum("eik,ek,ejk->eij", Q, np.maximum(w, 0.0), Q, optimize=True).reshape(shape)
     from ._kernels import project_isotropic
     out = np.ascontiguousarray(C, dtype=float).copy()
-    project_isotropic(out, np.ascontiguousarray(F, dtype=float), _MODES.reshape(9, 9))
+    project_isotropic(out, np.ascontiguousarray(F, dtype=float))
     return out.reshape(shape)
 
 

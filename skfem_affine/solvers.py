@@ -8,16 +8,21 @@ aggregation preconditioned CG, hierarchy reused across frames), or ``"auto"``.
 
 Measured on A = M + h^2 K of the cantilever, 2 cores (``benchmarks/full_space.py``):
 Pardiso's Cholesky is 7x faster than SuperLU at 24k tets and 22x at 98k; AMG-CG
-to 1e-8 beats both on the full-space system from about 10^4 DOFs on. ``auto``
-therefore takes AMG-CG for full-space systems above :data:`AMG_MIN_DOFS` and a
-direct solver (Pardiso if installed, else SuperLU) below, and always a direct
-solver for reduced systems (whose affine blocks do not suit AMG).
+to 1e-8 with a reused hierarchy beats both from about 3k DOFs on for soft
+materials (7 iterations at E = 1e5), but needs 50 iterations at E = 1e9 and 140
+at E = 1e9, nu = 0.49, h = 0.05, where it is 4-7x slower than Pardiso. ``auto``
+therefore starts with AMG-CG above :data:`AMG_MIN_DOFS` unknowns and a direct
+solver (Pardiso if installed, else SuperLU) below, and falls back to the direct
+solver for good when a freshly built hierarchy still needs more than
+:data:`AMG_MAX_ITERATIONS` CG iterations. Reduced systems always use a direct
+solver (their affine blocks do not suit AMG).
 """
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-AMG_MIN_DOFS = 30000
+AMG_MIN_DOFS = 5000
+AMG_MAX_ITERATIONS = 30
 
 
 def has_pardiso():
@@ -102,17 +107,20 @@ class Pardiso:
 class AMGCG:
     """Conjugate gradients preconditioned by one pyamg smoothed-aggregation V-cycle.
 
-    The hierarchy is built on the first system and reused while CG converges in
-    fewer than ``rebuild_iterations`` iterations; then it is rebuilt.
+    The hierarchy is built on the first system and reused for later ones until
+    CG needs more than ``max(rebuild_iterations, 2 * fresh_iterations)``
+    iterations, ``fresh_iterations`` being the count right after a rebuild.
     """
 
     name = "amg"
     iterative = True
 
-    def __init__(self, tol=1e-8, maxiter=500, rebuild_iterations=40):
+    def __init__(self, tol=1e-8, maxiter=500, rebuild_iterations=15):
         self.tol, self.maxiter, self.rebuild_iterations = tol, maxiter, rebuild_iterations
         self._ml = None
+        self._stale = False
         self.last_iterations = 0
+        self.fresh_iterations = None
         self.rebuilds = 0
 
     def factorize(self, A):
@@ -123,9 +131,8 @@ class AMGCG:
             self._ml = pyamg.smoothed_aggregation_solver(self._A, B=B, strength="symmetric", max_coarse=500)
             self._M = self._ml.aspreconditioner(cycle="V")
             self._stale = False
+            self.fresh_iterations = None
             self.rebuilds += 1
-
-    _stale = False
 
     def solve(self, b):
         count = [0]
@@ -144,7 +151,9 @@ class AMGCG:
             self.last_iterations = count[0]
             if info != 0:
                 raise SolverError(f"AMG-CG did not converge to {self.tol:g} in {self.maxiter} iterations")
-        if count[0] > self.rebuild_iterations:
+        if self.fresh_iterations is None:
+            self.fresh_iterations = count[0]
+        if count[0] > max(self.rebuild_iterations, 2 * self.fresh_iterations):
             self._stale = True
         return x
 
@@ -155,14 +164,21 @@ def direct_solver():
 
 
 class AutoSolver:
-    """Picks AMG-CG for systems above ``AMG_MIN_DOFS`` unknowns, else a direct solver."""
+    """AMG-CG for systems above ``amg_min_dofs`` unknowns while it converges fast, else direct.
+
+    Once a freshly built AMG hierarchy needs more than ``amg_max_iterations``
+    CG iterations (stiff or nearly incompressible materials, large steps), the
+    direct solver takes over for the rest of the simulation.
+    """
 
     iterative = False
 
-    def __init__(self, amg_min_dofs=None):
+    def __init__(self, amg_min_dofs=None, amg_max_iterations=None):
         self.amg_min_dofs = AMG_MIN_DOFS if amg_min_dofs is None else amg_min_dofs
+        self.amg_max_iterations = AMG_MAX_ITERATIONS if amg_max_iterations is None else amg_max_iterations
         self._direct = self._amg = None
         self._current = None
+        self.amg_abandoned = False
 
     @property
     def name(self):
@@ -173,7 +189,10 @@ class AutoSolver:
         return self._current.last_iterations if self._current else 0
 
     def factorize(self, A):
-        if A.shape[0] >= self.amg_min_dofs:
+        amg = self._amg
+        if amg is not None and amg.fresh_iterations is not None and amg.fresh_iterations > self.amg_max_iterations:
+            self.amg_abandoned = True
+        if A.shape[0] >= self.amg_min_dofs and not self.amg_abandoned:
             self._amg = self._amg or AMGCG()
             self._current = self._amg
         else:

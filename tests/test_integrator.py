@@ -174,6 +174,15 @@ def test_auto_solver_switches_to_amg_for_large_systems():
     assert sim.stats[-1]["solver"] == "amg" and sim.stats[-1]["iterations"] > 0
 
 
+def test_auto_solver_abandons_amg_when_it_converges_slowly():
+    sim = sa.scenes.cantilever(resolution=3, material=sa.NeoHookean(E=1e9, nu=0.49), dt=0.05,
+                               solver=sa.solvers.AutoSolver(amg_min_dofs=10, amg_max_iterations=5))
+    for _ in sim.run(3):
+        pass
+    assert sim.stats[0]["solver"] == "amg" and sim.stats[0]["iterations"] > 5
+    assert sim.solver.amg_abandoned and sim.stats[-1]["solver"] in ("pardiso", "superlu")
+
+
 def test_stats_record_phases_and_dofs():
     sim = sa.scenes.cantilever(resolution=2)
     for _ in sim.run(3):
