@@ -186,7 +186,8 @@ def element_hessians(C, F, vg, g, project, He):
     """He[e] = V_e G_e^T C_e G_e (12 x 12, node-major), C_e optionally projected to PSD.
 
     C (m, 9, 9) = dP/dF, F (m, 3, 3), vg = V_e grad phi (m, 4, 3), g = grad phi (m, 4, 3).
-    H_e[3k+a, 3l+b] = V_e sum_jq grad_k,j C[3a+j, 3b+q] grad_l,q.
+    H_e[3k+a, 3l+b] = V_e sum_jq grad_k,j C[3a+j, 3b+q] grad_l,q. C is overwritten with
+    the symmetrised (and projected) tensor actually used.
     """
     m = C.shape[0]
     chunks = 64
@@ -201,6 +202,7 @@ def element_hessians(C, F, vg, g, project, He):
                     Ce[i, j] = 0.5 * (C[e, i, j] + C[e, j, i])
             if project:
                 _project_modes(Ce, F[e], U, V, s, A, W, Q, CQ)
+            C[e] = Ce
             for r in range(9):  # X[3a+j, 3l+b] = sum_q C[3a+j, 3b+q] g[l, q]
                 for l in range(4):
                     for b in range(3):

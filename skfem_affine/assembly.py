@@ -10,6 +10,8 @@ Each frame then costs: F for all elements, P and dP/dF per material group,
 Sign convention: ``f`` is the internal force ``-dPsi/dx``; the assembled
 ``H = dPsi^2/dx^2 = -K`` is the (positive) stiffness, K = df/dx of paper eq. 1.
 """
+from dataclasses import dataclass
+
 import numpy as np
 import scipy.sparse as sp
 import skfem
@@ -18,6 +20,18 @@ from skfem.helpers import dot
 
 from ._kernels import element_hessians, scatter_add
 from .kinematics import deformation_gradient, deformation_operator, element_dofs
+
+
+@dataclass
+class FrameData:
+    """Per-frame evaluation of the elastic energy (see :meth:`ElasticSystem.evaluate`)."""
+
+    F: np.ndarray   # (m, 3, 3) deformation gradients
+    P: np.ndarray   # (m, 3, 3) first Piola-Kirchhoff stresses
+    C: np.ndarray   # (m, 9, 9) dP/dF as used (symmetrised, PSD-projected if asked)
+    He: np.ndarray  # (m, 12, 12) element stiffness blocks V G^T C G
+    f: np.ndarray   # (3n,) internal forces
+    H: np.ndarray   # stiffness data on ElasticSystem.pattern (free DOFs)
 
 
 class Pattern:
@@ -179,10 +193,31 @@ class ElasticSystem:
         return P, C
 
     def element_stiffness(self, F, C, project=True):
-        """Element stiffness blocks V G^T C G (m, 12, 12), C projected to PSD if asked."""
+        """Element stiffness blocks V G^T C G (m, 12, 12), C projected to PSD if asked.
+
+        Returns ``(He, C9)`` with C9 (m, 9, 9) the symmetrised (projected) dP/dF used.
+        """
         He = np.empty((self.m, 12, 12))
-        element_hessians(np.ascontiguousarray(C.reshape(-1, 9, 9)), F, self._vg, self.grads, project, He)
-        return He
+        C9 = np.ascontiguousarray(C.reshape(-1, 9, 9))
+        element_hessians(C9, F, self._vg, self.grads, project, He)
+        return He, C9
+
+    def evaluate(self, x, project=True):
+        """Everything one frame needs from the elastic energy at positions x (n, 3).
+
+        Returns a :class:`FrameData` with F, P, the (projected) dP/dF per element,
+        the element stiffness blocks, the internal force f (3n,) and the stiffness
+        H = -K as data on :attr:`pattern` (free DOFs).
+        """
+        F = self.deformation_gradients(x)
+        P, C = self.stresses(F, tangent=True, project=False)
+        f = self._internal_force(P)
+        He, C9 = self.element_stiffness(F, C, project)
+        return FrameData(F=F, P=P, C=C9, He=He, f=f, H=self.pattern.scatter(He))
+
+    def _internal_force(self, P):
+        fe = -np.einsum("eaj,ekj->eka", P, self._vg, optimize=True)
+        return np.bincount(self.edofs.ravel(), weights=fe.ravel(), minlength=3 * self.n)
 
     def forces_and_stiffness(self, x, project=True, full=False, tangent=True):
         """Internal forces f (3n,) and stiffness H = -K at positions x (n, 3).
@@ -191,17 +226,18 @@ class ElasticSystem:
         :attr:`pattern` (free DOFs only); with ``full=True`` a CSR matrix over
         all 3n DOFs. ``tangent=False`` skips H (returns None).
         """
-        F = self.deformation_gradients(x)
-        P, C = self.stresses(F, tangent=tangent, project=False)
-        fe = -np.einsum("eaj,ekj->eka", P, self._vg, optimize=True)
-        f = np.bincount(self.edofs.ravel(), weights=fe.ravel(), minlength=3 * self.n)
         if not tangent:
-            return f, None
-        He = self.element_stiffness(F, C, project)
-        if full:
-            pat = self.full_pattern
-            return f, pat.matrix(pat.scatter(He))
-        return f, self.pattern.scatter(He)
+            F = self.deformation_gradients(x)
+            P, _ = self.stresses(F, tangent=False)
+            return self._internal_force(P), None
+        if not full:
+            d = self.evaluate(x, project)
+            return d.f, d.H
+        F = self.deformation_gradients(x)
+        P, C = self.stresses(F, tangent=True, project=False)
+        He, _ = self.element_stiffness(F, C, project)
+        pat = self.full_pattern
+        return self._internal_force(P), pat.matrix(pat.scatter(He))
 
     def gravity_force(self, g):
         """External force M g (3n,)."""

@@ -204,20 +204,32 @@ class Simulation:
         return self.system.split(x)
 
     # ------------------------------------------------------------------ internals
-    def linear_system(self, x, v, rec=None):
-        """A (CSR, free DOFs), b, and the pieces of eq. 1-2 at state (x, v)."""
+    def linear_system(self, x, v, rec=None, frame=None):
+        """A (CSR, free DOFs), b, and the frame's evaluation (eq. 1-2) at state (x, v).
+
+        Returns ``(A, b, data)``; ``data`` is the :class:`~skfem_affine.assembly.FrameData`
+        with ``data.f`` including gravity and ``data.Hmat`` the stiffness matrix.
+        """
         t0 = time.perf_counter()
-        sysm, h, d = self.system, self.dt, self.damping
-        f, H = sysm.forces_and_stiffness(x, project=self.project_hessian)
-        f += self.f_gravity
-        free = sysm.free
-        vf = v.reshape(-1)[free]
-        Hmat = sysm.pattern.matrix(H)
-        A = sysm.pattern.matrix((1.0 + h * d.alpha) * sysm.mass_data + (h * d.beta + h * h) * H)
-        b = h * (f[free] - d.alpha * (sysm.Mff @ vf) - (d.beta + h) * (Hmat @ vf))
+        sysm = self.system
+        data = frame if frame is not None else sysm.evaluate(x, project=self.project_hessian)
+        data.f = data.f + self.f_gravity
+        data.Hmat = sysm.pattern.matrix(data.H)
+        A, b = self.system_matrix(data.H), self.rhs(data.f, data.Hmat, v)
         if rec is not None:
             rec["assembly"] = rec.get("assembly", 0.0) + time.perf_counter() - t0
-        return A, b, f, Hmat
+        return A, b, data
+
+    def system_matrix(self, H):
+        """A = (1 + h alpha) M + (h beta + h^2) H on the free DOFs (eq. 1)."""
+        h, d = self.dt, self.damping
+        return self.system.pattern.matrix((1.0 + h * d.alpha) * self.system.mass_data + (h * d.beta + h * h) * H)
+
+    def rhs(self, f, Hmat, v):
+        """b = h (f - alpha M v - (beta + h) H v) on the free DOFs (eq. 2); f includes gravity."""
+        h, d, free = self.dt, self.damping, self.system.free
+        vf = v.reshape(-1)[free]
+        return h * (f[free] - d.alpha * (self.system.Mff @ vf) - (d.beta + h) * (Hmat @ vf))
 
     def solve(self, A, b, rec):
         """Factorize and solve A dv = b in full space with the configured solver."""
@@ -235,9 +247,9 @@ class Simulation:
 
     def _linear_step(self, rec):
         s = self.state
-        A, b, f, H = self.linear_system(s.x, s.v, rec)
         if self.reducer is not None:
-            return self.reducer.solve(self, A, b, f, H, rec)
+            return self.reducer.solve(self, rec)
+        A, b, _ = self.linear_system(s.x, s.v, rec)
         return self.solve(A, b, rec)
 
     def _potential(self, v, H0):

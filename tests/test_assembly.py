@@ -16,11 +16,12 @@ def test_element_kernel_equals_einsum(cls, project):
     x = sysm.p0 + 0.15 * rng.normal(size=sysm.p0.shape)  # strongly deformed, some elements indefinite
     F = sysm.deformation_gradients(x)
     _, C = sysm.stresses(F, project=False)
-    He = sysm.element_stiffness(F, C, project=project)
+    He, C_used = sysm.element_stiffness(F, C.copy(), project=project)
     Cref = project_psd(C) if project else C  # eigendecomposition per element
     vg = sysm.volumes[:, None, None] * sysm.grads
     ref = np.einsum("ekj,eajbq,elq->ekalb", vg, Cref, sysm.grads).reshape(-1, 12, 12)
     assert np.abs(He - ref).max() <= 1e-9 * np.abs(ref).max()
+    assert np.abs(C_used - Cref.reshape(-1, 9, 9)).max() <= 1e-9 * np.abs(Cref).max()
     if project:
         assert np.linalg.eigvalsh(He).min() >= -1e-9 * np.abs(He).max()
 
