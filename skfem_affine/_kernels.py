@@ -224,3 +224,60 @@ def scatter_add(slot, values, nnz):
         if k >= 0:
             out[k] += values[i]
     return out
+
+
+@njit(cache=True)
+def reduced_boundary_blocks(t, elems, He, vcluster, Gam, red_dof, ccol, rows, cols, vals):
+    """COO entries of G_e^T H_e G_e for elements with reduced vertices (paper eq. 10).
+
+    For each element e in ``elems`` and each vertex pair (k, l) with at least one
+    vertex in a reduced body, emits Gamma_k^T H_e[k, l] Gamma_l: Gamma_k = I_3 on
+    the three reduced DOFs of an elastic vertex (``red_dof``, -1 where fixed), and
+    ``Gam[v]`` (3 x w) on the w DOFs of its body starting at ``ccol[c]`` otherwise
+    (affine: [I_3, I_3 (x) r^T], w = 12, eq. 8; rigid: [I_3, -[r]_x], w = 6).
+    Pairs of two elastic vertices are skipped (the caller takes them from the full
+    matrix). Returns the number of entries written.
+    """
+    w = Gam.shape[2]
+    n_out = 0
+    G = np.zeros((2, 3, w))
+    idx = np.empty((2, w), dtype=np.int64)
+    for e in elems:
+        for k in range(4):
+            for l in range(4):
+                ik, il = t[k, e], t[l, e]
+                ck, cl = vcluster[ik], vcluster[il]
+                if ck < 0 and cl < 0:
+                    continue
+                for side in range(2):
+                    v = ik if side == 0 else il
+                    c = ck if side == 0 else cl
+                    if c < 0:
+                        for j in range(w):
+                            idx[side, j] = red_dof[v, j] if j < 3 else -1
+                            for a in range(3):
+                                G[side, a, j] = 1.0 if a == j else 0.0
+                    else:
+                        for j in range(w):
+                            idx[side, j] = ccol[c] + j
+                            for a in range(3):
+                                G[side, a, j] = Gam[v, a, j]
+                for i in range(w):
+                    if idx[0, i] < 0:
+                        continue
+                    for j in range(w):
+                        if idx[1, j] < 0:
+                            continue
+                        acc = 0.0
+                        for a in range(3):
+                            ga = G[0, a, i]
+                            if ga == 0.0:
+                                continue
+                            for b in range(3):
+                                acc += ga * He[e, 3 * k + a, 3 * l + b] * G[1, b, j]
+                        if acc != 0.0:
+                            rows[n_out] = idx[0, i]
+                            cols[n_out] = idx[1, j]
+                            vals[n_out] = acc
+                            n_out += 1
+    return n_out

@@ -182,7 +182,8 @@ class Simulation:
         s = self.state
         v = s.v.copy()
         v.reshape(-1)[self.system.free] += dv
-        x = s.x + self.dt * v
+        integrate = getattr(self.reducer, "integrate", None)
+        x = integrate(self, s.x, v) if integrate else s.x + self.dt * v
         if not (np.all(np.isfinite(x)) and np.all(np.isfinite(v))):
             raise SimulationDiverged(s.frame + 1)
         self.state = State(x, v, s.frame + 1, s.time + self.dt, rec.pop("clusters", None))
