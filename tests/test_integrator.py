@@ -11,8 +11,9 @@ def momenta(sim, s):
     return (m * s.v).sum(0), (m * np.cross(s.x, s.v)).sum(0)
 
 
-def test_free_flight_conserves_linear_momentum():
-    sim = sa.scenes.free_body(resolution=3, spin=(1.0, 2.0, 3.0), velocity=(0.3, -0.2, 0.1))
+@pytest.mark.parametrize("shape", ["cube", "ball"])
+def test_free_flight_conserves_linear_momentum(shape):
+    sim = sa.scenes.free_body(resolution=3, shape=shape, spin=(1.0, 2.0, 3.0), velocity=(0.3, -0.2, 0.1))
     p0, _ = momenta(sim, sim.state)
     for s in sim.run(100):
         p, _ = momenta(sim, s)
