@@ -4,13 +4,14 @@
 >>> mesh = skfem.MeshTet.init_tensor(*[np.linspace(0, 1, 3)] * 3)  # doctest: +SKIP
 >>> sim = sa.Simulation(sa.ElasticBody(mesh, sa.NeoHookean(E=1e5, nu=0.35)), dt=0.01)  # doctest: +SKIP
 """
-from . import assembly, io, kinematics, materials, scenes, solvers
+from . import assembly, clustering, io, kinematics, materials, oracle, reduction, scenes, solvers
 from .body import ElasticBody
 from .integrator import Rayleigh, Simulation, SimulationDiverged, State, Stats
 from .materials import Corotational, Material, NeoHookean, StVK
+from .reducers import Affinification, Rigidification
 
 __version__ = "0.1.0"
 
 __all__ = ["ElasticBody", "Simulation", "SimulationDiverged", "State", "Stats", "Rayleigh",
-           "Material", "StVK", "Corotational", "NeoHookean",
-           "assembly", "io", "kinematics", "materials", "scenes", "solvers"]
+           "Material", "StVK", "Corotational", "NeoHookean", "Affinification", "Rigidification",
+           "assembly", "clustering", "io", "kinematics", "materials", "oracle", "reduction", "scenes", "solvers"]

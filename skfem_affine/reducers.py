@@ -27,7 +27,6 @@ import numpy as np
 import scipy.sparse as sp
 
 from . import clustering, oracle, reduction
-from ._kernels import reduced_boundary_blocks
 from .kinematics import deformation_gradient
 from .solvers import make_solver
 
@@ -51,68 +50,276 @@ class Reducer:
         raise NotImplementedError
 
 
-def reduced_matrix(sim, data, vcluster, Gam, n_bodies, elastic_dofs, affine=True):
-    """G^T A G (CSR) with A = (1 + h alpha) M + (h beta + h^2) H, assembled per element (eq. 10).
+def _elements_touching(system, mask):
+    """Elements with at least one vertex in the vertex mask."""
+    return np.any(mask[system.t], axis=0)
+
+
+class _ClusteringReducer(Reducer):
+    """Shared frame flow of affinification and rigidification (Algorithm 1).
+
+    Subclasses define :meth:`_labels` (which elements are reduced, and how they
+    group) and :meth:`_map` (the rows Gamma_i of G for reduced vertices).
+    """
+
+    width = 12
+
+    def __init__(self, tau_e, preconditioner, min_fraction, seeding, seed, solver):
+        self.tau_e = _check_threshold(tau_e, "tau_e")
+        if preconditioner not in ("ichol", "amg"):
+            raise ValueError(f"preconditioner must be 'ichol' or 'amg', got {preconditioner!r}")
+        self.preconditioner_kind = preconditioner
+        min_fraction = float(min_fraction)
+        if not 0.0 <= min_fraction <= 1.0:
+            raise ValueError(f"resource limit fraction must lie in [0, 1], got {min_fraction}")
+        self.min_fraction = min_fraction
+        if seeding not in ("random", "index", "temporal"):
+            raise ValueError(f"seeding must be 'random', 'index' or 'temporal', got {seeding!r}")
+        self.seeding = seeding
+        self.seed = seed
+        self.solver_spec = solver
+
+    def attach(self, sim):
+        sysm = sim.system
+        self.sim = sim
+        self.rng = np.random.default_rng(self.seed)
+        self.adjacency = clustering.element_adjacency(sysm.t)
+        self.excluded = _elements_touching(sysm, sysm.fixed)  # pinned elements stay elastic
+        self.was_reduced = np.zeros(sysm.m, dtype=bool)
+        self.previous_seeds = None
+        self.labels = np.full(sysm.m, -1, dtype=np.int64)
+        t0 = time.perf_counter()
+        self.precond = oracle.Preconditioner(sysm, sim.dt, sim.damping, kind=self.preconditioner_kind)
+        self.setup_time = time.perf_counter() - t0
+        self.solver = make_solver(self.solver_spec if self.solver_spec is not None else "direct")
+        self.gravity_dv = np.tile(sim.gravity, sysm.n)[sysm.free] * sim.dt
+
+    # -------------------------------------------------------------- frame
+    def solve(self, sim, rec):
+        sysm, h = sim.system, sim.dt
+        s = sim.state
+        free = sysm.free
+        t0 = time.perf_counter()
+        data = sysm.evaluate(s.x, project=sim.project_hessian)
+        data.f = data.f + sim.f_gravity
+        data.Hmat = sysm.pattern.matrix(data.H)
+        t1 = time.perf_counter()
+        rec["assembly"] = t1 - t0
+        # prediction (eq. 13-14): one PCG iteration, gravity split out
+        b = sim.rhs(data.f, data.Hmat, s.v)
+        b_ng = b - h * sim.f_gravity[free]
+        apply_A = self._operator(sim, data)
+        dv_pred = oracle.predict(apply_A, b_ng, self.precond, gravity_dv=self.gravity_dv)
+        t2 = time.perf_counter()
+        rec["prediction"] = t2 - t1
+        # deformation rates (eq. 4) and clustering (Algorithm 2)
+        v_pred = s.v.copy()
+        v_pred.reshape(-1)[free] += dv_pred
+        labels = self._labels(sim, data, s.v, v_pred)
+        vcluster = reduction.vertex_clusters(labels, sysm.t, sysm.n)
+        n_bodies = int(labels.max()) + 1 if labels.size and labels.max() >= 0 else 0
+        t3 = time.perf_counter()
+        rec["clustering"] = t3 - t2
+        # map assembly: G, projection (eq. 9), discrepancy (eq. 11)
+        Gam = self._map(sim, vcluster, n_bodies)
+        free_vertex = free // 3
+        elastic_dofs = np.flatnonzero(vcluster[free_vertex] < 0)
+        G = reduction.assemble_G(free, vcluster, Gam, elastic_dofs, n_bodies, self.width)
+        vf = s.v.reshape(-1)[free]
+        q = reduction.project(G, sysm.Mff.diagonal(), vf) if n_bodies else vf
+        d = G @ q - vf if n_bodies else np.zeros_like(vf)
+        t4 = time.perf_counter()
+        rec["map_assembly"] = t4 - t3
+        # reduced system (eq. 10) with the projected velocities
+        if n_bodies:
+            vp = s.v.copy()
+            vp.reshape(-1)[free] += d
+            bp = sim.rhs(data.f, data.Hmat, vp)
+            Ar = reduction.reduced_matrix(sim, data, vcluster, Gam, n_bodies, elastic_dofs, affine=self.width == 12)
+            br = G.T @ bp
+        else:
+            Ar, br = sim.system_matrix(data.H), b
+        t5 = time.perf_counter()
+        rec["reduced_assembly"] = t5 - t4
+        self.solver.factorize(Ar)
+        t6 = time.perf_counter()
+        dq = self.solver.solve(br)
+        t7 = time.perf_counter()
+        rec.update(factorization=t6 - t5, solve=t7 - t6, dofs=Ar.shape[0], solver=self.solver.name,
+                   iterations=self.solver.last_iterations, clusters=labels, n_clusters=n_bodies,
+                   elastic_dofs=int(elastic_dofs.size),
+                   reduced_fraction=float(np.mean(labels >= 0)) if labels.size else 0.0)
+        self.was_reduced = labels >= 0
+        self.labels = labels
+        return G @ dq + d  # eq. 12
+
+    def _operator(self, sim, data):
+        """Matrix-free A p = (1 + h alpha) M p + (h beta + h^2) H p from per-element dP/dF."""
+        h, dmp = sim.dt, sim.damping
+        Hp = oracle.stiffness_operator(sim.system, data.C)
+        mdiag = sim.system.Mff.diagonal()
+        cm, ck = 1.0 + h * dmp.alpha, h * dmp.beta + h * h
+        return lambda p: cm * mdiag * p + ck * Hp(p)
+
+    def _seeds(self, m):
+        return clustering.seed_order(m, self.seeding, rng=self.rng, previous_seeds=self.previous_seeds)
+
+
+class Affinification(_ClusteringReducer):
+    """Adaptive affinification (paper sec. 3, Algorithm 1-2).
 
     Parameters
     ----------
-    data : FrameData of the frame (element blocks ``He``, dP/dF ``C``, ``H`` data).
-    vcluster : (n,) body of each vertex, -1 elastic.
-    Gam : (n, 3, w) the rows of G of each reduced vertex (eq. 8; w = 12 affine, 6 rigid).
-    n_bodies : number of reduced bodies.
-    elastic_dofs : free-DOF indices that stay elastic, in the order of the reduced
-        columns; body b then owns columns ``len(elastic_dofs) + w b + [0, w)``.
-    affine : use the exact shortcut for elements inside one affine body, whose
-        reduced stiffness is V_e C_e on the body's 9 affine columns.
+    tau_a : float
+        Threshold on the deformation-rate distance (eq. 6) to turn elastic elements affine.
+    tau_e : float
+        More permissive threshold for elements that were affine to stay affine.
+    seeding : {"random", "index", "temporal"}
+    preconditioner : {"ichol", "amg"}
+        Factorisation of A_p (eq. 14) used by the one-iteration PCG oracle.
+    min_affine_fraction : float
+        Resource limiting (sec. 3.5): at least this fraction of elements is forced into clusters.
+    seed : int
+        Seed of the random seeding (reproducible runs).
+    solver : str, optional
+        Solver of the reduced system (default: the fastest direct solver).
     """
-    sysm, h, d = sim.system, sim.dt, sim.damping
-    cm, ck = 1.0 + h * d.alpha, h * d.beta + h * h
-    pat = sysm.pattern
-    w = Gam.shape[2]
-    ne = elastic_dofs.size
-    size = ne + w * n_bodies
-    # elastic-elastic block: the full matrix restricted to elastic DOFs (G = I there)
-    red_of_free = np.full(pat.shape[0], -1, dtype=np.int64)
-    red_of_free[elastic_dofs] = np.arange(ne)
-    Adata = cm * sysm.mass_data + ck * data.H
-    rr, cc = red_of_free[pat.rows], red_of_free[pat.indices]
-    keep = (rr >= 0) & (cc >= 0)
-    parts = [(rr[keep], cc[keep], Adata[keep])]
-    if n_bodies:
-        t = sysm.t
-        vc = vcluster[t]  # (4, m)
-        ccol = ne + w * np.arange(n_bodies)
-        # lumped mass: sum_i m_i Gamma_i^T Gamma_i per body
-        red = np.flatnonzero(vcluster >= 0)
-        B = np.zeros((n_bodies, w, w))
-        np.add.at(B, vcluster[red], sysm.lumped_mass[red, None, None]
-                  * np.einsum("vai,vaj->vij", Gam[red], Gam[red]))
-        B *= cm
-        touching = np.any(vc >= 0, axis=0)
-        if affine:
-            # elements inside one affine body: B_e G_e = [0 | I_9], reduced stiffness V_e C_e
-            interior = (vc[0] >= 0) & np.all(vc == vc[0], axis=0)
-            e_in = np.flatnonzero(interior)
-            K9 = np.zeros((n_bodies, 81))
-            np.add.at(K9, vc[0, e_in], sysm.volumes[e_in, None] * data.C[e_in].reshape(-1, 81))
-            B[:, 3:, 3:] += ck * K9.reshape(-1, 9, 9)
-            touching &= ~interior
-        idx = ccol[:, None] + np.arange(w)
-        parts.append((np.broadcast_to(idx[:, :, None], B.shape).ravel(),
-                      np.broadcast_to(idx[:, None, :], B.shape).ravel(), B.ravel()))
-        e_b = np.flatnonzero(touching)
-        if e_b.size:
-            free_of = np.full(3 * sysm.n, -1, dtype=np.int64)
-            free_of[sysm.free] = np.arange(sysm.free.size)
-            red_dof = np.where(free_of >= 0, red_of_free[np.maximum(free_of, 0)], -1).reshape(-1, 3)
-            cap = e_b.size * 16 * w * w
-            rows, cols, vals = np.empty(cap, np.int64), np.empty(cap, np.int64), np.empty(cap)
-            nb = reduced_boundary_blocks(t, e_b, data.He, vcluster, np.ascontiguousarray(Gam),
-                                         red_dof, ccol, rows, cols, vals)
-            parts.append((rows[:nb], cols[:nb], ck * vals[:nb]))
-    R = np.concatenate([p[0] for p in parts])
-    C = np.concatenate([p[1] for p in parts])
-    V = np.concatenate([p[2] for p in parts])
-    A = sp.csr_matrix((V, (R, C)), shape=(size, size))
-    A.sum_duplicates()
-    return A
+
+    name = "affinification"
+    width = 12
+
+    def __init__(self, tau_a=1e-4, tau_e=2e-4, seeding="random", preconditioner="ichol",
+                 min_affine_fraction=0.0, seed=0, solver=None):
+        self.tau_a = _check_threshold(tau_a, "tau_a")
+        super().__init__(tau_e, preconditioner, min_affine_fraction, seeding, seed, solver)
+
+    def __repr__(self):
+        return (f"Affinification(tau_a={self.tau_a:g}, tau_e={self.tau_e:g}, seeding={self.seeding!r}, "
+                f"preconditioner={self.preconditioner_kind!r}, min_affine_fraction={self.min_fraction:g})")
+
+    def attach(self, sim):
+        super().attach(sim)
+        sysm = sim.system
+        # rest-frame centre offsets are per cluster; positions of vertices at rest
+        self.X = sysm.p0
+
+    def _labels(self, sim, data, v, v_pred):
+        """Deformation rates (eq. 4; predicted velocities for previously affine elements) and BFS."""
+        sysm = sim.system
+        Fdot = deformation_gradient(v, sysm.t, sysm.grads)
+        if np.any(self.was_reduced):
+            Fdot_pred = deformation_gradient(v_pred, sysm.t, sysm.grads)
+            Fdot[self.was_reduced] = Fdot_pred[self.was_reduced]
+        forced = clustering.forced_set(Fdot, self.adjacency, self.min_fraction) if self.min_fraction > 0 else None
+        labels, seeds = clustering.cluster_deformation_rates(
+            Fdot, self.adjacency, sysm.t, sysm.n, self.tau_a, self.tau_e, was_affine=self.was_reduced,
+            excluded=self.excluded, forced=forced, seeds=self._seeds(sysm.m), return_seeds=True)
+        self.previous_seeds = seeds
+        return labels
+
+    def _map(self, sim, vcluster, n_bodies):
+        """Gamma_i = [I_3, I_3 (x) r_i^T], r_i from the body's rest centre of mass (eq. 8)."""
+        return reduction.affine_rows(vcluster, self.X, sim.system.lumped_mass, n_bodies)
+
+
+class Rigidification(_ClusteringReducer):
+    """Adaptive rigidification baseline (Mercier-Aubin, Kry, Winter & Levin 2022).
+
+    An element may turn rigid once its strain rate ||sym(F^T F_dot)||^2 (F at the
+    step midpoint) stays below ``tau_r`` for ``warmup_frames`` consecutive frames
+    and the oracle's predicted strain rate stays below ``tau_e``; rigid elements
+    stay rigid while the predicted strain rate stays below ``tau_e``. Rigid bodies
+    are connected components of such elements (vertex-disjoint, pinned elements
+    excluded), each with 6 DOFs v_i = v_c + omega x (x_i - x_c) in the current
+    configuration, and their vertices rotate exactly (exponential map) in
+    :meth:`integrate`. Same integrator, oracle, solver and statistics as
+    :class:`Affinification`.
+    """
+
+    name = "rigidification"
+    width = 6
+
+    def __init__(self, tau_r=1e-3, tau_e=2e-3, warmup_frames=3, preconditioner="ichol",
+                 min_rigid_fraction=0.0, seeding="random", seed=0, solver=None):
+        self.tau_r = _check_threshold(tau_r, "tau_r")
+        if int(warmup_frames) < 0:
+            raise ValueError(f"warmup_frames must be >= 0, got {warmup_frames}")
+        self.warmup_frames = int(warmup_frames)
+        super().__init__(tau_e, preconditioner, min_rigid_fraction, seeding, seed, solver)
+
+    def __repr__(self):
+        return (f"Rigidification(tau_r={self.tau_r:g}, tau_e={self.tau_e:g}, "
+                f"warmup_frames={self.warmup_frames})")
+
+    def attach(self, sim):
+        super().attach(sim)
+        self.calm_frames = np.zeros(sim.system.m, dtype=np.int64)
+
+    def _strain_rate(self, sim, x, v):
+        sysm = sim.system
+        F = deformation_gradient(x + 0.5 * sim.dt * v, sysm.t, sysm.grads)
+        Fdot = deformation_gradient(v, sysm.t, sysm.grads)
+        Edot = np.einsum("eki,ekj->eij", F, Fdot)
+        Edot = 0.5 * (Edot + Edot.transpose(0, 2, 1))
+        return np.einsum("eij,eij->e", Edot, Edot)
+
+    def _labels(self, sim, data, v, v_pred):
+        sysm = sim.system
+        x = sim.state.x
+        metric = self._strain_rate(sim, x, v)
+        predicted = self._strain_rate(sim, x, v_pred)
+        calm = np.where(self.was_reduced, predicted < self.tau_e, metric < self.tau_r)
+        self.calm_frames = np.where(calm, self.calm_frames + 1, 0)
+        eligible = (self.calm_frames >= self.warmup_frames) & (predicted < self.tau_e)
+        if self.min_fraction > 0:
+            k = int(round(self.min_fraction * sysm.m))
+            if k:
+                eligible[np.argpartition(metric, k - 1)[:k]] = True
+        labels = clustering.cluster_components(eligible, self.adjacency, sysm.t, sysm.n, excluded=self.excluded,
+                                               seeds=self._seeds(sysm.m), min_size=2)
+        return labels
+
+    def _map(self, sim, vcluster, n_bodies):
+        """Gamma_i = [I_3, -[x_i - x_c]_x] in the current configuration (6 DOFs per body)."""
+        Gam, self.com = reduction.rigid_rows(vcluster, sim.state.x, sim.system.lumped_mass, n_bodies)
+        self._vcluster = vcluster
+        return Gam
+
+    def integrate(self, sim, x, v):
+        """x + h v for elastic vertices; exact rotation about the centre for rigid ones."""
+        x_new = x + sim.dt * v
+        vc = getattr(self, "_vcluster", None)
+        if vc is None or not np.any(vc >= 0):
+            return x_new
+        sysm = sim.system
+        red = np.flatnonzero(vc >= 0)
+        c = vc[red]
+        n_bodies = self.com.shape[0]
+        m = sysm.lumped_mass[red]
+        mt = np.bincount(c, weights=m, minlength=n_bodies)
+        vcom = np.zeros((n_bodies, 3))
+        np.add.at(vcom, c, m[:, None] * v[red])
+        vcom /= mt[:, None]
+        r = x[red] - self.com[c]
+        # angular velocity from the (rigid) vertex velocities: I w = sum m r x (v - v_c)
+        L = np.zeros((n_bodies, 3))
+        np.add.at(L, c, m[:, None] * np.cross(r, v[red] - vcom[c]))
+        I = np.zeros((n_bodies, 3, 3))
+        rr = np.einsum("vi,vi->v", r, r)
+        np.add.at(I, c, m[:, None, None] * (rr[:, None, None] * np.eye(3) - r[:, :, None] * r[:, None, :]))
+        w = np.linalg.solve(I + 1e-300 * np.eye(3), L[..., None])[..., 0]
+        R = _rotation(sim.dt * w)
+        x_new[red] = self.com[c] + sim.dt * vcom[c] + np.einsum("vij,vj->vi", R[c], r)
+        return x_new
+
+
+def _rotation(phi):
+    """Rotation matrices exp([phi]_x) (Rodrigues), phi (k, 3)."""
+    theta = np.linalg.norm(phi, axis=1)
+    small = theta < 1e-12
+    k = np.where(small[:, None], 0.0, phi / np.where(small, 1.0, theta)[:, None])
+    K = np.zeros((phi.shape[0], 3, 3))
+    K[:, 0, 1], K[:, 0, 2], K[:, 1, 2] = -k[:, 2], k[:, 1], -k[:, 0]
+    K[:, 1, 0], K[:, 2, 0], K[:, 2, 1] = k[:, 2], -k[:, 1], k[:, 0]
+    s, c = np.sin(theta)[:, None, None], np.cos(theta)[:, None, None]
+    return np.eye(3) + s * K + (1 - c) * (K @ K)

@@ -1,0 +1,167 @@
+r"""Reduction to affine (or rigid) bodies (paper sec. 3.3, eq. 7-12).
+
+The mapping from reduced to full velocities on the free DOFs,
+
+.. math:: G = \begin{bmatrix} I & 0 \\ 0 & \Gamma \end{bmatrix}, \qquad
+          \Gamma_i = \begin{bmatrix} I_3 & I_3 \otimes r_i^T \end{bmatrix}  \quad (7, 8)
+
+(rows of vertex i; r_i from its body's centre of mass in the rest frame), is
+stored without reordering: elastic free DOFs keep an identity column each, in
+their order, and body b owns the w columns after them (w = 12 for an affine
+body: 3 translation + 9 entries of the affine matrix, row-major; w = 6 for a
+rigid body of the baseline). Velocities are projected by the mass-weighted
+least squares of eq. 9, the discrepancy d = G q - v (eq. 11) is added back
+after the reduced solve G^T A G dq = G^T b (eq. 10): dv = G dq + d (eq. 12).
+"""
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg  # noqa: F401  (sp.linalg)
+
+from ._kernels import reduced_boundary_blocks
+
+
+def vertex_clusters(labels, t, n_vertices):
+    """Body of each vertex (n,), -1 elastic, from per-element labels (vertex-disjoint clusters)."""
+    vc = np.full(n_vertices, -1, dtype=np.int64)
+    red = np.flatnonzero(labels >= 0)
+    vc[t[:, red].ravel()] = np.tile(labels[red], 4)
+    return vc
+
+
+def affine_rows(vcluster, rest, mass, n_bodies):
+    """Gamma_i = [I_3, I_3 (x) r_i^T] (n, 3, 12), r_i = X_i - X_c in the rest frame (eq. 8)."""
+    Gam = np.zeros((vcluster.size, 3, 12))
+    if not n_bodies:
+        return Gam
+    red = np.flatnonzero(vcluster >= 0)
+    c = vcluster[red]
+    m = mass[red]
+    com = np.zeros((n_bodies, 3))
+    np.add.at(com, c, m[:, None] * rest[red])
+    com /= np.bincount(c, weights=m, minlength=n_bodies)[:, None]
+    r = rest[red] - com[c]
+    Gam[red, :, :3] = np.eye(3)
+    Gam[red, :, 3:] = np.einsum("ab,vq->vabq", np.eye(3), r).reshape(-1, 3, 9)
+    return Gam
+
+
+def rigid_rows(vcluster, x, mass, n_bodies):
+    """Gamma_i = [I_3, -[x_i - x_c]_x] (n, 3, 6) in the current configuration; and the centres."""
+    Gam = np.zeros((vcluster.size, 3, 6))
+    com = np.zeros((n_bodies, 3))
+    if not n_bodies:
+        return Gam, com
+    red = np.flatnonzero(vcluster >= 0)
+    c = vcluster[red]
+    m = mass[red]
+    np.add.at(com, c, m[:, None] * x[red])
+    com /= np.bincount(c, weights=m, minlength=n_bodies)[:, None]
+    r = x[red] - com[c]
+    Gam[red, :, :3] = np.eye(3)
+    Gam[red, 0, 4], Gam[red, 0, 5] = r[:, 2], -r[:, 1]
+    Gam[red, 1, 3], Gam[red, 1, 5] = -r[:, 2], r[:, 0]
+    Gam[red, 2, 3], Gam[red, 2, 4] = r[:, 1], -r[:, 0]
+    return Gam, com
+
+
+def assemble_G(free, vcluster, Gam, elastic_dofs, n_bodies, w):
+    """Sparse G (free DOFs x reduced DOFs): identity on elastic DOFs, Gamma_i rows on reduced vertices (eq. 7)."""
+    nf = free.size
+    ne = elastic_dofs.size
+    rows = [elastic_dofs]
+    cols = [np.arange(ne)]
+    vals = [np.ones(ne)]
+    if n_bodies:
+        red = np.flatnonzero(vcluster[free // 3] >= 0)  # free DOFs of reduced vertices
+        v, a = free[red] // 3, free[red] % 3
+        c = vcluster[v]
+        rows.append(np.repeat(red, w))
+        cols.append((ne + w * c[:, None] + np.arange(w)).ravel())
+        vals.append(Gam[v, a].ravel())
+    G = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                      shape=(nf, ne + w * n_bodies))
+    G.eliminate_zeros()
+    return G
+
+
+def project(G, mdiag, v):
+    """q = (G^T M G)^-1 G^T M v (eq. 9), lumped M; G^T M G is block diagonal."""
+    GtMG = (G.T @ sp.diags(mdiag) @ G).tocsc()
+    return sp.linalg.spsolve(GtMG, G.T @ (mdiag * v))
+
+
+def discrepancy(G, q, v):
+    """d = G q - v (eq. 11)."""
+    return G @ q - v
+
+
+def lift(G, dq, d):
+    """dv = G dq + d (eq. 12)."""
+    return G @ dq + d
+
+
+def reduced_matrix(sim, data, vcluster, Gam, n_bodies, elastic_dofs, affine=True):
+    """G^T A G (CSR) with A = (1 + h alpha) M + (h beta + h^2) H, assembled per element (eq. 10).
+
+    Parameters
+    ----------
+    data : FrameData of the frame (element blocks ``He``, dP/dF ``C``, ``H`` data).
+    vcluster : (n,) body of each vertex, -1 elastic.
+    Gam : (n, 3, w) the rows of G of each reduced vertex (eq. 8; w = 12 affine, 6 rigid).
+    n_bodies : number of reduced bodies.
+    elastic_dofs : free-DOF indices that stay elastic, in the order of the reduced
+        columns; body b then owns columns ``len(elastic_dofs) + w b + [0, w)``.
+    affine : use the exact shortcut for elements inside one affine body, whose
+        reduced stiffness is V_e C_e on the body's 9 affine columns.
+    """
+    sysm, h, d = sim.system, sim.dt, sim.damping
+    cm, ck = 1.0 + h * d.alpha, h * d.beta + h * h
+    pat = sysm.pattern
+    w = Gam.shape[2]
+    ne = elastic_dofs.size
+    size = ne + w * n_bodies
+    # elastic-elastic block: the full matrix restricted to elastic DOFs (G = I there)
+    red_of_free = np.full(pat.shape[0], -1, dtype=np.int64)
+    red_of_free[elastic_dofs] = np.arange(ne)
+    Adata = cm * sysm.mass_data + ck * data.H
+    rr, cc = red_of_free[pat.rows], red_of_free[pat.indices]
+    keep = (rr >= 0) & (cc >= 0)
+    parts = [(rr[keep], cc[keep], Adata[keep])]
+    if n_bodies:
+        t = sysm.t
+        vc = vcluster[t]  # (4, m)
+        ccol = ne + w * np.arange(n_bodies)
+        # lumped mass: sum_i m_i Gamma_i^T Gamma_i per body
+        red = np.flatnonzero(vcluster >= 0)
+        B = np.zeros((n_bodies, w, w))
+        np.add.at(B, vcluster[red], sysm.lumped_mass[red, None, None]
+                  * np.einsum("vai,vaj->vij", Gam[red], Gam[red]))
+        B *= cm
+        touching = np.any(vc >= 0, axis=0)
+        if affine:
+            # elements inside one affine body: B_e G_e = [0 | I_9], reduced stiffness V_e C_e
+            interior = (vc[0] >= 0) & np.all(vc == vc[0], axis=0)
+            e_in = np.flatnonzero(interior)
+            K9 = np.zeros((n_bodies, 81))
+            np.add.at(K9, vc[0, e_in], sysm.volumes[e_in, None] * data.C[e_in].reshape(-1, 81))
+            B[:, 3:, 3:] += ck * K9.reshape(-1, 9, 9)
+            touching &= ~interior
+        idx = ccol[:, None] + np.arange(w)
+        parts.append((np.broadcast_to(idx[:, :, None], B.shape).ravel(),
+                      np.broadcast_to(idx[:, None, :], B.shape).ravel(), B.ravel()))
+        e_b = np.flatnonzero(touching)
+        if e_b.size:
+            free_of = np.full(3 * sysm.n, -1, dtype=np.int64)
+            free_of[sysm.free] = np.arange(sysm.free.size)
+            red_dof = np.where(free_of >= 0, red_of_free[np.maximum(free_of, 0)], -1).reshape(-1, 3)
+            cap = e_b.size * 16 * w * w
+            rows, cols, vals = np.empty(cap, np.int64), np.empty(cap, np.int64), np.empty(cap)
+            nb = reduced_boundary_blocks(t, e_b, data.He, vcluster, np.ascontiguousarray(Gam),
+                                         red_dof, ccol, rows, cols, vals)
+            parts.append((rows[:nb], cols[:nb], ck * vals[:nb]))
+    R = np.concatenate([p[0] for p in parts])
+    C = np.concatenate([p[1] for p in parts])
+    V = np.concatenate([p[2] for p in parts])
+    A = sp.csr_matrix((V, (R, C)), shape=(size, size))
+    A.sum_duplicates()
+    return A
