@@ -270,7 +270,8 @@ class Rigidification(_ClusteringReducer):
         predicted = self._strain_rate(sim, x, v_pred)
         calm = np.where(self.was_reduced, predicted < self.tau_e, metric < self.tau_r)
         self.calm_frames = np.where(calm, self.calm_frames + 1, 0)
-        eligible = (self.calm_frames >= self.warmup_frames) & (predicted < self.tau_e)
+        # calm during the previous ``warmup_frames`` frames and now: the first frames stay elastic
+        eligible = (self.calm_frames > self.warmup_frames) & (predicted < self.tau_e)
         if self.min_fraction > 0:
             k = int(round(self.min_fraction * sysm.m))
             if k:
