@@ -1,109 +1,300 @@
-r"""The oracle: one preconditioned CG iteration predicts the frame's velocity change (sec. 3.4).
+r"""The prediction oracle: one preconditioned CG iteration on the full system (paper sec. 3.4).
 
-.. math:: \Delta \dot x \approx A^{-1}(b - J_c^T\lambda) + h \ddot x_g \qquad (13)
+Before clustering, the velocities of previously affine elements are predicted by
+one PCG iteration from a zero initial guess on A dv = b (eq. 1-2), gravity split
+out of the solve (eq. 13),
 
-from a zero initial guess, with gravity split out of b, A applied matrix-free
-from the per-element dP/dF (A is never assembled for the prediction), and the
-preconditioner a factorisation, computed once at rest, of
+.. math:: \Delta\dot x \approx \alpha z + h g, \qquad z = A_p^{-1} b, \qquad
+          \alpha = \frac{b \cdot z}{z \cdot A z},
 
-.. math:: A_p = (1 + h\alpha) M + (h^2 + h\beta) B^T W B \qquad (14)
+with the product A z matrix-free from the frame's per-element dP/dF
+(:func:`stiffness_operator`) and A_p a Laplacian-like approximation of A built
+once at rest (eq. 14, :class:`Preconditioner`),
 
-with W = diag(w_e I_9), w_e = V_e mu_e (a vector Laplacian weighted by the
-shear modulus). Chosen by measurement: on the cantilever bent for 10 frames,
-one PCG iteration leaves a residual ||A dv - b|| / ||b|| of
+.. math:: A_p = (1 + h\alpha) M + (h^2 + h\beta) B^T W B, \qquad W = \mathrm{diag}(w_e I_9).
 
-====================  ========  ========
-w_e / V_e             k = 3     k = 6
-====================  ========  ========
-mu / 4                          0.059
-mu / 2                          0.049
-**mu**                **0.018** **0.042**
-2 mu                  0.033     0.061
-2 mu + lam            0.078     0.122
-3 (2 mu + lam)        0.196     0.255
-====================  ========  ========
-
-(the same to 3 digits with either preconditioner).
-
-Preconditioners: ``"ichol"``, incomplete Cholesky with threshold dropping from
-ilupp (a maintained C++ library with Python wheels; ICholT with drop tolerance
-1e-4 and 20 extra nonzeros per column, after a reverse Cuthill-McKee ordering
-that keeps the fill local): 0.04 s to build and 3 ms per application at 24k
-tets; and ``"amg"``, one pyamg smoothed-aggregation V-cycle: 0.08 s and 23 ms.
+Because W is a multiple of I_9 per element, B^T W B never couples the three
+displacement components: in the node-major DOF order, ``A_p = S (x) I_3`` with S
+the scalar (vertex) matrix ``(1 + h alpha) M_s + (h^2 + h beta) sum_e w_e g_e^T g_e``.
+Only S (a ninth of the nonzeros of A_p) is factorised, and each application
+solves it for the three components.
 """
+import time
+
 import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import reverse_cuthill_mckee
 
 from .kinematics import deformation_gradient
 
+KINDS = ("ichol", "amg")
+
+# Incomplete Cholesky (ilupp.ICholTPreconditioner, Lin & More 1999): extra fill per
+# column and relative drop tolerance. Measured on S of the cantilever (24k tets, RCM):
+# IC(0) (the pattern of S) leaves the one-iteration prediction residual 28% above that
+# of an exact A_p solve; 10 extra entries per column, dropping below 1e-3, is within
+# 0.5% of exact for 2.8x the nonzeros of IC(0), 1.3 ms setup and 0.3 ms per application.
+ICHOL_FILL = 10
+ICHOL_DROP = 1e-3
+# Diagonal shifts S + s diag(S) tried in turn if the incomplete factorisation breaks down.
+ICHOL_SHIFTS = (0.0, 1e-3, 1e-2, 1e-1, 1.0)
+
+
+def element_moduli(system):
+    """Lame parameters (mu, lam) of every element, ``(m,)`` each, from ``system.groups``."""
+    mu, lam = np.empty(system.m), np.empty(system.m)
+    for mat, idx in system.groups:
+        mu[idx] = np.broadcast_to(mat.mu, idx.shape)
+        lam[idx] = np.broadcast_to(mat.lam, idx.shape)
+    return mu, lam
+
+
+def laplacian_weights(system):
+    """Weights w_e = V_e mu_e of A_p (eq. 14); see :class:`Preconditioner` for the measurement."""
+    mu, _ = element_moduli(system)
+    return system.volumes * mu
+
+
+def _damping(damping):
+    """(alpha, beta) from a Rayleigh object, a pair, or None (undamped)."""
+    if damping is None:
+        return 0.0, 0.0
+    if hasattr(damping, "alpha"):
+        return float(damping.alpha), float(damping.beta)
+    alpha, beta = damping
+    return float(alpha), float(beta)
+
 
 def stiffness_operator(system, C):
-    """p (free DOFs) -> H p with H = B^T blockdiag(V_e C_e) B, matrix-free; C (m, 9, 9)."""
-    C9 = np.asarray(C).reshape(-1, 9, 9)
-    VC = system.volumes[:, None, None] * C9
-    free, n = system.free, system.n
+    """Matrix-free p -> H p on the free DOFs, H = sum_e V_e G_e^T C_e G_e (H = -K, eq. 1).
+
+    Parameters
+    ----------
+    system : ElasticSystem
+    C : (m, 3, 3, 3, 3) or (m, 9, 9) array
+        dP/dF per element, ``C[e, 3i+j, 3k+l] = dP_ij / dF_kl``.
+
+    Returns
+    -------
+    callable
+        ``Hp(p)`` for a free-DOF vector p, ``(n_free,)`` -> ``(n_free,)``: p scattered
+        to all DOFs (fixed ones zero), F_dot_e = G_e p (eq. 4), the stress rate
+        V_e C_e : F_dot_e, and G_e^T back to the vertices by ``np.bincount``.
+    """
+    VC = system.volumes[:, None, None] * np.asarray(C, dtype=float).reshape(-1, 9, 9)
+    t, grads, free, n = system.t, system.grads, system.free, system.n
+    edofs = system.edofs.ravel()
 
     def apply(p):
-        u = np.zeros(3 * n)
-        u[free] = p
-        Fd = deformation_gradient(u.reshape(n, 3), system.t, system.grads).reshape(-1, 9)
-        S = np.einsum("eij,ej->ei", VC, Fd).reshape(-1, 3, 3)
-        fe = np.einsum("eaj,ekj->eka", S, system.grads)
-        return np.bincount(system.edofs.ravel(), weights=fe.ravel(), minlength=3 * n)[free]
+        x = np.zeros(3 * n)
+        x[free] = p
+        Fd = deformation_gradient(x.reshape(n, 3), t, grads).reshape(-1, 9, 1)
+        S = np.matmul(VC, Fd).reshape(-1, 3, 3)                 # V_e C_e : F_dot_e
+        fe = np.einsum("eij,ekj->eki", S, grads, optimize=True)  # G_e^T, (m, 4, 3)
+        return np.bincount(edofs, weights=fe.ravel(), minlength=3 * n)[free]
 
     return apply
 
 
-def weights(system):
-    """w_e = V_e mu_e (see the module docstring)."""
-    w = np.empty(system.m)
-    for mat, idx in system.groups:
-        w[idx] = mat.mu
-    return system.volumes * w
+def scalar_matrix(system, dt, damping=None, weights=None):
+    """The scalar factor S of A_p = S (x) I_3 (eq. 14), CSR over the free vertices.
+
+    ``S = (1 + h alpha) M_s + (h^2 + h beta) B_s^T diag(w_e I_3) B_s`` where M_s and
+    B_s are the first-component blocks of M and B (row ``9e + j`` of B, free DOF
+    ``3v``): the x-, y- and z-blocks of both are identical and uncoupled.
+    """
+    alpha, beta = _damping(damping)
+    h = float(dt)
+    free = system.free
+    nf = free.size // 3
+    if free.size % 3 or np.any(free.reshape(nf, 3) != free[::3, None] + np.arange(3)):
+        raise ValueError("free DOFs must be whole vertices (all three components)")
+    w = laplacian_weights(system) if weights is None else np.broadcast_to(np.asarray(weights, float), (system.m,))
+    rows = (9 * np.arange(system.m)[:, None] + np.arange(3)).ravel()  # F_0j of every element
+    Bs = system.deformation_operator()[rows][:, free[::3]]
+    L = (Bs.T @ sp.diags(np.repeat(w, 3)) @ Bs).tocsr()
+    S = (1.0 + h * alpha) * system.Mff[::3][:, ::3] + (h * h + h * beta) * L
+    S = sp.csr_matrix(S)
+    S.sum_duplicates()
+    S.sort_indices()
+    return S
+
+
+def ichol_factor(S):
+    """Incomplete Cholesky of an SPD CSR matrix S after reverse Cuthill-McKee ordering.
+
+    ilupp's ``ICholTPreconditioner`` (:data:`ICHOL_FILL`, :data:`ICHOL_DROP`); on
+    breakdown, which ilupp reports by a zero or non-finite pivot in the factor, S
+    is shifted to S + s diag(S) for the next s in :data:`ICHOL_SHIFTS`.
+
+    Returns
+    -------
+    perm : (n,) int
+        The ordering: the factor is of ``S[perm][:, perm]``.
+    factor : ilupp.ICholTPreconditioner
+        ``factor.apply(x)`` overwrites x with (L L^T)^{-1} x.
+    shift : float
+        The diagonal shift used (0 when none was needed).
+    """
+    import ilupp
+
+    perm = reverse_cuthill_mckee(sp.csr_matrix(S), symmetric_mode=True)
+    Sp = sp.csr_matrix(S)[perm][:, perm]
+    d = Sp.diagonal()
+    for shift in ICHOL_SHIFTS:
+        trial = sp.csr_matrix(Sp + sp.diags(shift * d)) if shift else Sp.copy()
+        try:
+            factor = ilupp.ICholTPreconditioner(trial, ICHOL_FILL, ICHOL_DROP)
+        except RuntimeError:  # ilupp: "insufficient memory reserved"
+            continue
+        pivots = factor.factors()[0].diagonal()
+        if np.all(np.isfinite(pivots)) and np.all(pivots > 0):
+            return perm, factor, shift
+    raise RuntimeError("incomplete Cholesky of A_p broke down for every diagonal shift")
 
 
 class Preconditioner:
-    """Factorisation of A_p (eq. 14), built once at rest. ``apply(r)`` ~ A_p^{-1} r."""
+    r"""z ~ A_p^{-1} r for the oracle's PCG iteration, A_p = (1 + h a) M + (h^2 + h b) B^T W B (eq. 14).
 
-    def __init__(self, system, dt, damping=None, kind="ichol", drop_tol=1e-4, fill_in=20):
-        if kind not in ("ichol", "amg"):
-            raise ValueError(f"preconditioner kind must be 'ichol' or 'amg', got {kind!r}")
-        alpha = damping.alpha if damping is not None else 0.0
-        beta = damping.beta if damping is not None else 0.0
+    Built once at rest; ``A_p = S (x) I_3`` (module docstring), so only the scalar
+    vertex matrix S is factorised and each application solves it for the three
+    displacement components.
+
+    Parameters
+    ----------
+    system : ElasticSystem
+    dt : float
+        Time step h.
+    damping : Rayleigh, (alpha, beta) or None
+        Rayleigh damping of the integrator (eq. 1), so that A_p matches A at rest.
+    kind : {"ichol", "amg"}
+        ``"ichol"``: incomplete Cholesky with threshold dropping (ilupp's
+        ``ICholTPreconditioner``, Lin & More 1999: :data:`ICHOL_FILL` extra entries
+        per column, relative drop tolerance :data:`ICHOL_DROP`) of S after a
+        reverse Cuthill-McKee ordering. ``"amg"``: pyamg smoothed aggregation on
+        S, one V-cycle (symmetric Gauss-Seidel smoothing, so the application is SPD).
+    weights : (m,) array, optional
+        w_e; default :func:`laplacian_weights`, V_e mu_e.
+
+    Notes
+    -----
+    **Weights.** Measured with :func:`predict` (``kind="ichol"``; ``"amg"`` and an
+    exact A_p solve agree within 3%): relative residual ||b - A dv|| / ||b|| of the
+    true system after one iteration, lower is better, on the default cantilever
+    (Neo-Hookean E = 1e5, nu = 0.35, h = 0.01, k = resolution) at rest (b = h M g)
+    and bent after 10 frames (b with gravity split out, as the oracle uses it):
+
+    ==============  =============  ==============  =============  ==============
+    w_e / V_e       k=3 rest       k=3 bent        k=6 rest       k=6 bent
+    ==============  =============  ==============  =============  ==============
+    mu / 2          0.0065         0.021           0.015          0.049
+    mu              **0.0048**     **0.018**       **0.0086**     **0.042**
+    2 mu            0.0093         0.032           0.020          0.060
+    mu + lam        0.018          0.058           0.036          0.095
+    2 mu + lam      0.025          0.077           0.046          0.118
+    ==============  =============  ==============  =============  ==============
+
+    mu also wins with Rayleigh damping (0.03, 0.02). Stiffer (E = 1e7, k = 4, exact
+    A_p): in the A-norm of the error, which CG minimises, mu / 2 to mu stay best
+    (2 mu + lam is 1.4-1.9x worse); the 2-norm residual then prefers more weight
+    (nu = 0.45, bent: 0.82 with 2 mu + lam, 1.20 with mu): alpha minimises the
+    energy norm, so one iteration may even increase the 2-norm residual of stiff
+    systems. V mu is the shear part mu grad u : grad v of the linearised tangent,
+    the vector Laplacian of [MK23].
+
+    **ichol.** Measured on the bent cantilever at 24k tets (prediction residual,
+    exact A_p: 0.0751): ICholT(10, 1e-3) after RCM 0.0754; IC(0) 0.096; with the
+    mesh's own vertex order ICholT(10, 1e-3) 0.079, and with a randomly numbered
+    mesh 0.103 (IC(0): 0.49) against 0.0755 with RCM, whatever the input order. The
+    reference code's nested dissection needs METIS (not installed); RCM (scipy)
+    is the fill-reducing ordering that is at hand and, for a threshold IC whose
+    dropping depends on the elimination order, the bandwidth reduction is what
+    matters. ilupp's ``IChol0Preconditioner`` and ``ICholTPreconditioner`` both
+    fail silently on some SPD matrices (NaN or zero pivots), so the factor's
+    diagonal is checked and the factorisation retried on S + s diag(S) for the
+    shifts :data:`ICHOL_SHIFTS` (never needed on the scenes here: S is a
+    mass-augmented P1 Laplacian). ilupp 1.0.2 raises "insufficient memory
+    reserved" for ``add_fill_in`` around 50.
+
+    **amg.** Default smoothed aggregation (4 levels at 24k tets) is as good as an
+    exact A_p solve (0.0752) but ~10x costlier per application than ichol (three
+    V-cycles, one per component); Jacobi smoothing halves that cost for a 22%
+    worse prediction.
+    """
+
+    def __init__(self, system, dt, damping=None, kind="ichol", weights=None):
+        if kind not in KINDS:
+            raise ValueError(f"preconditioner kind must be one of {KINDS}, got {kind!r}")
         self.kind = kind
-        B = system.deformation_operator()[:, system.free]
-        W = sp.diags(np.repeat(weights(system), 9))
-        self.A = ((1.0 + dt * alpha) * system.Mff + (dt * dt + dt * beta) * (B.T @ W @ B)).tocsr()
+        t0 = time.perf_counter()
+        self.scalar = scalar_matrix(system, dt, damping, weights)
         if kind == "ichol":
-            import ilupp
-            self.perm = reverse_cuthill_mckee(self.A, symmetric_mode=True)
-            Ap = self.A[self.perm][:, self.perm].tocsr()
-            self._ic = ilupp.ICholTPreconditioner(Ap, add_fill_in=fill_in, threshold=drop_tol)
-            self._inv = np.empty_like(self.perm)
-            self._inv[self.perm] = np.arange(self.perm.size)
+            self._setup_ichol()
         else:
-            import pyamg
-            nb = self.A.shape[0]
-            Bn = np.kron(np.ones((nb // 3, 1)), np.eye(3)) if nb % 3 == 0 else None
-            self._ml = pyamg.smoothed_aggregation_solver(self.A, B=Bn, strength="symmetric", max_coarse=500)
-            self._M = self._ml.aspreconditioner(cycle="V")
+            self._setup_amg()
+        self.setup_time = time.perf_counter() - t0
+
+    @property
+    def shape(self):
+        n = 3 * self.scalar.shape[0]
+        return (n, n)
+
+    @property
+    def matrix(self):
+        """A_p (eq. 14) over the free DOFs as CSR, S (x) I_3 (for checks; never factorised)."""
+        return sp.kron(self.scalar, sp.eye(3), format="csr")
+
+    def _setup_ichol(self):
+        self.perm, self._ic, self.shift = ichol_factor(self.scalar)
+
+    def _setup_amg(self):
+        import pyamg
+
+        self._ml = pyamg.smoothed_aggregation_solver(self.scalar)
+        self._vcycle = self._ml.aspreconditioner(cycle="V")
 
     def apply(self, r):
-        if self.kind == "ichol":
-            z = self._ic @ r[self.perm]
-            return z[self._inv]
-        return self._M @ r
+        """z ~ A_p^{-1} r for a free-DOF vector r, ``(n_free,)`` -> ``(n_free,)``."""
+        R = np.asarray(r, dtype=float).reshape(-1, 3)
+        if self.kind == "amg":
+            return np.ascontiguousarray(self._vcycle @ R).ravel()
+        X = np.ascontiguousarray(R[self.perm].T)  # (3, n_vertices), one row per component
+        for row in X:
+            self._ic.apply(row)                    # in place: (L L^T)^{-1} row
+        Z = np.empty_like(R)
+        Z[self.perm] = X.T
+        return Z.ravel()
+
+    __call__ = apply
 
 
 def predict(apply_A, b, precond, gravity_dv=None):
-    """One PCG iteration from zero on A dv = b (eq. 13), plus the split-out gravity change h g."""
+    r"""One PCG iteration from zero on A dv = b, plus the split-out gravity (eq. 13).
+
+    Parameters
+    ----------
+    apply_A : callable or sparse matrix
+        p -> A p on the free DOFs (e.g. mass plus :func:`stiffness_operator`).
+    b : (n_free,) array
+        Right-hand side of eq. 2 without gravity (contact impulses enter here).
+    precond : Preconditioner or callable
+        r -> z ~ A_p^{-1} r (eq. 14).
+    gravity_dv : (n_free,) array, optional
+        h g on the free DOFs, added to the result.
+
+    Returns
+    -------
+    dv : (n_free,) array
+        ``alpha z + gravity_dv`` with ``z = P^{-1} b``, ``alpha = (b.z) / (z.A z)``; just
+        ``gravity_dv`` (or zeros) when b = 0 or z.A z <= 0.
+    """
+    b = np.asarray(b, dtype=float)
     dv = np.zeros_like(b) if gravity_dv is None else np.array(gravity_dv, dtype=float)
     if not np.any(b):
         return dv
-    z = precond.apply(b)
-    Az = apply_A(z)
-    zAz = z @ Az
-    if not np.isfinite(zAz) or zAz <= 0.0:
+    z = getattr(precond, "apply", precond)(b)
+    Az = apply_A(z) if callable(apply_A) else apply_A @ z
+    zAz = float(z @ Az)
+    if not (np.isfinite(zAz) and zAz > 0):
         return dv
-    return dv + (b @ z) / zAz * z
+    return dv + (float(b @ z) / zAz) * z

@@ -298,16 +298,13 @@ class Rigidification(_ClusteringReducer):
         n_bodies = self.com.shape[0]
         m = sysm.lumped_mass[red]
         mt = np.bincount(c, weights=m, minlength=n_bodies)
-        vcom = np.zeros((n_bodies, 3))
-        np.add.at(vcom, c, m[:, None] * v[red])
-        vcom /= mt[:, None]
+        vcom = reduction.group_sum(c, m[:, None] * v[red], n_bodies) / mt[:, None]
         r = x[red] - self.com[c]
         # angular velocity from the (rigid) vertex velocities: I w = sum m r x (v - v_c)
-        L = np.zeros((n_bodies, 3))
-        np.add.at(L, c, m[:, None] * np.cross(r, v[red] - vcom[c]))
-        I = np.zeros((n_bodies, 3, 3))
+        L = reduction.group_sum(c, m[:, None] * np.cross(r, v[red] - vcom[c]), n_bodies)
         rr = np.einsum("vi,vi->v", r, r)
-        np.add.at(I, c, m[:, None, None] * (rr[:, None, None] * np.eye(3) - r[:, :, None] * r[:, None, :]))
+        I = reduction.group_sum(c, m[:, None, None] * (rr[:, None, None] * np.eye(3) - r[:, :, None] * r[:, None, :]),
+                                n_bodies)
         w = np.linalg.solve(I + 1e-300 * np.eye(3), L[..., None])[..., 0]
         R = _rotation(sim.dt * w)
         x_new[red] = self.com[c] + sim.dt * vcom[c] + np.einsum("vij,vj->vi", R[c], r)

@@ -20,6 +20,15 @@ import scipy.sparse.linalg  # noqa: F401  (sp.linalg)
 from ._kernels import reduced_boundary_blocks
 
 
+def group_sum(groups, values, n_groups):
+    """Sum rows of ``values`` (k, ...) by group id (k,) into (n_groups, ...); a fast np.add.at."""
+    values = np.asarray(values, dtype=float)
+    width = int(np.prod(values.shape[1:]))
+    flat = (groups[:, None] * width + np.arange(width)).ravel()
+    out = np.bincount(flat, weights=values.reshape(-1), minlength=n_groups * width)
+    return out.reshape((n_groups,) + values.shape[1:])
+
+
 def vertex_clusters(labels, t, n_vertices):
     """Body of each vertex (n,), -1 elastic, from per-element labels (vertex-disjoint clusters)."""
     vc = np.full(n_vertices, -1, dtype=np.int64)
@@ -36,9 +45,7 @@ def affine_rows(vcluster, rest, mass, n_bodies):
     red = np.flatnonzero(vcluster >= 0)
     c = vcluster[red]
     m = mass[red]
-    com = np.zeros((n_bodies, 3))
-    np.add.at(com, c, m[:, None] * rest[red])
-    com /= np.bincount(c, weights=m, minlength=n_bodies)[:, None]
+    com = group_sum(c, m[:, None] * rest[red], n_bodies) / np.bincount(c, weights=m, minlength=n_bodies)[:, None]
     r = rest[red] - com[c]
     Gam[red, :, :3] = np.eye(3)
     Gam[red, :, 3:] = np.einsum("ab,vq->vabq", np.eye(3), r).reshape(-1, 3, 9)
@@ -54,8 +61,7 @@ def rigid_rows(vcluster, x, mass, n_bodies):
     red = np.flatnonzero(vcluster >= 0)
     c = vcluster[red]
     m = mass[red]
-    np.add.at(com, c, m[:, None] * x[red])
-    com /= np.bincount(c, weights=m, minlength=n_bodies)[:, None]
+    com = group_sum(c, m[:, None] * x[red], n_bodies) / np.bincount(c, weights=m, minlength=n_bodies)[:, None]
     r = x[red] - com[c]
     Gam[red, :, :3] = np.eye(3)
     Gam[red, 0, 4], Gam[red, 0, 5] = r[:, 2], -r[:, 1]
@@ -126,42 +132,48 @@ def reduced_matrix(sim, data, vcluster, Gam, n_bodies, elastic_dofs, affine=True
     Adata = cm * sysm.mass_data + ck * data.H
     rr, cc = red_of_free[pat.rows], red_of_free[pat.indices]
     keep = (rr >= 0) & (cc >= 0)
-    parts = [(rr[keep], cc[keep], Adata[keep])]
+    # a row/column subset of a CSR pattern in increasing order is itself sorted CSR
+    indptr = np.concatenate([[0], np.cumsum(np.bincount(rr[keep], minlength=size))])
+    A_ee = sp.csr_matrix((Adata[keep], cc[keep], indptr), shape=(size, size))
+    parts = []
     if n_bodies:
         t = sysm.t
         vc = vcluster[t]  # (4, m)
         ccol = ne + w * np.arange(n_bodies)
         # lumped mass: sum_i m_i Gamma_i^T Gamma_i per body
         red = np.flatnonzero(vcluster >= 0)
-        B = np.zeros((n_bodies, w, w))
-        np.add.at(B, vcluster[red], sysm.lumped_mass[red, None, None]
-                  * np.einsum("vai,vaj->vij", Gam[red], Gam[red]))
-        B *= cm
+        B = cm * group_sum(vcluster[red], sysm.lumped_mass[red, None, None]
+                           * np.einsum("vai,vaj->vij", Gam[red], Gam[red]), n_bodies)
         touching = np.any(vc >= 0, axis=0)
         if affine:
             # elements inside one affine body: B_e G_e = [0 | I_9], reduced stiffness V_e C_e
             interior = (vc[0] >= 0) & np.all(vc == vc[0], axis=0)
             e_in = np.flatnonzero(interior)
-            K9 = np.zeros((n_bodies, 81))
-            np.add.at(K9, vc[0, e_in], sysm.volumes[e_in, None] * data.C[e_in].reshape(-1, 81))
+            K9 = group_sum(vc[0, e_in], sysm.volumes[e_in, None] * data.C[e_in].reshape(-1, 81), n_bodies)
             B[:, 3:, 3:] += ck * K9.reshape(-1, 9, 9)
             touching &= ~interior
-        idx = ccol[:, None] + np.arange(w)
-        parts.append((np.broadcast_to(idx[:, :, None], B.shape).ravel(),
-                      np.broadcast_to(idx[:, None, :], B.shape).ravel(), B.ravel()))
         e_b = np.flatnonzero(touching)
         if e_b.size:
             free_of = np.full(3 * sysm.n, -1, dtype=np.int64)
             free_of[sysm.free] = np.arange(sysm.free.size)
             red_dof = np.where(free_of >= 0, red_of_free[np.maximum(free_of, 0)], -1).reshape(-1, 3)
-            cap = e_b.size * 16 * w * w
+            # COO only for elastic-body and body-body pairs: at most 12 pairs x 3 w per element
+            nb_red = (vc[:, e_b] >= 0).sum(axis=0)
+            cap = int(np.sum(2 * nb_red * (4 - nb_red) * 3 * w + nb_red * nb_red * w * w))
             rows, cols, vals = np.empty(cap, np.int64), np.empty(cap, np.int64), np.empty(cap)
+            Bk = np.zeros_like(B)
             nb = reduced_boundary_blocks(t, e_b, data.He, vcluster, np.ascontiguousarray(Gam),
-                                         red_dof, ccol, rows, cols, vals)
+                                         red_dof, ccol, Bk, rows, cols, vals)
+            B += ck * Bk
             parts.append((rows[:nb], cols[:nb], ck * vals[:nb]))
+        idx = ccol[:, None] + np.arange(w)
+        parts.append((np.broadcast_to(idx[:, :, None], B.shape).ravel(),
+                      np.broadcast_to(idx[:, None, :], B.shape).ravel(), B.ravel()))
+    if not parts:
+        return A_ee
     R = np.concatenate([p[0] for p in parts])
     C = np.concatenate([p[1] for p in parts])
     V = np.concatenate([p[2] for p in parts])
-    A = sp.csr_matrix((V, (R, C)), shape=(size, size))
-    A.sum_duplicates()
+    A = A_ee + sp.csr_matrix((V, (R, C)), shape=(size, size))
+    A.sort_indices()
     return A
