@@ -227,68 +227,49 @@ def scatter_add(slot, values, nnz):
 
 
 @njit(cache=True)
-def reduced_boundary_blocks(t, elems, He, vcluster, Gam, red_dof, ccol, body_blocks, rows, cols, vals):
-    """G_e^T H_e G_e for elements with reduced vertices (paper eq. 10).
+def reduced_boundary_blocks(t, elems, He, vcluster, Gam, pair_eb, pair_bb, body_blocks, eb_blocks, bb_blocks):
+    """Accumulate G_e^T H_e G_e of elements with reduced vertices (paper eq. 10) into dense blocks.
 
-    For each element e in ``elems`` and each vertex pair (k, l) with at least one
-    vertex in a reduced body: Gamma_k^T H_e[k, l] Gamma_l, where Gamma_k = I_3 on
-    the three reduced DOFs of an elastic vertex (``red_dof``, -1 where fixed) and
-    ``Gam[v]`` (3 x w) on the w DOFs of its body otherwise (affine: [I_3, I_3 (x)
-    r^T], w = 12, eq. 8; rigid: [I_3, -[r]_x], w = 6). Pairs within one body are
-    summed into ``body_blocks`` (k, w, w); the other pairs (elastic-body, or two
-    bodies) are written as COO entries; elastic-elastic pairs are skipped (the
-    caller takes them from the full matrix). Returns the number of COO entries.
+    For each element ``elems[i]`` and vertex pair (k, l) with at least one vertex in
+    a reduced body: Gamma_k^T H_e[k, l] Gamma_l, where Gamma = I_3 for an elastic
+    vertex and ``Gam[v]`` (3 x w) for a vertex of a body (affine: [I_3, I_3 (x)
+    r^T], w = 12, eq. 8; rigid: [I_3, -[r]_x], w = 6). Sums go to ``body_blocks``
+    (k, w, w) for pairs in one body, to ``eb_blocks[pair_eb[i, k, l]]`` (3 x w)
+    for an elastic row vertex and a body column, and to
+    ``bb_blocks[pair_bb[i, k, l]]`` (w x w) for two different bodies. The
+    (body row, elastic column) pairs are the transposes of the first kind and are
+    skipped, as are elastic-elastic pairs (taken from the full matrix).
     """
     w = Gam.shape[2]
-    n_out = 0
     X = np.empty((3, 3))
     XG = np.empty((3, w))
-    for e in elems:
+    for i in range(elems.size):
+        e = elems[i]
         for k in range(4):
             ik = t[k, e]
             ck = vcluster[ik]
             for l in range(4):
                 il = t[l, e]
                 cl = vcluster[il]
-                if ck < 0 and cl < 0:
+                if cl < 0:
                     continue
                 for a in range(3):
                     for b in range(3):
                         X[a, b] = He[e, 3 * k + a, 3 * l + b]
-                # right factor: X Gamma_l (3 x w), or X itself for an elastic vertex
-                if cl >= 0:
+                for a in range(3):
+                    for j in range(w):
+                        XG[a, j] = X[a, 0] * Gam[il, 0, j] + X[a, 1] * Gam[il, 1, j] + X[a, 2] * Gam[il, 2, j]
+                if ck < 0:
+                    p = pair_eb[i, k, l]
                     for a in range(3):
                         for j in range(w):
-                            XG[a, j] = X[a, 0] * Gam[il, 0, j] + X[a, 1] * Gam[il, 1, j] + X[a, 2] * Gam[il, 2, j]
-                if ck >= 0 and ck == cl:
-                    for i in range(w):
+                            eb_blocks[p, a, j] += XG[a, j]
+                else:
+                    p = -1 if ck == cl else pair_bb[i, k, l]
+                    for r in range(w):
                         for j in range(w):
-                            body_blocks[ck, i, j] += (Gam[ik, 0, i] * XG[0, j] + Gam[ik, 1, i] * XG[1, j]
-                                                      + Gam[ik, 2, i] * XG[2, j])
-                elif ck >= 0 and cl >= 0:
-                    for i in range(w):
-                        for j in range(w):
-                            rows[n_out] = ccol[ck] + i
-                            cols[n_out] = ccol[cl] + j
-                            vals[n_out] = (Gam[ik, 0, i] * XG[0, j] + Gam[ik, 1, i] * XG[1, j]
-                                           + Gam[ik, 2, i] * XG[2, j])
-                            n_out += 1
-                elif ck >= 0:  # body row, elastic column: Gamma_k^T X
-                    for i in range(w):
-                        for b in range(3):
-                            if red_dof[il, b] < 0:
-                                continue
-                            rows[n_out] = ccol[ck] + i
-                            cols[n_out] = red_dof[il, b]
-                            vals[n_out] = Gam[ik, 0, i] * X[0, b] + Gam[ik, 1, i] * X[1, b] + Gam[ik, 2, i] * X[2, b]
-                            n_out += 1
-                else:  # elastic row, body column: X Gamma_l
-                    for a in range(3):
-                        if red_dof[ik, a] < 0:
-                            continue
-                        for j in range(w):
-                            rows[n_out] = red_dof[ik, a]
-                            cols[n_out] = ccol[cl] + j
-                            vals[n_out] = XG[a, j]
-                            n_out += 1
-    return n_out
+                            val = Gam[ik, 0, r] * XG[0, j] + Gam[ik, 1, r] * XG[1, j] + Gam[ik, 2, r] * XG[2, j]
+                            if p < 0:
+                                body_blocks[ck, r, j] += val
+                            else:
+                                bb_blocks[p, r, j] += val

@@ -154,18 +154,7 @@ def reduced_matrix(sim, data, vcluster, Gam, n_bodies, elastic_dofs, affine=True
             touching &= ~interior
         e_b = np.flatnonzero(touching)
         if e_b.size:
-            free_of = np.full(3 * sysm.n, -1, dtype=np.int64)
-            free_of[sysm.free] = np.arange(sysm.free.size)
-            red_dof = np.where(free_of >= 0, red_of_free[np.maximum(free_of, 0)], -1).reshape(-1, 3)
-            # COO only for elastic-body and body-body pairs: at most 12 pairs x 3 w per element
-            nb_red = (vc[:, e_b] >= 0).sum(axis=0)
-            cap = int(np.sum(2 * nb_red * (4 - nb_red) * 3 * w + nb_red * nb_red * w * w))
-            rows, cols, vals = np.empty(cap, np.int64), np.empty(cap, np.int64), np.empty(cap)
-            Bk = np.zeros_like(B)
-            nb = reduced_boundary_blocks(t, e_b, data.He, vcluster, np.ascontiguousarray(Gam),
-                                         red_dof, ccol, Bk, rows, cols, vals)
-            B += ck * Bk
-            parts.append((rows[:nb], cols[:nb], ck * vals[:nb]))
+            parts += _boundary_parts(sysm, e_b, data.He, vcluster, Gam, n_bodies, red_of_free, ccol, B, ck)
         idx = ccol[:, None] + np.arange(w)
         parts.append((np.broadcast_to(idx[:, :, None], B.shape).ravel(),
                       np.broadcast_to(idx[:, None, :], B.shape).ravel(), B.ravel()))
@@ -177,3 +166,48 @@ def reduced_matrix(sim, data, vcluster, Gam, n_bodies, elastic_dofs, affine=True
     A = A_ee + sp.csr_matrix((V, (R, C)), shape=(size, size))
     A.sort_indices()
     return A
+
+
+def _boundary_parts(sysm, e_b, He, vcluster, Gam, n_bodies, red_of_free, ccol, B, ck):
+    """Reduced stiffness of elements on body boundaries, summed per (elastic vertex, body) and
+    (body, body) pair before it becomes COO entries; body-internal pairs go into B in place."""
+    w = Gam.shape[2]
+    V = sysm.t[:, e_b]                               # (4, nb)
+    Cv = vcluster[V]
+    ck_, cl_ = Cv[:, None, :], Cv[None, :, :]        # (4, 4, nb) row and column bodies
+    vk = np.broadcast_to(V[:, None, :], ck_.shape[:1] + (4,) + V.shape[1:])
+    is_eb = (ck_ < 0) & (cl_ >= 0)
+    is_bb = (ck_ >= 0) & (cl_ >= 0) & (ck_ != cl_)
+    key_eb = np.where(is_eb, vk * n_bodies + cl_, -1)
+    key_bb = np.where(is_bb, ck_ * n_bodies + cl_, -1)
+    u_eb, inv_eb = np.unique(key_eb, return_inverse=True)
+    u_bb, inv_bb = np.unique(key_bb, return_inverse=True)
+    off_eb = 1 if u_eb.size and u_eb[0] < 0 else 0  # unique puts the -1 sentinel first
+    off_bb = 1 if u_bb.size and u_bb[0] < 0 else 0
+    pair_eb = (inv_eb.reshape(key_eb.shape) - off_eb).transpose(2, 0, 1)
+    pair_bb = (inv_bb.reshape(key_bb.shape) - off_bb).transpose(2, 0, 1)
+    u_eb, u_bb = u_eb[off_eb:], u_bb[off_bb:]
+    EB = np.zeros((u_eb.size, 3, w))
+    BB = np.zeros((u_bb.size, w, w))
+    Bk = np.zeros_like(B)
+    reduced_boundary_blocks(sysm.t, e_b, He, vcluster, np.ascontiguousarray(Gam),
+                            np.ascontiguousarray(pair_eb), np.ascontiguousarray(pair_bb), Bk, EB, BB)
+    B += ck * Bk
+    parts = []
+    if u_eb.size:
+        vtx, body = u_eb // n_bodies, u_eb % n_bodies
+        free_of = np.full(3 * sysm.n, -1, dtype=np.int64)
+        free_of[sysm.free] = np.arange(sysm.free.size)
+        fo = free_of.reshape(-1, 3)[vtx]             # (p, 3) free index of the elastic DOFs
+        rows = np.where(fo >= 0, red_of_free[np.maximum(fo, 0)], -1)
+        rr = np.broadcast_to(rows[:, :, None], EB.shape)
+        cc = np.broadcast_to((ccol[body][:, None] + np.arange(w))[:, None, :], EB.shape)
+        ok = rr >= 0
+        vals = ck * EB[ok]
+        parts += [(rr[ok], cc[ok], vals), (cc[ok], rr[ok], vals)]  # and the transpose
+    if u_bb.size:
+        b1, b2 = u_bb // n_bodies, u_bb % n_bodies
+        rr = np.broadcast_to((ccol[b1][:, None] + np.arange(w))[:, :, None], BB.shape)
+        cc = np.broadcast_to((ccol[b2][:, None] + np.arange(w))[:, None, :], BB.shape)
+        parts.append((rr.ravel(), cc.ravel(), ck * BB.ravel()))
+    return parts

@@ -22,6 +22,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 AMG_MIN_DOFS = 5000
+PARDISO_METIS_MIN = 5000
 AMG_MAX_ITERATIONS = 30
 
 
@@ -60,7 +61,10 @@ class SuperLU:
 class Pardiso:
     """MKL Pardiso sparse Cholesky (mtype 2) on the upper triangle.
 
-    The symbolic analysis (ordering) is redone only when the pattern changes.
+    The symbolic analysis (ordering) is redone only when the pattern changes; a
+    fresh analysis uses minimum degree below :data:`PARDISO_METIS_MIN` unknowns
+    (10 ms against 17 ms for METIS on a 1.7k-unknown reduced system) and METIS
+    nested dissection above (29 ms against 33 ms at 6k unknowns).
     """
 
     name = "pardiso"
@@ -73,7 +77,6 @@ class Pardiso:
         # pypardiso searches site-packages for MKL on every instance (0.5 s); remember where it is
         os.environ.setdefault("PYPARDISO_MKL_RT", self._ps.libmkl._name)
         self._ps.set_iparm(1, 1)  # user-set iparm
-        self._ps.set_iparm(2, 2)  # METIS nested dissection ordering
         self._pattern = None
         self.last_iterations = 1
 
@@ -82,6 +85,8 @@ class Pardiso:
         U.sort_indices()
         key = (U.shape, U.nnz, U.indptr.tobytes().__hash__(), U.indices.tobytes().__hash__())
         phase = 22 if key == self._pattern else 12
+        if phase == 12:  # fill-reducing ordering: minimum degree for small systems, else METIS
+            self._ps.set_iparm(2, 0 if U.shape[0] < PARDISO_METIS_MIN else 2)
         self._ps.set_phase(phase)
         self._U = U
         try:
