@@ -168,6 +168,14 @@ def reduced_matrix(sim, data, vcluster, Gam, n_bodies, elastic_dofs, affine=True
     return A
 
 
+def _pair_index(valid, key):
+    """Index of each valid (4, 4, nb) key among the unique valid keys (-1 elsewhere), as (nb, 4, 4)."""
+    idx = np.full(key.shape, -1, dtype=np.int64)
+    u, inv = np.unique(key[valid], return_inverse=True)
+    idx[valid] = inv
+    return idx.transpose(2, 0, 1), u
+
+
 def _boundary_parts(sysm, e_b, He, vcluster, Gam, n_bodies, red_of_free, ccol, B, ck):
     """Reduced stiffness of elements on body boundaries, summed per (elastic vertex, body) and
     (body, body) pair before it becomes COO entries; body-internal pairs go into B in place."""
@@ -178,15 +186,8 @@ def _boundary_parts(sysm, e_b, He, vcluster, Gam, n_bodies, red_of_free, ccol, B
     vk = np.broadcast_to(V[:, None, :], ck_.shape[:1] + (4,) + V.shape[1:])
     is_eb = (ck_ < 0) & (cl_ >= 0)
     is_bb = (ck_ >= 0) & (cl_ >= 0) & (ck_ != cl_)
-    key_eb = np.where(is_eb, vk * n_bodies + cl_, -1)
-    key_bb = np.where(is_bb, ck_ * n_bodies + cl_, -1)
-    u_eb, inv_eb = np.unique(key_eb, return_inverse=True)
-    u_bb, inv_bb = np.unique(key_bb, return_inverse=True)
-    off_eb = 1 if u_eb.size and u_eb[0] < 0 else 0  # unique puts the -1 sentinel first
-    off_bb = 1 if u_bb.size and u_bb[0] < 0 else 0
-    pair_eb = (inv_eb.reshape(key_eb.shape) - off_eb).transpose(2, 0, 1)
-    pair_bb = (inv_bb.reshape(key_bb.shape) - off_bb).transpose(2, 0, 1)
-    u_eb, u_bb = u_eb[off_eb:], u_bb[off_bb:]
+    pair_eb, u_eb = _pair_index(is_eb, vk * n_bodies + cl_)
+    pair_bb, u_bb = _pair_index(is_bb, ck_ * n_bodies + cl_)
     EB = np.zeros((u_eb.size, 3, w))
     BB = np.zeros((u_bb.size, w, w))
     Bk = np.zeros_like(B)

@@ -15,7 +15,7 @@ def run(name):
 
 
 def test_every_example_is_tested():
-    tested = {"cantilever.py", "beam_frequency.py"}
+    tested = {"cantilever.py", "beam_frequency.py", "affinification.py"}
     assert set(f for f in os.listdir(EXAMPLES) if f.endswith(".py")) <= tested
 
 
@@ -31,6 +31,14 @@ def test_beam_frequency_example_matches_euler_bernoulli():
     g = run("beam_frequency.py")
     assert g["f2"] > g["f3"] > g["f_theory"]  # locking: too stiff, improving with refinement
     assert abs(g["relative_error"]) < 0.05
+
+
+def test_affinification_example_trades_dofs_for_error():
+    g = run("affinification.py")
+    r = g["results"]
+    assert r["full"]["error"] == 0 and r["full"]["dof_ratio"] == 1
+    assert r["affinification"]["dof_ratio"] < 0.9 and r["affinification"]["error"] < 0.05
+    assert r["rigidification"]["dof_ratio"] < 1.0 and np.isfinite(r["rigidification"]["error"])
 
 
 def test_cli_demo(tmp_path, capsys):
