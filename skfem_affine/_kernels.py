@@ -164,45 +164,38 @@ def _project_modes(Ce, Fe, U, V, s, A, W, Q, CQ):
                     Ce[a, b] -= lam * q[a] * q[b]
 
 
-@njit(cache=True, parallel=True)
-def project_isotropic(C, F):
-    """In place: project each isotropic dP/dF (m, 9, 9) to PSD (see :func:`_project_modes`)."""
-    m = C.shape[0]
-    chunks = 64
-    for c in prange(chunks):
-        U, V, A, W = np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3))
-        s = np.empty(3)
-        Q, CQ, Ce = np.empty((9, 9)), np.empty((9, 9)), np.empty((9, 9))
-        for e in range(c * m // chunks, (c + 1) * m // chunks):
-            for i in range(9):
-                for j in range(9):
-                    Ce[i, j] = 0.5 * (C[e, i, j] + C[e, j, i])
-            _project_modes(Ce, F[e], U, V, s, A, W, Q, CQ)
-            C[e] = Ce
+_CHUNKS = 64  # parallel work units: each allocates its scratch once
+
+
+@njit(cache=True, inline="always")
+def _symmetric_projected(C, e, F, project, U, V, s, A, W, Q, CQ, Ce):
+    """Ce <- sym(C[e]), projected to PSD if asked; written back to C[e]."""
+    for i in range(9):
+        for j in range(9):
+            Ce[i, j] = 0.5 * (C[e, i, j] + C[e, j, i])
+    if project:
+        _project_modes(Ce, F[e], U, V, s, A, W, Q, CQ)
+    C[e] = Ce
 
 
 @njit(cache=True, parallel=True)
-def element_hessians(C, F, vg, g, project, He):
+def element_hessians(C, F, vg, g, project, He, blocks=True):
     """He[e] = V_e G_e^T C_e G_e (12 x 12, node-major), C_e optionally projected to PSD.
 
     C (m, 9, 9) = dP/dF, F (m, 3, 3), vg = V_e grad phi (m, 4, 3), g = grad phi (m, 4, 3).
     H_e[3k+a, 3l+b] = V_e sum_jq grad_k,j C[3a+j, 3b+q] grad_l,q. C is overwritten with
-    the symmetrised (and projected) tensor actually used.
+    the symmetrised (and projected) tensor actually used; ``blocks=False`` only does that.
     """
     m = C.shape[0]
-    chunks = 64
-    for c in prange(chunks):
+    for c in prange(_CHUNKS):
         U, V, A, W = np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3))
         s = np.empty(3)
         Q, CQ, Ce = np.empty((9, 9)), np.empty((9, 9)), np.empty((9, 9))
         X = np.empty((9, 12))
-        for e in range(c * m // chunks, (c + 1) * m // chunks):
-            for i in range(9):
-                for j in range(9):
-                    Ce[i, j] = 0.5 * (C[e, i, j] + C[e, j, i])
-            if project:
-                _project_modes(Ce, F[e], U, V, s, A, W, Q, CQ)
-            C[e] = Ce
+        for e in range(c * m // _CHUNKS, (c + 1) * m // _CHUNKS):
+            _symmetric_projected(C, e, F, project, U, V, s, A, W, Q, CQ, Ce)
+            if not blocks:
+                continue
             for r in range(9):  # X[3a+j, 3l+b] = sum_q C[3a+j, 3b+q] g[l, q]
                 for l in range(4):
                     for b in range(3):

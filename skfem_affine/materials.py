@@ -89,9 +89,11 @@ def project_psd(C, F=None):
         C = 0.5 * (C + C.transpose(0, 2, 1))
         w, Q = np.linalg.eigh(C)
         return np.einsum("eik,ek,ejk->eij", Q, np.maximum(w, 0.0), Q, optimize=True).reshape(shape)
-    from ._kernels import project_isotropic
+    from ._kernels import element_hessians
     out = np.ascontiguousarray(C, dtype=float).copy()
-    project_isotropic(out, np.ascontiguousarray(F, dtype=float))
+    F = np.ascontiguousarray(F, dtype=float)
+    none = np.empty((0, 4, 3))
+    element_hessians(out, F, none, none, True, np.empty((0, 12, 12)), False)
     return out.reshape(shape)
 
 

@@ -37,16 +37,21 @@ def vertex_clusters(labels, t, n_vertices):
     return vc
 
 
+def centre_offsets(vcluster, positions, mass, n_bodies):
+    """Reduced vertices, their bodies, the bodies' centres of mass and the offsets r = x - x_c."""
+    red = np.flatnonzero(vcluster >= 0)
+    c = vcluster[red]
+    m = mass[red]
+    com = group_sum(c, m[:, None] * positions[red], n_bodies) / np.bincount(c, weights=m, minlength=n_bodies)[:, None]
+    return red, c, com, positions[red] - com[c]
+
+
 def affine_rows(vcluster, rest, mass, n_bodies):
     """Gamma_i = [I_3, I_3 (x) r_i^T] (n, 3, 12), r_i = X_i - X_c in the rest frame (eq. 8)."""
     Gam = np.zeros((vcluster.size, 3, 12))
     if not n_bodies:
         return Gam
-    red = np.flatnonzero(vcluster >= 0)
-    c = vcluster[red]
-    m = mass[red]
-    com = group_sum(c, m[:, None] * rest[red], n_bodies) / np.bincount(c, weights=m, minlength=n_bodies)[:, None]
-    r = rest[red] - com[c]
+    red, _, _, r = centre_offsets(vcluster, rest, mass, n_bodies)
     Gam[red, :, :3] = np.eye(3)
     Gam[red, :, 3:] = np.einsum("ab,vq->vabq", np.eye(3), r).reshape(-1, 3, 9)
     return Gam
@@ -55,14 +60,9 @@ def affine_rows(vcluster, rest, mass, n_bodies):
 def rigid_rows(vcluster, x, mass, n_bodies):
     """Gamma_i = [I_3, -[x_i - x_c]_x] (n, 3, 6) in the current configuration; and the centres."""
     Gam = np.zeros((vcluster.size, 3, 6))
-    com = np.zeros((n_bodies, 3))
     if not n_bodies:
-        return Gam, com
-    red = np.flatnonzero(vcluster >= 0)
-    c = vcluster[red]
-    m = mass[red]
-    com = group_sum(c, m[:, None] * x[red], n_bodies) / np.bincount(c, weights=m, minlength=n_bodies)[:, None]
-    r = x[red] - com[c]
+        return Gam, np.zeros((0, 3))
+    red, _, com, r = centre_offsets(vcluster, x, mass, n_bodies)
     Gam[red, :, :3] = np.eye(3)
     Gam[red, 0, 4], Gam[red, 0, 5] = r[:, 2], -r[:, 1]
     Gam[red, 1, 3], Gam[red, 1, 5] = -r[:, 2], r[:, 0]
