@@ -220,7 +220,7 @@ def scatter_add(slot, values, nnz):
 
 
 @njit(cache=True)
-def reduced_boundary_blocks(t, elems, He, vcluster, Gam, pair_eb, pair_bb, body_blocks, eb_blocks, bb_blocks):
+def reduced_boundary_blocks(t, elems, he_row, He, vcluster, Gam, pair_eb, pair_bb, body_blocks, eb_blocks, bb_blocks):
     """Accumulate G_e^T H_e G_e of elements with reduced vertices (paper eq. 10) into dense blocks.
 
     For each element ``elems[i]`` and vertex pair (k, l) with at least one vertex in
@@ -231,13 +231,15 @@ def reduced_boundary_blocks(t, elems, He, vcluster, Gam, pair_eb, pair_bb, body_
     for an elastic row vertex and a body column, and to
     ``bb_blocks[pair_bb[i, k, l]]`` (w x w) for two different bodies. The
     (body row, elastic column) pairs are the transposes of the first kind and are
-    skipped, as are elastic-elastic pairs (taken from the full matrix).
+    skipped, as are elastic-elastic pairs (taken from the full matrix). The block of
+    element ``elems[i]`` is ``He[he_row[i]]``.
     """
     w = Gam.shape[2]
     X = np.empty((3, 3))
     XG = np.empty((3, w))
     for i in range(elems.size):
         e = elems[i]
+        q = he_row[i]
         for k in range(4):
             ik = t[k, e]
             ck = vcluster[ik]
@@ -248,7 +250,7 @@ def reduced_boundary_blocks(t, elems, He, vcluster, Gam, pair_eb, pair_bb, body_
                     continue
                 for a in range(3):
                     for b in range(3):
-                        X[a, b] = He[e, 3 * k + a, 3 * l + b]
+                        X[a, b] = He[q, 3 * k + a, 3 * l + b]
                 for a in range(3):
                     for j in range(w):
                         XG[a, j] = X[a, 0] * Gam[il, 0, j] + X[a, 1] * Gam[il, 1, j] + X[a, 2] * Gam[il, 2, j]

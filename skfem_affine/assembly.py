@@ -215,6 +215,30 @@ class ElasticSystem:
         He, C9 = self.element_stiffness(F, C, project)
         return FrameData(F=F, P=P, C=C9, He=He, f=f, H=self.pattern.scatter(He))
 
+    def evaluate_tangent(self, x, project=True):
+        """Like :meth:`evaluate` but without element blocks: F, P, (projected) dP/dF and f.
+
+        For reducers that assemble blocks only where they need them (:meth:`partial_stiffness`).
+        """
+        F = self.deformation_gradients(x)
+        P, C = self.stresses(F, tangent=True, project=False)
+        C9 = np.ascontiguousarray(C.reshape(-1, 9, 9))
+        none = np.empty((0, 4, 3))
+        element_hessians(C9, F, none, none, project, np.empty((0, 12, 12)), False)
+        return FrameData(F=F, P=P, C=C9, He=None, f=self._internal_force(P), H=None)
+
+    def partial_stiffness(self, data, elems):
+        """Element blocks of ``elems`` only, and their sum on :attr:`pattern` (the others left out).
+
+        ``data.C`` must be the tensor to use (already projected). Returns (He[elems], H data).
+        """
+        He = np.empty((elems.size, 12, 12))
+        element_hessians(np.ascontiguousarray(data.C[elems]), np.ascontiguousarray(data.F[elems]),
+                         np.ascontiguousarray(self._vg[elems]), np.ascontiguousarray(self.grads[elems]),
+                         False, He, True)
+        slot = self.pattern.slot.reshape(self.m, 144)[elems].ravel()
+        return He, scatter_add(slot, He.reshape(-1), self.pattern.nnz)
+
     def _internal_force(self, P):
         fe = -np.einsum("eaj,ekj->eka", P, self._vg, optimize=True)
         return np.bincount(self.edofs.ravel(), weights=fe.ravel(), minlength=3 * self.n)

@@ -50,6 +50,16 @@ class Reducer:
         raise NotImplementedError
 
 
+class _MatrixFree:
+    """Wraps p -> H p so that ``H @ p`` works where an assembled matrix would."""
+
+    def __init__(self, apply):
+        self.apply = apply
+
+    def __matmul__(self, p):
+        return self.apply(p)
+
+
 def _elements_touching(system, mask):
     """Elements with at least one vertex in the vertex mask."""
     return np.any(mask[system.t], axis=0)
@@ -100,15 +110,16 @@ class _ClusteringReducer(Reducer):
         s = sim.state
         free = sysm.free
         t0 = time.perf_counter()
-        data = sysm.evaluate(s.x, project=sim.project_hessian)
+        # forces and projected dP/dF; element blocks only later, where the reduction needs them
+        data = sysm.evaluate_tangent(s.x, project=sim.project_hessian)
         data.f = data.f + sim.f_gravity
-        data.Hmat = sysm.pattern.matrix(data.H)
+        Hop = _MatrixFree(oracle.stiffness_operator(sysm, data.C))
         t1 = time.perf_counter()
         rec["assembly"] = t1 - t0
-        # prediction (eq. 13-14): one PCG iteration, gravity split out
-        b = sim.rhs(data.f, data.Hmat, s.v)
+        # prediction (eq. 13-14): one PCG iteration, gravity split out, A applied matrix-free
+        b = sim.rhs(data.f, Hop, s.v)
         b_ng = b - h * sim.f_gravity[free]
-        apply_A = self._operator(sim, data)
+        apply_A = self._operator(sim, Hop)
         dv_pred = oracle.predict(apply_A, b_ng, self.precond, gravity_dv=self.gravity_dv)
         t2 = time.perf_counter()
         rec["prediction"] = t2 - t1
@@ -134,11 +145,12 @@ class _ClusteringReducer(Reducer):
         if n_bodies:
             vp = s.v.copy()
             vp.reshape(-1)[free] += d
-            bp = sim.rhs(data.f, data.Hmat, vp)
+            bp = sim.rhs(data.f, Hop, vp)
             Ar = reduction.reduced_matrix(sim, data, vcluster, Gam, n_bodies, elastic_dofs, affine=self.width == 12)
             br = G.T @ bp
         else:
-            Ar, br = sim.system_matrix(data.H), b
+            _, Hdata = sysm.partial_stiffness(data, np.arange(sysm.m))
+            Ar, br = sim.system_matrix(Hdata), b
         t5 = time.perf_counter()
         rec["reduced_assembly"] = t5 - t4
         self.solver.factorize(Ar)
@@ -153,13 +165,12 @@ class _ClusteringReducer(Reducer):
         self.labels = labels
         return G @ dq + d  # eq. 12
 
-    def _operator(self, sim, data):
+    def _operator(self, sim, Hop):
         """Matrix-free A p = (1 + h alpha) M p + (h beta + h^2) H p from per-element dP/dF."""
         h, dmp = sim.dt, sim.damping
-        Hp = oracle.stiffness_operator(sim.system, data.C)
         mdiag = sim.system.Mff.diagonal()
         cm, ck = 1.0 + h * dmp.alpha, h * dmp.beta + h * h
-        return lambda p: cm * mdiag * p + ck * Hp(p)
+        return lambda p: cm * mdiag * p + ck * (Hop @ p)
 
     def _seeds(self, m):
         return clustering.seed_order(m, self.seeding, rng=self.rng, previous_seeds=self.previous_seeds)

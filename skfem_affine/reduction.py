@@ -106,12 +106,14 @@ def lift(G, dq, d):
     return G @ dq + d
 
 
-def reduced_matrix(sim, data, vcluster, Gam, n_bodies, elastic_dofs, affine=True):
+def reduced_matrix(sim, data, vcluster, Gam, n_bodies, elastic_dofs, affine=True, blocks=None):
     """G^T A G (CSR) with A = (1 + h alpha) M + (h beta + h^2) H, assembled per element (eq. 10).
 
     Parameters
     ----------
-    data : FrameData of the frame (element blocks ``He``, dP/dF ``C``, ``H`` data).
+    data : FrameData of the frame (element blocks ``He``, dP/dF ``C``, ``H`` data). Without
+        blocks (``data.He is None``, from :meth:`ElasticSystem.evaluate_tangent`), blocks are
+        assembled here for the elements that need them: all but those inside one affine body.
     vcluster : (n,) body of each vertex, -1 elastic.
     Gam : (n, 3, w) the rows of G of each reduced vertex (eq. 8; w = 12 affine, 6 rigid).
     n_bodies : number of reduced bodies.
@@ -124,12 +126,21 @@ def reduced_matrix(sim, data, vcluster, Gam, n_bodies, elastic_dofs, affine=True
     cm, ck = 1.0 + h * d.alpha, h * d.beta + h * h
     pat = sysm.pattern
     w = Gam.shape[2]
+    vc = vcluster[sysm.t]  # (4, m)
+    interior = (vc[0] >= 0) & np.all(vc == vc[0], axis=0) if (affine and n_bodies) else np.zeros(sysm.m, bool)
+    if data.He is None:
+        need = np.flatnonzero(~interior)
+        He, Hdata = sysm.partial_stiffness(data, need)
+        he_row = np.full(sysm.m, -1, dtype=np.int64)
+        he_row[need] = np.arange(need.size)
+    else:
+        He, Hdata, he_row = data.He, data.H, np.arange(sysm.m)
     ne = elastic_dofs.size
     size = ne + w * n_bodies
     # elastic-elastic block: the full matrix restricted to elastic DOFs (G = I there)
     red_of_free = np.full(pat.shape[0], -1, dtype=np.int64)
     red_of_free[elastic_dofs] = np.arange(ne)
-    Adata = cm * sysm.mass_data + ck * data.H
+    Adata = cm * sysm.mass_data + ck * Hdata
     rr, cc = red_of_free[pat.rows], red_of_free[pat.indices]
     keep = (rr >= 0) & (cc >= 0)
     # a row/column subset of a CSR pattern in increasing order is itself sorted CSR
@@ -137,8 +148,6 @@ def reduced_matrix(sim, data, vcluster, Gam, n_bodies, elastic_dofs, affine=True
     A_ee = sp.csr_matrix((Adata[keep], cc[keep], indptr), shape=(size, size))
     parts = []
     if n_bodies:
-        t = sysm.t
-        vc = vcluster[t]  # (4, m)
         ccol = ne + w * np.arange(n_bodies)
         # lumped mass: sum_i m_i Gamma_i^T Gamma_i per body
         red = np.flatnonzero(vcluster >= 0)
@@ -147,14 +156,13 @@ def reduced_matrix(sim, data, vcluster, Gam, n_bodies, elastic_dofs, affine=True
         touching = np.any(vc >= 0, axis=0)
         if affine:
             # elements inside one affine body: B_e G_e = [0 | I_9], reduced stiffness V_e C_e
-            interior = (vc[0] >= 0) & np.all(vc == vc[0], axis=0)
             e_in = np.flatnonzero(interior)
             K9 = group_sum(vc[0, e_in], sysm.volumes[e_in, None] * data.C[e_in].reshape(-1, 81), n_bodies)
             B[:, 3:, 3:] += ck * K9.reshape(-1, 9, 9)
             touching &= ~interior
         e_b = np.flatnonzero(touching)
         if e_b.size:
-            parts += _boundary_parts(sysm, e_b, data.He, vcluster, Gam, n_bodies, red_of_free, ccol, B, ck)
+            parts += _boundary_parts(sysm, e_b, He, he_row[e_b], vcluster, Gam, n_bodies, red_of_free, ccol, B, ck)
         idx = ccol[:, None] + np.arange(w)
         parts.append((np.broadcast_to(idx[:, :, None], B.shape).ravel(),
                       np.broadcast_to(idx[:, None, :], B.shape).ravel(), B.ravel()))
@@ -176,7 +184,7 @@ def _pair_index(valid, key):
     return idx.transpose(2, 0, 1), u
 
 
-def _boundary_parts(sysm, e_b, He, vcluster, Gam, n_bodies, red_of_free, ccol, B, ck):
+def _boundary_parts(sysm, e_b, He, he_row, vcluster, Gam, n_bodies, red_of_free, ccol, B, ck):
     """Reduced stiffness of elements on body boundaries, summed per (elastic vertex, body) and
     (body, body) pair before it becomes COO entries; body-internal pairs go into B in place."""
     w = Gam.shape[2]
@@ -191,7 +199,7 @@ def _boundary_parts(sysm, e_b, He, vcluster, Gam, n_bodies, red_of_free, ccol, B
     EB = np.zeros((u_eb.size, 3, w))
     BB = np.zeros((u_bb.size, w, w))
     Bk = np.zeros_like(B)
-    reduced_boundary_blocks(sysm.t, e_b, He, vcluster, np.ascontiguousarray(Gam),
+    reduced_boundary_blocks(sysm.t, e_b, he_row, He, vcluster, np.ascontiguousarray(Gam),
                             np.ascontiguousarray(pair_eb), np.ascontiguousarray(pair_bb), Bk, EB, BB)
     B += ck * Bk
     parts = []
