@@ -137,8 +137,8 @@ class _ClusteringReducer(Reducer):
         elastic_dofs = np.flatnonzero(vcluster[free_vertex] < 0)
         G = reduction.assemble_G(free, vcluster, Gam, elastic_dofs, n_bodies, self.width)
         vf = s.v.reshape(-1)[free]
-        q = reduction.project(G, sysm.Mff.diagonal(), vf) if n_bodies else vf
-        d = G @ q - vf if n_bodies else np.zeros_like(vf)
+        q = reduction.project(G, sysm.Mff.diagonal(), vf) if n_bodies else vf  # eq. 9
+        d = reduction.discrepancy(G, q, vf) if n_bodies else np.zeros_like(vf)  # eq. 11
         t4 = time.perf_counter()
         rec["map_assembly"] = t4 - t3
         # reduced system (eq. 10) with the projected velocities
@@ -163,7 +163,7 @@ class _ClusteringReducer(Reducer):
                    reduced_fraction=float(np.mean(labels >= 0)) if labels.size else 0.0)
         self.was_reduced = labels >= 0
         self.labels = labels
-        return G @ dq + d  # eq. 12
+        return reduction.lift(G, dq, d)  # eq. 12
 
     def _operator(self, sim, Hop):
         """Matrix-free A p = (1 + h alpha) M p + (h beta + h^2) H p from per-element dP/dF."""
