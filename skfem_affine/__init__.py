@@ -1,8 +1,11 @@
 """skfem-affine: fast adaptive elastodynamics (affinification) for scikit-fem.
 
->>> import skfem, skfem_affine as sa
->>> mesh = skfem.MeshTet.init_tensor(*[np.linspace(0, 1, 3)] * 3)  # doctest: +SKIP
->>> sim = sa.Simulation(sa.ElasticBody(mesh, sa.NeoHookean(E=1e5, nu=0.35)), dt=0.01)  # doctest: +SKIP
+>>> import numpy as np, skfem, skfem_affine as sa
+>>> mesh = skfem.MeshTet.init_tensor(*[np.linspace(0, 1, 3)] * 3)
+>>> sim = sa.Simulation(sa.ElasticBody(mesh, sa.NeoHookean(E=1e5, nu=0.35)), dt=0.01, gravity=(0, 0, -9.81))
+>>> state = sim.step()
+>>> state.frame, state.x.shape
+(1, (27, 3))
 """
 from . import assembly, clustering, io, kinematics, materials, oracle, reduction, scenes, solvers
 from .body import ElasticBody

@@ -148,6 +148,9 @@ class Simulation:
         self.system = ElasticSystem(bodies, mass=mass)
         self.bodies = self.system.bodies
         self.solver = make_solver(solver)
+        if reducer is not None and not (hasattr(reducer, "attach") and hasattr(reducer, "solve")):
+            raise TypeError(f"reducer must be None or a reducer such as sa.Affinification(...), "
+                            f"got {type(reducer).__name__}")
         self.reducer = reducer
         self.size = float(np.linalg.norm(np.ptp(self.system.p0, axis=0)))
         self.f_gravity = self.system.gravity_force(self.gravity)

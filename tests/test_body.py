@@ -147,6 +147,8 @@ def test_bad_simulation_arguments():
         sa.Simulation(body, newton_iters=0)
     with pytest.raises(ValueError, match="mass"):
         sa.Simulation(body, mass="heavy")
+    with pytest.raises(TypeError, match="reducer"):
+        sa.Simulation(body, reducer="affine")
 
 
 def test_shared_meshes_load_and_validate(shared_meshes):
