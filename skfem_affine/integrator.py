@@ -22,12 +22,18 @@ the incremental potential
           + \tfrac h2 v^T(\alpha M + \beta H_t) v,
 
 whose minimiser is the converged implicit Euler step (the reference solve).
+
+``integrator="implicit_euler" | "bdf2"`` instead runs the full Newton solve of
+:mod:`skfem_affine.newton` on the incremental potential in positions (adaptive-subspace paper,
+eq. 1-3), to the tolerance ||d||_inf / h <= newton_tol * size, at most ``newton_iters``
+iterations (default 50 there); implicit Euler converges to the same step as ``newton_iters > 1``.
 """
 import time
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from . import newton
 from .assembly import ElasticSystem
 from .body import ElasticBody
 from .solvers import SolverError, make_solver
@@ -74,7 +80,7 @@ class Stats(list):
     """Per-frame records (dicts): wall time of each phase in seconds, DOFs solved, solver."""
 
     PHASES = ("assembly", "prediction", "clustering", "map_assembly", "reduced_assembly",
-              "factorization", "solve", "contact")
+              "factorization", "solve", "line_search", "contact")
 
     def total(self, key):
         return float(sum(r.get(key, 0.0) for r in self))
@@ -117,19 +123,25 @@ class Simulation:
         Adaptive model reduction (e.g. affinification); None solves in full space.
     solver : str or solver object
         See :mod:`skfem_affine.solvers`; default ``"auto"``.
+    integrator : {"linearized", "implicit_euler", "bdf2"}
+        "linearized" (default) is the affinification paper's linearized backward Euler,
+        iterated by ``newton_iters``; the others minimise the incremental potential by
+        Newton (:mod:`skfem_affine.newton`), as the adaptive-subspace reducer needs.
     newton_iters : int
-        1 (default) is the paper's linearized backward Euler; more iterates
-        Newton with a line search to a converged implicit Euler step.
+        Linearized: 1 (default) is the paper's step; more iterates Newton with a line search
+        to a converged implicit Euler step. Other integrators: the iteration cap (default 50).
     newton_tol : float
-        Newton stops when the largest position change of an iteration is below
-        ``newton_tol`` times the scene size.
+        Linearized: Newton stops when the largest position change of an iteration is below
+        ``newton_tol`` times the scene size (default 1e-9). Other integrators:
+        ||d||_inf / h <= newton_tol times the scene size (default 1e-6, 1/s).
     project_hessian : bool
         Project element Hessians to PSD (default True) so that A is SPD.
     mass : {"lumped", "consistent"}
     """
 
     def __init__(self, bodies, dt=0.01, gravity=(0.0, 0.0, 0.0), damping=None, reducer=None,
-                 solver="auto", newton_iters=1, newton_tol=1e-9, project_hessian=True, mass="lumped"):
+                 solver="auto", newton_iters=None, newton_tol=None, project_hessian=True, mass="lumped",
+                 integrator="linearized"):
         bodies = [bodies] if isinstance(bodies, ElasticBody) else list(bodies)
         if not bodies or not all(isinstance(b, ElasticBody) for b in bodies):
             raise TypeError("Simulation needs an ElasticBody or a non-empty list of them")
@@ -140,6 +152,9 @@ class Simulation:
         if damping is not None and not isinstance(damping, Rayleigh):
             raise TypeError("damping must be a Rayleigh(alpha, beta) or None")
         self.damping = damping or Rayleigh()
+        linearized = integrator in ("linearized", None)
+        newton_iters = (1 if linearized else 50) if newton_iters is None else newton_iters
+        newton_tol = (1e-9 if linearized else 1e-6) if newton_tol is None else newton_tol
         if int(newton_iters) < 1:
             raise ValueError(f"newton_iters must be >= 1, got {newton_iters}")
         self.newton_iters = int(newton_iters)
@@ -152,6 +167,8 @@ class Simulation:
             raise TypeError(f"reducer must be None or a reducer such as sa.Affinification(...), "
                             f"got {type(reducer).__name__}")
         self.reducer = reducer
+        self.stepper = None if linearized else newton.TimeStepper(self, integrator, self.newton_iters,
+                                                                  self.newton_tol)
         self.size = float(np.linalg.norm(np.ptp(self.system.p0, axis=0)))
         self.f_gravity = self.system.gravity_force(self.gravity)
         x0 = self.system.p0.copy()
@@ -175,18 +192,21 @@ class Simulation:
         """Advance one time step; returns the new state."""
         t0 = time.perf_counter()
         rec = {"frame": self.state.frame + 1}
+        s = self.state
         try:
-            if self.newton_iters == 1:
+            if self.stepper is not None:
+                x, v = self.stepper.step(rec)
+            elif self.newton_iters == 1:
                 dv = self._linear_step(rec)
             else:
                 dv = self._newton_step(rec)
         except SolverError as err:
             raise SimulationDiverged(self.state.frame + 1, f"linear solve failed ({err})") from err
-        s = self.state
-        v = s.v.copy()
-        v.reshape(-1)[self.system.free] += dv
-        integrate = getattr(self.reducer, "integrate", None)
-        x = integrate(self, s.x, v) if integrate else s.x + self.dt * v
+        if self.stepper is None:
+            v = s.v.copy()
+            v.reshape(-1)[self.system.free] += dv
+            integrate = getattr(self.reducer, "integrate", None)
+            x = integrate(self, s.x, v) if integrate else s.x + self.dt * v
         if not (np.all(np.isfinite(x)) and np.all(np.isfinite(v))):
             raise SimulationDiverged(s.frame + 1)
         self.state = State(x, v, s.frame + 1, s.time + self.dt, rec.pop("clusters", None))

@@ -11,7 +11,7 @@ from .body import ElasticBody
 from .integrator import Simulation
 from .materials import NeoHookean
 
-SIM_KEYS = ("dt", "gravity", "damping", "reducer", "solver", "newton_iters", "newton_tol",
+SIM_KEYS = ("dt", "gravity", "damping", "reducer", "solver", "newton_iters", "newton_tol", "integrator",
             "project_hessian", "mass")
 
 
