@@ -7,7 +7,8 @@
 >>> state.frame, state.x.shape
 (1, (27, 3))
 """
-from . import assembly, clustering, io, kinematics, materials, oracle, reduction, scenes, solvers
+from . import assembly, bases, clustering, io, kinematics, materials, newton, oracle, reduction, scenes, solvers
+from .bases import AffineModes, LinearModes, SkinningEigenmodes
 from .body import ElasticBody
 from .integrator import Rayleigh, Simulation, SimulationDiverged, State, Stats
 from .materials import Corotational, Material, NeoHookean, StVK
@@ -17,4 +18,5 @@ __version__ = "0.1.0"
 
 __all__ = ["ElasticBody", "Simulation", "SimulationDiverged", "State", "Stats", "Rayleigh",
            "Material", "StVK", "Corotational", "NeoHookean", "Affinification", "Rigidification",
+           "AffineModes", "LinearModes", "SkinningEigenmodes", "bases", "newton",
            "assembly", "clustering", "io", "kinematics", "materials", "oracle", "reduction", "scenes", "solvers"]
