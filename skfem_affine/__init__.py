@@ -9,6 +9,7 @@
 """
 from . import assembly, bases, clustering, io, kinematics, materials, newton, oracle, reduction, scenes, solvers
 from .bases import AffineModes, LinearModes, SkinningEigenmodes
+from .subspace import AdaptiveSubspace
 from .body import ElasticBody
 from .integrator import Rayleigh, Simulation, SimulationDiverged, State, Stats
 from .materials import Corotational, Material, NeoHookean, StVK
@@ -18,5 +19,5 @@ __version__ = "0.1.0"
 
 __all__ = ["ElasticBody", "Simulation", "SimulationDiverged", "State", "Stats", "Rayleigh",
            "Material", "StVK", "Corotational", "NeoHookean", "Affinification", "Rigidification",
-           "AffineModes", "LinearModes", "SkinningEigenmodes", "bases", "newton",
+           "AdaptiveSubspace", "AffineModes", "LinearModes", "SkinningEigenmodes", "bases", "newton",
            "assembly", "clustering", "io", "kinematics", "materials", "oracle", "reduction", "scenes", "solvers"]
