@@ -58,7 +58,7 @@ def metis_parts(system, nparts):
     pairs = np.concatenate([t[[a, b]] for a in range(4) for b in range(4) if a != b], axis=1)
     G = sp.csr_matrix((np.ones(pairs.shape[1]), (pairs[0], pairs[1])), shape=(n, n))
     G.sum_duplicates()
-    _, parts = pymetis.part_graph(nparts, xadj=G.indptr, adjncy=G.indices)
+    _, parts = pymetis.part_graph(nparts, adjacency=pymetis.CSRAdjacency(G.indptr, G.indices))
     return np.asarray(parts, dtype=np.int64)
 
 
@@ -262,7 +262,7 @@ class AdaptiveSubspace:
         self.dof_map = np.full(3 * sysm.n, -1, dtype=np.int64)
         self.dof_map[sysm.free] = np.arange(sysm.free.size)
         self.setup_time = time.perf_counter() - t0
-        self.last_system = None
+        self.last_system = self.last_hessians = None
 
     def solve(self, sim, rec):
         raise ValueError("AdaptiveSubspace runs with integrator='implicit_euler' or 'bdf2'")
@@ -368,6 +368,7 @@ class AdaptiveSubspace:
             if newton.converged(ip, d, self.newton_tol) or alpha == 0.0:
                 converged = newton.converged(ip, d, self.newton_tol)
                 break
+        self.last_hessians = Hl
         rec["newton_iters"] = it + 1
         rec["newton_converged"] = converged
         rec["pcg_iters"] = pcg_total

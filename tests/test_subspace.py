@@ -1,0 +1,190 @@
+"""AdaptiveSubspace: full-space limit, threshold trend, stiffness, Schur solve, BFGS, downdating."""
+import numpy as np
+import pytest
+import scipy.linalg as sla
+import scipy.sparse as sp
+
+import skfem_affine as sa
+from skfem_affine import subspace, subspace_oracle as so
+
+
+def reducer(**kw):
+    kw.setdefault("basis", sa.SkinningEigenmodes(n=4, cache=False))
+    kw.setdefault("subdomains", 16)
+    return sa.AdaptiveSubspace(**kw)
+
+
+def beam(red=None, integrator="implicit_euler", **kw):
+    kw.setdefault("resolution", 2)
+    return sa.scenes.cantilever(integrator=integrator, reducer=red, **kw)
+
+
+@pytest.mark.parametrize("integrator", ["implicit_euler", "bdf2"])
+def test_zero_thresholds_reproduce_the_full_space_newton_solution(integrator):
+    tol = 1e-6
+    red = reducer(eps_nodal=0, eps_modal=0, eps_progress=0, eps_down=0, newton_tol=tol)
+    sim, full = beam(red, integrator), beam(None, integrator, newton_tol=tol)
+    for _ in range(6):
+        s, f = sim.step(), full.step()
+    assert sim.stats[-1]["enriched_ratio"] > 0.9
+    # both stop at ||d||_inf / h <= tol * size: the states agree to that accuracy
+    assert np.abs(s.x - f.x).max() <= tol * sim.size * sim.dt
+    assert np.abs(s.v - f.v).max() <= 10 * tol * sim.size
+
+
+def test_raising_the_nodal_threshold_enriches_less_and_leaves_a_larger_residual():
+    """Fig. 12's trend on a small swinging beam (no contact)."""
+    ratio, residual = [], []
+    for eps in (0.0, 3e-4, 1e-3, 3e-3):
+        sim = beam(reducer(eps_nodal=eps, eps_modal=0.5, newton_tol=1e-4, record_residual=True))
+        for _ in sim.run(10):
+            pass
+        ratio.append(np.mean([r["enriched_ratio"] for r in sim.stats]))
+        residual.append(np.mean([r["full_residual"] for r in sim.stats]))
+    assert np.all(np.diff(ratio) <= 0) and ratio[0] == 1.0 and ratio[-1] == 0.0, ratio
+    assert np.all(np.diff(residual) >= 0) and residual[-1] > 100 * residual[0], residual
+
+
+def test_a_very_stiff_body_gets_no_nodal_enrichment():
+    eps = 1e-3
+    runs = {}
+    for E in (1e5, 1e9):
+        sim = beam(reducer(eps_nodal=eps, eps_modal=eps), material=sa.NeoHookean(E=E, nu=0.35))
+        for _ in sim.run(10):
+            pass
+        runs[E] = max(r["enriched_ratio"] for r in sim.stats)
+    assert runs[1e5] > 0.3 and runs[1e9] == 0.0, runs
+
+
+def random_spd(rng, k):
+    A = rng.normal(size=(k, k))
+    return A @ A.T + k * np.eye(k)
+
+
+def test_schur_solve_equals_a_direct_solve_of_eq_19():
+    rng = np.random.default_rng(1)
+    a, ne = 7, 3 * 20
+    K = random_spd(rng, a + ne)
+    Hq, C, Hx = K[:a, :a], K[:a, a:], sp.csr_matrix(K[a:, a:])
+    g = rng.normal(size=a + ne)
+    dq, dx, iters, _ = subspace.schur_solve(Hq, C, Hx, g[:a], g[a:], tol=1e-12)
+    direct = np.linalg.solve(K, -g)
+    assert np.allclose(np.concatenate([dq, dx]), direct, rtol=0, atol=1e-9 * np.abs(direct).max())
+    assert 0 < iters <= ne
+
+
+def test_schur_solve_on_a_simulated_frame_matches_the_direct_solve_to_the_pcg_tolerance():
+    red = reducer(eps_nodal=3e-4, eps_modal=3e-4, pcg_tol=1e-5)
+    sim = beam(red)
+    for _ in sim.run(6):
+        pass
+    Hq, C, Hx, gq, gx = red.last_system
+    assert Hx.shape[0] > 0 and Hq.shape[0] > 12  # nodes and modes were enriched
+    K = np.block([[Hq, C], [C.T, Hx.toarray()]])
+    g = np.concatenate([gq, gx])
+    direct = np.linalg.solve(K, -g)
+    dq, dx, iters, _ = subspace.schur_solve(Hq, C, Hx, gq, gx, tol=1e-5)
+    err = np.linalg.norm(np.concatenate([dq, dx]) - direct) / np.linalg.norm(direct)
+    assert err <= 1e-5 * np.linalg.cond(K) and err < 1e-2
+    # the Schur complement system itself is solved to the tolerance
+    Sdense = Hx.toarray() - C.T @ np.linalg.solve(Hq, C)
+    rhs = C.T @ np.linalg.solve(Hq, gq) - gx
+    assert np.linalg.norm(Sdense @ dx - rhs) <= 1.01e-5 * np.linalg.norm(rhs)
+
+
+def test_bfgs_update_keeps_spd_and_satisfies_the_secant_equation():
+    rng = np.random.default_rng(2)
+    L, a = 5, 6
+    H = np.stack([random_spd(rng, a) for _ in range(L)])
+    s = rng.normal(size=a)
+    Y = np.stack([random_spd(rng, a) @ s for _ in range(L)])  # y = A_l s with SPD A_l: y^T s > 0
+    Y[3] = -Y[3]  # curvature condition fails here: no update
+    valid = np.array([True, True, True, True, False])
+    before = H.copy()
+    subspace.bfgs_update(H, s, Y, valid)
+    for l in range(3):
+        assert np.allclose(H[l] @ s, Y[l])
+        assert np.allclose(H[l], H[l].T) and np.linalg.eigvalsh(H[l]).min() > 0
+    assert np.array_equal(H[3], before[3]) and np.array_equal(H[4], before[4])
+
+
+def test_bfgs_subspace_hessians_stay_symmetric_positive_semidefinite_in_a_run():
+    red = reducer(eps_nodal=2e-3, eps_modal=2e-3, subdomains=24)
+    sim = beam(red, material=sa.NeoHookean(E=2e4, nu=0.35))
+    for _ in range(8):
+        sim.step()
+        Hl = red.last_hessians
+        for H in Hl:
+            assert np.allclose(H, H.T, atol=1e-12 * max(np.abs(H).max(), 1e-300))
+            assert np.linalg.eigvalsh(H).min() >= -1e-9 * max(np.abs(H).max(), 1e-300)
+    assert sum(r["newton_iters"] for r in sim.stats) > 8 * 2  # BFGS updates happened
+    Hq = red.last_system[0]
+    assert np.linalg.eigvalsh(Hq).min() > 0
+
+
+def test_downdating_drops_nodes_and_modes_that_contribute_little():
+    kept = beam(reducer(eps_nodal=0, eps_modal=0, eps_down=0))
+    dropped = beam(reducer(eps_nodal=0, eps_modal=0, eps_down=1e6))
+    kept.step(), dropped.step()
+    assert kept.reducer.enriched.any() and len(kept.reducer.active) > 1
+    assert not dropped.reducer.enriched.any()
+    assert dropped.reducer.active == sorted(dropped.reducer.permanent)
+    assert dropped.stats[-1]["enriched_after_downdate"] == 0.0 < dropped.stats[-1]["enriched_ratio"]
+
+
+def test_nodal_error_is_invariant_to_stiffness_and_resolution():
+    """Eq. 5, 10: for a uniform stretch, G_i ~ ||P|| / ||dP/dF(I)||, independent of E and mesh size."""
+    peak = {}
+    for E, k in ((1e5, 2), (1e9, 2), (1e5, 4)):
+        sim = sa.scenes.free_body(resolution=k, velocity=(0, 0, 0), spin=(0, 0, 0), integrator="implicit_euler",
+                                  material=sa.NeoHookean(E=E, nu=0.3))
+        sysm = sim.system
+        x = sysm.p0 * np.array([1.01, 1.0, 1.0])
+        data = sysm.evaluate(x)
+        w = sim.dt ** 2
+        ge = so.element_gradients(sysm, data.P)
+        area, _ = so.node_scaling(sysm)
+        G = so.OneRing(sysm).gradient_norms(w * ge, np.zeros((sysm.n, 3))) / (w * area)
+        interior = np.all(np.abs(sysm.p0) < 0.49, axis=1)
+        peak[(E, k)] = np.median(G[interior])
+    assert peak[(1e5, 2)] == pytest.approx(peak[(1e9, 2)], rel=1e-6)
+    assert peak[(1e5, 2)] == pytest.approx(peak[(1e5, 4)], rel=0.1)
+    assert 1e-4 < peak[(1e5, 2)] < 1e-2  # a 1 % stretch
+
+
+def test_node_scaling_of_a_single_tetrahedron():
+    import skfem
+    mesh = skfem.MeshTet(np.array([[0., 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]), np.array([[0], [1], [2], [3]]))
+    sysm = sa.assembly.ElasticSystem([sa.ElasticBody(mesh, sa.NeoHookean(E=1e5, nu=0.3))])
+    area, vol = so.node_scaling(sysm)
+    Hbar = so.rest_hessian_norms(sysm)[0]
+    faces = np.array([np.sqrt(3) / 2, 0.5, 0.5, 0.5])  # face opposite each vertex
+    assert np.allclose(area / Hbar, faces)
+    assert np.allclose(vol / Hbar, np.full(4, 1 / 24))
+
+
+def test_modal_query_of_a_mode_aligned_gradient():
+    rng = np.random.default_rng(3)
+    U = np.linalg.qr(rng.normal(size=(12, 4)))[0]
+    q = so.ModalQueries(U, [np.array([0, 1]), np.array([2, 3])])
+    g = U[:, 0] * 2.0
+    n_scale = np.full(4, 0.5)
+    err, _ = q.measure([0, 1], g, np.zeros(4), n_scale, np.ones(4))
+    assert err[0] == pytest.approx(np.linalg.norm(g.reshape(4, 3), axis=1).max() / 0.5)
+    assert err[1] == pytest.approx(0.0, abs=1e-12)
+    dE = np.ones(4)
+    _, prog = q.measure([0], np.zeros(12), dE, n_scale, np.full(4, 2.0))
+    Ub = U.reshape(4, 3, 4).mean(axis=1)[:, :2]
+    expect = sum((Ub[:, c] @ dE) / (Ub[:, c] @ Ub[:, c]) * Ub[:, c].sum() / 2.0 for c in range(2))
+    assert prog[0] == pytest.approx(expect)
+
+
+def test_bad_input():
+    with pytest.raises(ValueError, match="integrator"):
+        beam(reducer(), integrator="linearized")
+    with pytest.raises(TypeError, match="basis"):
+        sa.AdaptiveSubspace(basis="skinning")
+    with pytest.raises(ValueError, match="eps_nodal"):
+        sa.AdaptiveSubspace(eps_nodal=-1)
+    with pytest.raises(ValueError, match="subdomains"):
+        sa.AdaptiveSubspace(subdomains=0)
