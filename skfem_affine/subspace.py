@@ -36,6 +36,7 @@ import scipy.linalg as sla
 import scipy.sparse as sp
 
 from . import newton, subspace_oracle as so
+from ._kernels import element_hessians
 from .bases import SkinningEigenmodes, _Basis
 from .integrator import _check_positive
 
@@ -138,6 +139,32 @@ def schur_solve(Hq, C, Hx, gq, gx, tol=1e-5, maxiter=10000):
     return dq, dx, iters, tf
 
 
+def forces(system, x):
+    """F, P and the internal force f at positions x (n, 3): no tangent."""
+    F = system.deformation_gradients(x)
+    P, _ = system.stresses(F, tangent=False)
+    return F, P, system._internal_force(P)
+
+
+def element_blocks(system, F, elems, project=True):
+    """Element stiffness blocks V G^T C G (k, 12, 12) of ``elems`` only, dP/dF evaluated only there."""
+    C = np.empty((elems.size, 3, 3, 3, 3))
+    for mat, idx in system.groups:
+        mask = np.isin(elems, idx)
+        if not np.any(mask):
+            continue
+        sel = elems[mask]
+        if np.ndim(mat.E):  # per-element parameters of a merged material group
+            pos = np.searchsorted(idx, sel)
+            mat = type(mat)(E=mat.E[pos], nu=mat.nu[pos])
+        C[mask] = mat.stress_derivative(F[sel], project=False)
+    He = np.empty((elems.size, 12, 12))
+    vg = system.volumes[elems, None, None] * system.grads[elems]
+    element_hessians(np.ascontiguousarray(C.reshape(-1, 9, 9)), np.ascontiguousarray(F[elems]),
+                     np.ascontiguousarray(vg), np.ascontiguousarray(system.grads[elems]), project, He)
+    return He
+
+
 class _Subdomains:
     """Element subdomains of a fixed vertex partition with the data for exact U^T H_l U (sec. 3.9)."""
 
@@ -208,6 +235,10 @@ class AdaptiveSubspace:
     newton_tol : float
         ||d||_inf / h <= newton_tol * scene size ends a step.
     max_newton, pcg_tol, pcg_maxiter : iteration caps and the PCG tolerance (paper 1e-5).
+    hessian_init : {"rest", "exact"}
+        What the per-subdomain BFGS Hessians start from at each step and after a basis change:
+        the rest-state subspace Hessians (precomputed once; default) or the exact ones at the
+        current iterate (all element Hessians, a full evaluation per step).
     record_residual : bool
         Also record the full-space Newton decrement of each step's result (a full solve; for
         measuring accuracy only).
@@ -219,7 +250,7 @@ class AdaptiveSubspace:
 
     def __init__(self, basis=None, eps_nodal=0.5, eps_modal=0.5, eps_progress=1e-4, eps_down=0.1,
                  subdomains=200, newton_tol=1e-3, max_newton=50, pcg_tol=1e-5, pcg_maxiter=10000,
-                 record_residual=False):
+                 record_residual=False, hessian_init="rest"):
         basis = SkinningEigenmodes(n=16) if basis is None else basis
         if not isinstance(basis, _Basis):
             raise TypeError(f"basis must be a basis such as sa.SkinningEigenmodes(n=16), got {type(basis).__name__}")
@@ -236,6 +267,9 @@ class AdaptiveSubspace:
         self.pcg_tol = _check_positive(pcg_tol, "pcg_tol")
         self.pcg_maxiter = int(pcg_maxiter)
         self.record_residual = bool(record_residual)
+        if hessian_init not in ("rest", "exact"):
+            raise ValueError(f"hessian_init must be 'rest' or 'exact', got {hessian_init!r}")
+        self.hessian_init = hessian_init
 
     def __repr__(self):
         return (f"AdaptiveSubspace(basis={self.basis_spec!r}, eps_nodal={self.eps_nodal}, eps_modal={self.eps_modal}, "
@@ -261,6 +295,9 @@ class AdaptiveSubspace:
         self.free_vertex[sysm.free // 3] = True
         self.dof_map = np.full(3 * sysm.n, -1, dtype=np.int64)
         self.dof_map[sysm.free] = np.arange(sysm.free.size)
+        if self.hessian_init == "rest":
+            rest = sysm.evaluate(sysm.p0, project=sim.project_hessian)
+            self.rest_hessians = self.sub.exact(rest.He, range(self.sub.L), self.U)
         self.setup_time = time.perf_counter() - t0
         self.last_system = self.last_hessians = None
 
@@ -287,16 +324,17 @@ class AdaptiveSubspace:
         Hl = None
         Y_prev = s_prev = None
         pcg_total, e = 0, ip.energy(x)
-        data, He = ip.start, ip.start.He.copy()
+        data, He = (ip.start.F, ip.start.P, ip.start.f), ip.start.He.copy()
         he_valid = np.ones(sysm.m, dtype=bool)
         converged = False
         for it in range(self.max_newton):
             t0 = time.perf_counter()
             if data is None:
-                data = sysm.evaluate_tangent(x.reshape(-1, 3), project=sim.project_hessian)
+                data = forces(sysm, x.reshape(-1, 3))
                 he_valid[:] = False
-            g = ip.gradient(x, data.f)
-            ge = so.element_gradients(sysm, data.P)
+            F, P, f = data
+            g = ip.gradient(x, f)
+            ge = so.element_gradients(sysm, P)
             t1 = time.perf_counter()
             rec["assembly"] = rec.get("assembly", 0.0) + t1 - t0
             # ---- subspace Hessian (sec. 3.9): BFGS where valid, exact where enrichment touches
@@ -304,15 +342,14 @@ class AdaptiveSubspace:
             Ua = self.U[:, cols]
             invalid = self._invalid_subdomains()
             if Hl is None or Hl.shape[1] != cols.size:
-                self._blocks(sysm, data, He, he_valid, np.arange(sysm.m))
-                Hl = sub.exact(He, range(sub.L), Ua)
+                Hl = self._initial_hessians(F, He, he_valid, cols, Ua)
             else:
                 Y = sub.projected_gradients(ge, Ua)
                 valid = np.ones(sub.L, dtype=bool)
                 valid[invalid] = False
                 bfgs_update(Hl, s_prev, Y - Y_prev, valid)
                 if invalid.size:
-                    self._blocks(sysm, data, He, he_valid, self._elements_of(invalid))
+                    self._blocks(F, He, he_valid, self._elements_of(invalid))
                     Hl[invalid] = sub.exact(He, invalid, Ua)
             Y_prev = sub.projected_gradients(ge, Ua)
             Hu = Ua.T @ (Meff @ Ua) + w * Hl.sum(axis=0)
@@ -325,8 +362,7 @@ class AdaptiveSubspace:
             if changed == "modes":
                 cols = self.columns()
                 Ua = self.U[:, cols]
-                self._blocks(sysm, data, He, he_valid, np.arange(sysm.m))
-                Hl = sub.exact(He, range(sub.L), Ua)
+                Hl = self._initial_hessians(F, He, he_valid, cols, Ua)
                 Y_prev = sub.projected_gradients(ge, Ua)
             # ---- coupled system (eq. 19) on the non-overlapping decomposition (sec. 3.6)
             invalid = self._invalid_subdomains()
@@ -335,7 +371,7 @@ class AdaptiveSubspace:
             Ba[S] = 0.0
             Hq_el = Hl.copy()
             if invalid.size:
-                self._blocks(sysm, data, He, he_valid, self._elements_of(invalid))
+                self._blocks(F, He, he_valid, self._elements_of(invalid))
                 Hq_el[invalid] = sub.exact(He, invalid, Ba)
             Hq = Ba.T @ (Meff @ Ba) + w * Hq_el.sum(axis=0)
             Hq += (1e-10 * max(np.trace(Hu) / max(cols.size, 1), 1e-300)) * np.eye(cols.size)
@@ -390,11 +426,23 @@ class AdaptiveSubspace:
     def _elements_of(self, subs):
         return np.concatenate([self.sub.elems[l] for l in subs]) if len(subs) else np.zeros(0, np.int64)
 
-    def _blocks(self, sysm, data, He, he_valid, elems):
+    def _initial_hessians(self, F, He, he_valid, cols, Ua):
+        """Per-subdomain elastic subspace Hessians that BFGS starts from (sec. 3.9).
+
+        ``hessian_init="exact"``: U_a^T H_l(x) U_a at the current iterate (all element blocks);
+        ``"rest"``: the rest-state U_a^T H_l(X) U_a, precomputed once for all candidate modes.
+        Subdomains needing exact evaluation are overwritten by the caller either way.
+        """
+        if self.hessian_init == "rest":
+            return self.rest_hessians[:, cols][:, :, cols]
+        self._blocks(F, He, he_valid, np.arange(self.system.m))
+        return self.sub.exact(He, range(self.sub.L), Ua)
+
+    def _blocks(self, F, He, he_valid, elems):
         """Fill element blocks He of ``elems`` at the current iterate (computed once per iterate)."""
         need = elems[~he_valid[elems]]
         if need.size:
-            He[need], _ = sysm.partial_stiffness(data, need)
+            He[need] = element_blocks(self.system, F, need, self.sim.project_hessian)
             he_valid[need] = True
 
     def _partial_data(self, He, elems):

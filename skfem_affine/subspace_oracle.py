@@ -20,6 +20,7 @@ BDF2, where the paper writes h^2):
   the per-vertex coordinate averages :math:`\bar u`, :math:`E_j = \sum_i \Delta E_j^i / m_i`.
 """
 import numpy as np
+import scipy.sparse as sp
 
 
 def rest_hessian_norms(system):
@@ -124,11 +125,17 @@ class ModalQueries:
         """Errors G_j and progress E_j of the blocks ``which``; grad_full (3n,), dE (n,)."""
         if not len(which):
             return np.zeros(0), np.zeros(0)
+        sizes = [self.blocks[j].size for j in which]
         cols = np.concatenate([self.blocks[j] for j in which])
-        starts = np.cumsum([0] + [self.blocks[j].size for j in which])[:-1]
+        starts = np.cumsum([0] + sizes)[:-1]
         Uc = self.U[:, cols]
-        coef = (Uc.T @ grad_full) / np.where(self.colnorm_sq[cols] > 0, self.colnorm_sq[cols], 1.0)
-        proj = np.add.reduceat(Uc * coef, starts, axis=1)  # (3n, blocks): g_j (eq. 16)
+        coef = (grad_full @ Uc) / np.where(self.colnorm_sq[cols] > 0, self.colnorm_sq[cols], 1.0)
+        if len(set(sizes)) == 1:  # equal blocks: sum within each by a reshape
+            proj = (Uc * coef).reshape(Uc.shape[0], len(which), sizes[0]).sum(axis=2)  # g_j (eq. 16)
+        else:
+            member = sp.csr_matrix((np.ones(cols.size), (np.arange(cols.size), np.repeat(np.arange(len(which)), sizes))),
+                                   shape=(cols.size, len(which)))
+            proj = np.asarray((member.T @ (Uc * coef).T).T)
         n = grad_full.size // 3
         norms = np.linalg.norm(proj.reshape(n, 3, -1), axis=1) / n_scale[:, None]
         error = norms.max(axis=0)  # eq. 14
