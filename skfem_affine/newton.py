@@ -58,12 +58,24 @@ class IncrementalPotential:
             self.x_tilde = self.x_hat + 2.0 * h / 9.0 * (4.0 * v_t - v_prev)
         self.x_t = x_t
         self.f_ext = sim.f_gravity
-        self.start = start if start is not None else sysm.evaluate(x_t.reshape(-1, 3), project=sim.project_hessian)
+        self._start = start
         d = sim.damping
         self.weight = self.a * h * h  # a h^2 in front of the potentials (eq. 2)
         # (alpha M + beta H_t) / (c h), the damping "mass", on the pattern of the free DOFs
-        self.damping_data = (d.alpha * sysm.mass_data + d.beta * self.start.H) / (self.c * h)
+        Ht = self.start.H if d.beta else 0.0
+        self.damping_data = (d.alpha * sysm.mass_data + d.beta * Ht) / (self.c * h)
         self.damping_matrix = sysm.pattern.matrix(self.damping_data) if (d.alpha or d.beta) else None
+
+    @property
+    def has_start(self):
+        return self._start is not None
+
+    @property
+    def start(self):
+        """:class:`~skfem_affine.assembly.FrameData` at x_t (forces, element blocks, H), built on first use."""
+        if self._start is None:
+            self._start = self.system.evaluate(self.x_t.reshape(-1, 3), project=self.sim.project_hessian)
+        return self._start
 
     # ------------------------------------------------------------------ eq. 2
     def energy(self, x):

@@ -324,14 +324,16 @@ class AdaptiveSubspace:
         Hl = None
         Y_prev = s_prev = None
         pcg_total, e = 0, ip.energy(x)
-        data, He = (ip.start.F, ip.start.P, ip.start.f), ip.start.He.copy()
-        he_valid = np.ones(sysm.m, dtype=bool)
+        He = np.empty((sysm.m, 12, 12))
+        he_valid = np.zeros(sysm.m, dtype=bool)
+        data = None
+        if ip.has_start:  # already evaluated (Rayleigh beta needs H_t): reuse it
+            data, He[:], he_valid[:] = (ip.start.F, ip.start.P, ip.start.f), ip.start.He, True
         converged = False
         for it in range(self.max_newton):
             t0 = time.perf_counter()
             if data is None:
                 data = forces(sysm, x.reshape(-1, 3))
-                he_valid[:] = False
             F, P, f = data
             g = ip.gradient(x, f)
             ge = so.element_gradients(sysm, P)
@@ -400,6 +402,7 @@ class AdaptiveSubspace:
             q[cols] += alpha * dq
             s_prev = alpha * dq
             data = None
+            he_valid[:] = False
             rec["line_search"] = rec.get("line_search", 0.0) + time.perf_counter() - t5
             if newton.converged(ip, d, self.newton_tol) or alpha == 0.0:
                 converged = newton.converged(ip, d, self.newton_tol)

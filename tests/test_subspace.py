@@ -188,3 +188,16 @@ def test_bad_input():
         sa.AdaptiveSubspace(eps_nodal=-1)
     with pytest.raises(ValueError, match="subdomains"):
         sa.AdaptiveSubspace(subdomains=0)
+
+
+def test_modal_queries_fast_path_equals_the_general_one():
+    rng = np.random.default_rng(4)
+    U = rng.normal(size=(30, 12))
+    blocks = [np.arange(0, 4), np.arange(4, 8), np.arange(8, 12)]
+    fast = so.ModalQueries(U, blocks)
+    slow = so.ModalQueries(U, blocks)
+    slow.uniform = False
+    args = (rng.normal(size=30), rng.normal(size=10), rng.uniform(1, 2, 10), rng.uniform(1, 2, 10))
+    for a, b in zip(fast.measure([0, 2], *args), slow.measure([0, 2], *args)):
+        assert np.allclose(a, b)
+    assert fast.uniform
