@@ -15,7 +15,7 @@ def run(name):
 
 
 def test_every_example_is_tested():
-    tested = {"cantilever.py", "beam_frequency.py", "affinification.py"}
+    tested = {"cantilever.py", "beam_frequency.py", "affinification.py", "adaptive_subspace.py"}
     assert set(f for f in os.listdir(EXAMPLES) if f.endswith(".py")) <= tested
 
 
@@ -39,6 +39,15 @@ def test_affinification_example_trades_dofs_for_error():
     assert r["full"]["error"] == 0 and r["full"]["dof_ratio"] == 1
     assert r["affinification"]["dof_ratio"] < 0.9 and r["affinification"]["error"] < 0.05
     assert r["rigidification"]["dof_ratio"] < 1.0 and np.isfinite(r["rigidification"]["error"])
+
+
+def test_adaptive_subspace_example_trades_enrichment_for_error():
+    g = run("adaptive_subspace.py")
+    r = g["results"]
+    assert r[0.0]["enriched"].min() > 0.9 and r[0.0]["error"] < 1e-6  # the full-space solve
+    assert 0.0 < r[1e-3]["enriched"].mean() < r[0.0]["enriched"].mean()
+    assert r[0.0]["error"] < r[1e-3]["error"] < r[0.5]["error"] < 0.05
+    assert r[0.5]["enriched"].max() == 0.0
 
 
 def test_cli_demo(tmp_path, capsys):
