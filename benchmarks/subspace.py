@@ -51,7 +51,7 @@ def run(sim, frames, reference=None):
 def linear_solves(sim, solver):
     """Times of the Schur solve of eq. 19 and of the full Newton system at the same iterate x_t."""
     ip = sim.stepper.potential()
-    A = ip.hessian(ip.start.H)
+    A = ip.hessian(ip.start.H, ip.x_t)
     g = ip.gradient(ip.x_t, ip.start.f)
     direct = sa.solvers.make_solver(solver)
     t0 = time.perf_counter()

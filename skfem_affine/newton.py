@@ -31,6 +31,8 @@ import time
 
 import numpy as np
 
+from .barrier import contact_of
+
 SCHEMES = ("implicit_euler", "bdf2")
 
 
@@ -42,7 +44,7 @@ class IncrementalPotential:
     ``start`` is the :class:`~skfem_affine.assembly.FrameData` at ``x_t`` (built if None).
     """
 
-    def __init__(self, sim, x_t, v_t, x_prev=None, v_prev=None, start=None):
+    def __init__(self, sim, x_t, v_t, x_prev=None, v_prev=None, start=None, contact=None):
         sysm = sim.system
         self.sim, self.system, self.free, self.h = sim, sysm, sysm.free, sim.dt
         h = self.h
@@ -58,6 +60,7 @@ class IncrementalPotential:
             self.x_tilde = self.x_hat + 2.0 * h / 9.0 * (4.0 * v_t - v_prev)
         self.x_t = x_t
         self.f_ext = sim.f_gravity
+        self.contact = contact  # barrier.Contact or None (eq. 2's B(x))
         self._start = start
         d = sim.damping
         self.weight = self.a * h * h  # a h^2 in front of the potentials (eq. 2)
@@ -88,6 +91,8 @@ class IncrementalPotential:
         if self.damping_matrix is not None:
             z = (x - self.x_hat)[free]
             pot += 0.5 * z @ (self.damping_matrix @ z)
+        if self.contact is not None:
+            pot += self.contact.energy(x)
         val += self.weight * pot
         return float(val) if np.isfinite(val) else np.inf
 
@@ -97,14 +102,34 @@ class IncrementalPotential:
         g = self.system.Mff @ (x - self.x_tilde)[free] - self.weight * (f_int + self.f_ext)[free]
         if self.damping_matrix is not None:
             g += self.weight * (self.damping_matrix @ (x - self.x_hat)[free])
+        if self.contact is not None:
+            g += self.weight * self.contact.gradient(x)
         return g
 
-    def hessian_data(self, H):
-        """Data of grad^2 E = M + a h^2 (H + (alpha M + beta H_t)/(c h)) on the free-DOF pattern."""
-        return self.system.mass_data + self.weight * (H + self.damping_data)
+    def hessian_data(self, H, x=None):
+        """Data of grad^2 E = M + a h^2 (H + (alpha M + beta H_t)/(c h) + grad^2 B(x)) on the free-DOF pattern.
 
-    def hessian(self, H):
-        return self.system.pattern.matrix(self.hessian_data(H))
+        The barrier term is included when ``x`` is given.
+        """
+        data = self.system.mass_data + self.weight * (H + self.damping_data)
+        if x is not None and self.contact is not None:
+            data += self.weight * self.contact.hessian_data(x)
+        return data
+
+    def contact_data(self, x):
+        """a h^2 grad^2 B(x) on the free-DOF pattern, or None without colliders."""
+        return None if self.contact is None else self.weight * self.contact.hessian_data(x)
+
+    def hessian(self, H, x=None):
+        return self.system.pattern.matrix(self.hessian_data(H, x))
+
+    def max_step(self, x, d):
+        """Largest step fraction along d (free DOFs) that keeps vertices off the colliders (<= 1)."""
+        if self.contact is None:
+            return 1.0
+        full = np.zeros_like(x)
+        full[self.free] = d
+        return self.contact.max_step(x, full)
 
     def velocity(self, x):
         """v_{t+1} = (x - x_hat) / (c h) (eq. 3, footnote 9)."""
@@ -125,7 +150,7 @@ def line_search(ip, x, d, g, e0=None, c1=1e-4, min_step=1e-10):
     """
     e0 = ip.energy(x) if e0 is None else e0
     slope = float(g @ d)
-    alpha = 1.0
+    alpha = ip.max_step(x, d)
     while alpha >= min_step:
         e = ip.energy(ip.with_step(x, alpha * d))
         if e <= e0 + c1 * alpha * min(slope, 0.0):
@@ -154,7 +179,7 @@ def newton_solve(ip, tol, max_iters, solve, rec):
         if data is None:
             data = sim.system.evaluate(x.reshape(-1, 3), project=sim.project_hessian)
         g = ip.gradient(x, data.f)
-        A = ip.hessian(data.H)
+        A = ip.hessian(data.H, x)
         rec["assembly"] = rec.get("assembly", 0.0) + time.perf_counter() - t0
         d = solve(A, -g, rec)
         t0 = time.perf_counter()
@@ -175,7 +200,7 @@ def full_space_residual(ip, x):
     import scipy.sparse.linalg as spla
     sim = ip.sim
     data = sim.system.evaluate(x.reshape(-1, 3), project=sim.project_hessian)
-    d = spla.spsolve(ip.hessian(data.H).tocsc(), ip.gradient(x, data.f))
+    d = spla.spsolve(ip.hessian(data.H, x).tocsc(), ip.gradient(x, data.f))
     return float(np.abs(d).max() / ip.h)
 
 
@@ -195,13 +220,17 @@ class TimeStepper:
                              f"integrator={scheme!r} needs a reducer such as AdaptiveSubspace")
         self.sim, self.scheme, self.max_iters, self.tol = sim, scheme, int(max_iters), float(tol)
         self.history = None  # (frame, x_prev, v_prev)
+        self.contact, self._colliders = None, ()
 
     def potential(self):
         s = self.sim.state
         prev = (None, None)
         if self.scheme == "bdf2" and self.history is not None and self.history[0] == s.frame - 1:
             prev = self.history[1:]
-        return IncrementalPotential(self.sim, s.x, s.v, *prev)
+        colliders = tuple(getattr(self.sim, "colliders", None) or ())
+        if tuple(map(id, colliders)) != tuple(map(id, self._colliders)):  # built once per collider set
+            self.contact, self._colliders = contact_of(self.sim), colliders
+        return IncrementalPotential(self.sim, s.x, s.v, *prev, contact=self.contact)
 
     def step(self, rec):
         """One step; returns (x, v) as (n, 3) arrays."""

@@ -317,7 +317,7 @@ class AdaptiveSubspace:
         sim, sysm, sub = self.sim, self.system, self.sub
         w, free = ip.weight, ip.free
         x = ip.x_t.copy()
-        Meff = sysm.pattern.matrix(ip.hessian_data(np.zeros(sysm.pattern.nnz)))  # M + w D (exact)
+        Meff = sysm.pattern.matrix(ip.hessian_data(np.zeros(sysm.pattern.nnz)))  # M + w D (exact inertia and damping)
         n_scale = np.maximum(w * self.area_scale, 1e-300)
         m_scale = np.maximum(w * self.volume_scale, 1e-300)
         q = np.zeros(self.basis.size)
@@ -354,7 +354,8 @@ class AdaptiveSubspace:
                     self._blocks(F, He, he_valid, self._elements_of(invalid))
                     Hl[invalid] = sub.exact(He, invalid, Ua)
             Y_prev = sub.projected_gradients(ge, Ua)
-            Hu = Ua.T @ (Meff @ Ua) + w * Hl.sum(axis=0)
+            Mk = Meff if ip.contact is None else Meff + sysm.pattern.matrix(ip.contact_data(x))  # exact contact
+            Hu = Ua.T @ (Mk @ Ua) + w * Hl.sum(axis=0)
             t2 = time.perf_counter()
             rec["reduced_assembly"] = rec.get("reduced_assembly", 0.0) + t2 - t1
             # ---- oracle (sec. 3.7): tentative subspace step (eq. 18), then error and progress
@@ -375,12 +376,12 @@ class AdaptiveSubspace:
             if invalid.size:
                 self._blocks(F, He, he_valid, self._elements_of(invalid))
                 Hq_el[invalid] = sub.exact(He, invalid, Ba)
-            Hq = Ba.T @ (Meff @ Ba) + w * Hq_el.sum(axis=0)
+            Hq = Ba.T @ (Mk @ Ba) + w * Hq_el.sum(axis=0)
             Hq += (1e-10 * max(np.trace(Hu) / max(cols.size, 1), 1e-300)) * np.eye(cols.size)
             if S.size:
                 elems = self._elements_of(invalid)
                 Hpart = self._partial_data(He, elems)
-                Acols = sysm.pattern.matrix(ip.hessian_data(Hpart)).tocsc()[:, S]
+                Acols = sysm.pattern.matrix(ip.hessian_data(Hpart, x)).tocsc()[:, S]
                 Hx = Acols[S, :].tocsr()
                 C = np.asarray((Acols.T @ Ba).T)
             else:

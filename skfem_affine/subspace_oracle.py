@@ -11,7 +11,7 @@ BDF2, where the paper writes h^2):
 * progress scaling (eq. 8): :math:`m_i = w\,V_i\,\bar H_i`, :math:`V_i = \sum_{e \ni i} V_e/4`;
 * nodal error (eq. 9-10): :math:`G_i = \|g_i\|/n_i` where :math:`g_i` is the gradient of the
   one-ring's energy :math:`\sum_{e\ni i} w V_e W_e` over all one-ring DOFs, plus node i's own
-  inertia, gravity and damping gradient (point stencils);
+  inertia, gravity, damping and contact-barrier gradient (point stencils);
 * nodal progress (eq. 7, 11): :math:`E_i = \Delta E_i / m_i`, :math:`\Delta E_i = E_i(x) - E_i(x + d_u)`
   with :math:`E_i` node i's share of E: point terms and a quarter of each one-ring element energy
   (the shares sum to E, the "stencil-size weighting");
@@ -95,6 +95,8 @@ def nodal_shares(ip, x, elem_energy):
         z = (x - ip.x_hat)[free]
         dof[free] += 0.5 * w * z * (ip.damping_matrix @ z)
     share = dof.reshape(n, 3).sum(axis=1)
+    if ip.contact is not None:
+        share += w * ip.contact.vertex_energy(x)
     share += w * np.bincount(sysm.t.ravel(), weights=np.repeat(elem_energy[None, :] / 4.0, 4, 0).ravel(),
                              minlength=n)
     return share
@@ -107,6 +109,8 @@ def point_gradients(ip, x):
     g[free] = sysm.Mff @ (x - ip.x_tilde)[free] - w * ip.f_ext[free]
     if ip.damping_matrix is not None:
         g[free] += w * (ip.damping_matrix @ (x - ip.x_hat)[free])
+    if ip.contact is not None:
+        g[free] += w * ip.contact.gradient(x)
     return g.reshape(-1, 3)
 
 

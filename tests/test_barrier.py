@@ -1,0 +1,105 @@
+"""IPC log barrier against static colliders (duck-typed query), with full Newton and AdaptiveSubspace."""
+import numpy as np
+import pytest
+
+import skfem_affine as sa
+from skfem_affine import barrier
+
+
+class Plane:
+    """A tiny collider: the half-space above a plane (signed distance, normal)."""
+
+    def __init__(self, point, normal):
+        self.point = np.asarray(point, float)
+        self.normal = np.asarray(normal, float) / np.linalg.norm(normal)
+
+    def query(self, points):
+        return (points - self.point) @ self.normal, np.broadcast_to(self.normal, points.shape)
+
+
+class Sphere:
+    def __init__(self, centre, radius):
+        self.centre, self.radius = np.asarray(centre, float), float(radius)
+
+    def query(self, points):
+        r = points - self.centre
+        dist = np.linalg.norm(r, axis=1)
+        return dist - self.radius, r / dist[:, None]
+
+
+def test_barrier_derivatives_match_finite_differences():
+    dhat = 0.1
+    d = np.array([1e-3, 0.02, 0.05, 0.0999])
+    b, b1, b2 = barrier.barrier(d, dhat)
+    eps = 1e-7
+    bp, bp1, _ = barrier.barrier(d + eps, dhat)
+    bm, bm1, _ = barrier.barrier(d - eps, dhat)
+    assert np.allclose(b1, (bp - bm) / (2 * eps), rtol=1e-6)
+    assert np.allclose(b2, (bp1 - bm1) / (2 * eps), rtol=1e-5)
+    assert np.all(b > 0) and np.all(b2 > 0)
+    assert barrier.barrier(np.array([0.2]), dhat)[0][0] == 0 and np.isinf(barrier.barrier(np.array([-1e-9]), dhat)[0][0])
+
+
+def drop(reducer=None, collider=None, E=1e5, frames=30, **kw):
+    sim = sa.scenes.free_body(resolution=2, size=0.5, velocity=(0, 0, -2.0), spin=(0, 0, 0), gravity=(0, 0, -9.81),
+                              integrator="implicit_euler", reducer=reducer, material=sa.NeoHookean(E=E, nu=0.35), **kw)
+    sim.colliders = [collider or Plane((0, 0, -0.3), (0, 0, 1))]
+    lowest = []
+    for s in sim.run(frames):
+        d, _ = sim.colliders[0].query(s.x)
+        lowest.append(d.min())
+    return sim, np.array(lowest)
+
+
+def test_contact_gradient_and_hessian_match_finite_differences():
+    sim, _ = drop(frames=0)
+    contact = barrier.Contact(sim, [Plane((0, 0, -0.3), (0, 0, 1))], dhat=0.1)
+    x = sim.state.x.copy()
+    x[:, 2] -= 0.04  # bottom face 0.01 above the plane
+    xf = x.reshape(-1)
+    g = contact.gradient(xf)
+    H = sim.system.pattern.matrix(contact.hessian_data(xf))
+    rng = np.random.default_rng(0)
+    p = rng.normal(size=g.size) * 1e-3
+    free = sim.system.free
+    eps = 1e-4
+    xp, xm = xf.copy(), xf.copy()
+    xp[free] += eps * p
+    xm[free] -= eps * p
+    assert (contact.energy(xp) - contact.energy(xm)) / (2 * eps) == pytest.approx(g @ p, rel=1e-5)
+    assert np.allclose((contact.gradient(xp) - contact.gradient(xm)) / (2 * eps), H @ p, rtol=1e-4,
+                       atol=1e-6 * np.abs(H @ p).max())
+
+
+def test_full_newton_drop_on_a_plane_never_penetrates_and_bounces_back():
+    sim, lowest = drop(frames=40)
+    assert lowest.min() > 0
+    assert lowest.min() < 0.1 * sim.stepper.contact.dhat + 1e-3  # it did touch
+    vz = sim.state.v[:, 2].mean()
+    assert vz > -0.5  # the downward 2 m/s was stopped
+    assert all(r["newton_converged"] for r in sim.stats)
+
+
+def test_curved_collider_is_not_penetrated():
+    _, lowest = drop(collider=Sphere((0.1, 0.0, -1.3), 1.0), frames=30)
+    assert 0 < lowest.min() < 0.01
+
+
+def test_adaptive_subspace_with_contact_stays_outside_and_a_stiff_body_is_not_enriched():
+    eps = 1e-3
+    runs = {}
+    for E in (1e4, 1e9):
+        red = sa.AdaptiveSubspace(basis=sa.SkinningEigenmodes(n=3, cache=False), eps_nodal=eps, eps_modal=eps,
+                                  subdomains=8, newton_tol=1e-4)
+        sim, lowest = drop(red, E=E, frames=25)
+        assert lowest.min() > 0
+        runs[E] = max(r["enriched_ratio"] for r in sim.stats)
+    assert runs[1e4] > 0 and runs[1e9] == 0.0, runs
+
+
+def test_bad_collider():
+    sim, _ = drop(frames=0)
+    with pytest.raises(TypeError, match="query"):
+        barrier.Contact(sim, [object()])
+    with pytest.raises(ValueError, match="dhat"):
+        barrier.Contact(sim, [Plane((0, 0, 0), (0, 0, 1))], dhat=0.0)
