@@ -14,8 +14,8 @@ infinite for :math:`d \le 0`, so that a line search that keeps E finite never le
 cross a collider. Gradient :math:`\kappa b'(d) n`; Hessian :math:`\kappa b''(d) n n^T`
 (b'' > 0: positive semi-definite), which drops the collider-curvature term
 :math:`\kappa b'(d) \nabla^2 d` (exact for planes). Defaults: :math:`\hat d` = 1e-3 of the scene
-size, :math:`\kappa` = 100 m_avg 9.81 / :math:`\hat d`, so that a vertex of average mass
-:math:`m_{avg}` resting under gravity settles at a small fraction of :math:`\hat d`.
+size, :math:`\kappa` = 100 m_avg 9.81 / :math:`\hat d` (m_avg the mean vertex mass): a body
+resting under gravity settles inside the barrier's range (measured: at about 0.7-0.9 dhat).
 """
 import numpy as np
 
