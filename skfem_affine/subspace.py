@@ -36,6 +36,7 @@ import scipy.linalg as sla
 import scipy.sparse as sp
 
 from . import newton, subspace_oracle as so
+from .newton import vdot
 from ._kernels import element_hessians
 from .bases import SkinningEigenmodes, _Basis
 from .integrator import _check_positive
@@ -87,21 +88,21 @@ def bfgs_update(H, s, Y, valid):
 def pcg(apply, b, precond, tol, maxiter):
     """Preconditioned CG to relative residual ``tol``; returns (x, iterations)."""
     x = np.zeros_like(b)
-    nb = np.linalg.norm(b)
+    nb = np.sqrt(vdot(b, b))
     if nb == 0.0:
         return x, 0
     r = b.copy()
     z = precond(r)
-    p, rz = z.copy(), r @ z
+    p, rz = z.copy(), vdot(r, z)
     for it in range(1, maxiter + 1):
         Ap = apply(p)
-        alpha = rz / (p @ Ap)
+        alpha = rz / vdot(p, Ap)
         x += alpha * p
         r -= alpha * Ap
-        if np.linalg.norm(r) <= tol * nb:
+        if np.sqrt(vdot(r, r)) <= tol * nb:
             return x, it
         z = precond(r)
-        rz, rz_old = r @ z, rz
+        rz, rz_old = vdot(r, z), rz
         p = z + (rz / rz_old) * p
     return x, maxiter
 
@@ -300,6 +301,7 @@ class AdaptiveSubspace:
             self.rest_hessians = self.sub.exact(rest.He, range(self.sub.L), self.U)
         self.setup_time = time.perf_counter() - t0
         self.last_system = self.last_hessians = None
+        self._inertia_cache = {}
 
     def solve(self, sim, rec):
         raise ValueError("AdaptiveSubspace runs with integrator='implicit_euler' or 'bdf2'")
@@ -318,6 +320,7 @@ class AdaptiveSubspace:
         w, free = ip.weight, ip.free
         x = ip.x_t.copy()
         Meff = sysm.pattern.matrix(ip.hessian_data(np.zeros(sysm.pattern.nnz)))  # M + w D (exact inertia and damping)
+        UMU = self._inertia(ip, Meff)  # U^T (M + w D) U over all candidate columns
         n_scale = np.maximum(w * self.area_scale, 1e-300)
         m_scale = np.maximum(w * self.volume_scale, 1e-300)
         q = np.zeros(self.basis.size)
@@ -355,7 +358,8 @@ class AdaptiveSubspace:
                     Hl[invalid] = sub.exact(He, invalid, Ua)
             Y_prev = sub.projected_gradients(ge, Ua)
             Mk = Meff if ip.contact is None else Meff + sysm.pattern.matrix(ip.contact_data(x))  # exact contact
-            Hu = Ua.T @ (Mk @ Ua) + w * Hl.sum(axis=0)
+            Hl_sum = Hl.sum(axis=0)
+            Hu = self._sandwich(UMU, cols, Mk - Meff, Ua) + w * Hl_sum
             t2 = time.perf_counter()
             rec["reduced_assembly"] = rec.get("reduced_assembly", 0.0) + t2 - t1
             # ---- oracle (sec. 3.7): tentative subspace step (eq. 18), then error and progress
@@ -372,11 +376,11 @@ class AdaptiveSubspace:
             S = self._enriched_dofs()
             Ba = Ua.copy()
             Ba[S] = 0.0
-            Hq_el = Hl.copy()
+            Hq_el = Hl.sum(axis=0)
             if invalid.size:
                 self._blocks(F, He, he_valid, self._elements_of(invalid))
-                Hq_el[invalid] = sub.exact(He, invalid, Ba)
-            Hq = Ba.T @ (Mk @ Ba) + w * Hq_el.sum(axis=0)
+                Hq_el += sub.exact(He, invalid, Ba).sum(axis=0) - Hl[invalid].sum(axis=0)
+            Hq = self._sandwich(UMU, cols, Mk - Meff, Ua, Mk, S) + w * Hq_el
             Hq += (1e-10 * max(np.trace(Hu) / max(cols.size, 1), 1e-300)) * np.eye(cols.size)
             if S.size:
                 elems = self._elements_of(invalid)
@@ -422,6 +426,35 @@ class AdaptiveSubspace:
         return x
 
     # ------------------------------------------------------------------ pieces
+    def _inertia(self, ip, Meff):
+        """U^T (M + w D) U for all candidate modes: once per step, or once per run without beta damping."""
+        key = (ip.weight, ip.c)
+        if self.sim.damping.beta == 0 and key in self._inertia_cache:
+            return self._inertia_cache[key]
+        UMU = self.U.T @ (Meff @ self.U)
+        if self.sim.damping.beta == 0:
+            self._inertia_cache[key] = UMU
+        return UMU
+
+    def _sandwich(self, UMU, cols, extra, Ua, Mk=None, S=None):
+        """B^T (M + w D + extra) B with B = U_a, or U_a masked on the DOFs S (then Mk = M + w D + extra).
+
+        Uses the cached U^T (M + w D) U; the sparse ``extra`` (contact) and the masking are
+        corrections over the few rows they touch: B^T A B = U^T A U - U^T A E U - U^T E A U + U^T E A E U.
+        """
+        out = UMU[np.ix_(cols, cols)].copy()
+        rows = np.flatnonzero(np.diff(extra.tocsr().indptr)) if extra.nnz else np.zeros(0, np.int64)
+        if rows.size:
+            Ur = Ua[rows]
+            out += Ur.T @ (extra[rows][:, rows] @ Ur)
+        if S is not None and S.size:
+            X = Mk[:, S]  # columns of the enriched DOFs
+            XU = np.asarray((X.T @ Ua))  # (s, a) = E A U restricted to S rows
+            US = Ua[S]
+            cross = US.T @ XU
+            out += -cross - cross.T + US.T @ (Mk[S][:, S] @ US)
+        return out
+
     def _invalid_subdomains(self):
         """Subdomains with an element touching an enriched node: exact evaluation (sec. 3.9)."""
         touch = np.any(self.enriched[self.system.t], axis=0)

@@ -158,10 +158,10 @@ class ModalQueries:
     def _measure_all(self, grad_full, dE, n_scale, m_scale):
         nb, n = len(self.blocks), grad_full.size // 3
         safe = np.where(self.colnorm_sq > 0, self.colnorm_sq, 1.0)
-        coef = (grad_full @ self.U) / safe
-        proj = (self.U * coef).reshape(n, 3, nb, -1).sum(axis=3)  # g_j per vertex (eq. 16)
+        coef = np.einsum("i,ic->c", grad_full, self.U) / safe  # no BLAS gemv: see newton.vdot
+        proj = np.einsum("ikbc,bc->ikb", self.U.reshape(n, 3, nb, -1), coef.reshape(nb, -1))  # g_j (eq. 16)
         error = (np.sqrt(np.einsum("icb,icb->ib", proj, proj)) / n_scale[:, None]).max(axis=0)  # eq. 14
         ok = self.ubar_sq > 0
-        c2 = np.where(ok, (dE @ self.Ubar) / np.where(ok, self.ubar_sq, 1.0), 0.0)  # eq. 17
-        progress = (c2 * ((1.0 / m_scale) @ self.Ubar)).reshape(nb, -1).sum(axis=1)  # eq. 15
+        c2 = np.where(ok, np.einsum("i,ic->c", dE, self.Ubar) / np.where(ok, self.ubar_sq, 1.0), 0.0)  # eq. 17
+        progress = (c2 * np.einsum("i,ic->c", 1.0 / m_scale, self.Ubar)).reshape(nb, -1).sum(axis=1)  # eq. 15
         return error, progress

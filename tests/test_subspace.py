@@ -201,3 +201,25 @@ def test_modal_queries_fast_path_equals_the_general_one():
     for a, b in zip(fast.measure([0, 2], *args), slow.measure([0, 2], *args)):
         assert np.allclose(a, b)
     assert fast.uniform
+
+
+def test_masked_inertia_sandwich_equals_the_direct_product():
+    """B^T (M + wD + contact) B from the cached U^T (M + wD) U plus row corrections (eq. 19's H_q)."""
+    rng = np.random.default_rng(5)
+    nf, r = 30, 8
+    red = sa.AdaptiveSubspace(basis=sa.AffineModes())
+    red.U = rng.normal(size=(nf, r))
+    A = sp.random(nf, nf, density=0.2, random_state=1)
+    Meff = (A @ A.T + sp.eye(nf)).tocsr()
+    extra = sp.csr_matrix((nf, nf))
+    extra[4:7, 4:7] = np.eye(3) * 2.0
+    extra = extra.tocsr()
+    UMU = red.U.T @ (Meff @ red.U)
+    cols = np.array([1, 3, 4, 6])
+    Ua = red.U[:, cols]
+    assert np.allclose(red._sandwich(UMU, cols, extra, Ua), Ua.T @ ((Meff + extra) @ Ua))
+    S = np.array([3, 4, 5, 20, 21, 22])
+    B = Ua.copy()
+    B[S] = 0
+    Mk = (Meff + extra).tocsr()
+    assert np.allclose(red._sandwich(UMU, cols, extra, Ua, Mk, S), B.T @ (Mk @ B))
