@@ -40,6 +40,7 @@ from .newton import vdot
 from ._kernels import element_hessians
 from .bases import SkinningEigenmodes, _Basis
 from .integrator import _check_positive
+from .solvers import SolverError
 
 
 def _threshold(value, name):
@@ -126,7 +127,10 @@ def schur_solve(Hq, C, Hx, gq, gx, tol=1e-5, maxiter=10000):
     Returns (dq, dx, pcg iterations, factorization seconds).
     """
     t0 = time.perf_counter()
-    fac = sla.cho_factor(Hq, lower=True)
+    try:
+        fac = sla.cho_factor(Hq, lower=True)
+    except np.linalg.LinAlgError as err:
+        raise SolverError(f"modal block H_q is not positive definite ({err})") from err
     tf = time.perf_counter() - t0
     if Hx.shape[0] == 0:
         return -sla.cho_solve(fac, gq), np.zeros(0), 0, tf

@@ -73,6 +73,11 @@ def test_schur_solve_equals_a_direct_solve_of_eq_19():
     assert 0 < iters <= ne
 
 
+def test_schur_solve_refuses_an_indefinite_modal_block():
+    with pytest.raises(sa.solvers.SolverError, match="positive definite"):
+        subspace.schur_solve(-np.eye(2), np.zeros((2, 0)), sp.csr_matrix((0, 0)), np.ones(2), np.zeros(0))
+
+
 def test_schur_solve_on_a_simulated_frame_matches_the_direct_solve_to_the_pcg_tolerance():
     red = reducer(eps_nodal=3e-4, eps_modal=3e-4, pcg_tol=1e-5)
     sim = beam(red)
