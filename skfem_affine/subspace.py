@@ -385,6 +385,7 @@ class AdaptiveSubspace:
                 self._blocks(F, He, he_valid, self._elements_of(invalid))
                 Hq_el += sub.exact(He, invalid, Ba).sum(axis=0) - Hl[invalid].sum(axis=0)
             Hq = self._sandwich(UMU, cols, Mk - Meff, Ua, Mk, S) + w * Hq_el
+            # relative 1e-10 shift: fully masked or mutually dependent columns stay solvable
             Hq += (1e-10 * max(np.trace(Hu) / max(cols.size, 1), 1e-300)) * np.eye(cols.size)
             if S.size:
                 elems = self._elements_of(invalid)
@@ -495,7 +496,8 @@ class AdaptiveSubspace:
     def _update(self, ip, x, g, ge, Ua, Hu, e0, n_scale, m_scale, rec):
         """Oracle (sec. 3.7): activate nodes (by subdomain) and blocks of modes; returns what changed."""
         sysm = self.system
-        dq = -sla.solve(Hu, Ua.T @ g, assume_a="pos")  # eq. 18
+        shift = 1e-10 * max(np.trace(Hu) / max(Hu.shape[0], 1), 1e-300)  # candidate columns may be dependent
+        dq = -sla.solve(Hu + shift * np.eye(Hu.shape[0]), Ua.T @ g, assume_a="pos")  # eq. 18
         du = Ua @ dq
         alpha, _ = newton.line_search(ip, x, du, g, e0)
         du *= alpha
