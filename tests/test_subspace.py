@@ -216,7 +216,7 @@ def test_masked_inertia_sandwich_equals_the_direct_product():
     red.U = rng.normal(size=(nf, r))
     A = sp.random(nf, nf, density=0.2, random_state=1)
     Meff = (A @ A.T + sp.eye(nf)).tocsr()
-    extra = sp.csr_matrix((nf, nf))
+    extra = sp.lil_matrix((nf, nf))
     extra[4:7, 4:7] = np.eye(3) * 2.0
     extra = extra.tocsr()
     UMU = red.U.T @ (Meff @ red.U)
