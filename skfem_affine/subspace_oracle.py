@@ -103,14 +103,10 @@ def nodal_shares(ip, x, elem_energy):
 
 
 def point_gradients(ip, x):
-    """Gradient of the point stencils (inertia, gravity, damping) per vertex, (n, 3)."""
-    sysm, free, w = ip.system, ip.free, ip.weight
-    g = np.zeros(3 * sysm.n)
-    g[free] = sysm.Mff @ (x - ip.x_tilde)[free] - w * ip.f_ext[free]
-    if ip.damping_matrix is not None:
-        g[free] += w * (ip.damping_matrix @ (x - ip.x_hat)[free])
-    if ip.contact is not None:
-        g[free] += w * ip.contact.gradient(x)
+    """Gradient of the point stencils (inertia, gravity, damping, contact) per vertex, (n, 3):
+    grad E without the elastic part."""
+    g = np.zeros(3 * ip.system.n)
+    g[ip.free] = ip.gradient(x, np.zeros(x.size))
     return g.reshape(-1, 3)
 
 

@@ -244,3 +244,18 @@ def test_two_bodies_each_get_their_own_modes_and_match_full_space():
     for _ in range(4):
         s, f = sim.step(), full.step()
     assert np.abs(s.x - f.x).max() <= 1e-7 * sim.size * sim.dt
+
+
+@pytest.mark.parametrize("damping", [None, sa.Rayleigh(alpha=0.5, beta=0.01)])
+def test_nodal_energy_shares_sum_to_the_incremental_potential(damping):
+    """Eq. 7: the per-node shares add up to E (up to a constant), so sum_i dE_i = dE."""
+    sim = beam(resolution=1, damping=damping, mass="consistent")
+    ip = sim.stepper.potential()
+    rng = np.random.default_rng(6)
+    diffs = []
+    for _ in range(3):
+        x = ip.x_t.copy()
+        x[ip.free] += 1e-3 * rng.normal(size=ip.free.size)
+        W = so.element_energies(sim.system, x.reshape(-1, 3))
+        diffs.append(so.nodal_shares(ip, x, W).sum() - ip.energy(x))
+    assert np.ptp(diffs) <= 1e-10 * abs(ip.energy(x))
