@@ -38,6 +38,7 @@ import scipy.sparse as sp
 from . import newton, subspace_oracle as so
 from .newton import vdot
 from ._kernels import element_hessians
+from .assembly import Pattern
 from .bases import SkinningEigenmodes, _Basis
 from .integrator import _check_positive
 from .solvers import SolverError
@@ -194,6 +195,7 @@ class _Subdomains:
         ok = rows >= 0
         self.grad_rows, self.grad_cols, self.grad_keep = rows[ok], np.repeat(self.of_element, 12)[ok], ok
         self.nfree = system.free.size
+        self._stacks = {}
 
     def exact(self, He, which, U):
         """U_l^T H_l U_l (len(which), a, a) from element blocks He (m, 12, 12).
@@ -202,26 +204,36 @@ class _Subdomains:
         matrix over their stacked local DOFs; then one sparse product H U and a small dense
         product per subdomain.
         """
-        which = list(which)
+        which = np.asarray(list(which), dtype=np.int64)
         a = U.shape[1]
-        out = np.zeros((len(which), a, a))
-        if not which:
+        out = np.zeros((which.size, a, a))
+        if not which.size:
             return out
-        nds = np.array([self.dofs[l].size for l in which])
-        off = np.concatenate([[0], np.cumsum(nds)])
-        elems = np.concatenate([self.elems[l] for l in which])
-        shift = np.repeat(off[:-1], [self.elems[l].size for l in which])
-        loc = self.local[elems]
-        r = np.broadcast_to((loc + shift[:, None])[:, :, None], (elems.size, 12, 12))
-        c = np.broadcast_to((loc + shift[:, None])[:, None, :], (elems.size, 12, 12))
-        keep = ((loc >= 0)[:, :, None] & (loc >= 0)[:, None, :])
-        H = sp.csr_matrix((He[elems][keep], (r[keep], c[keep])), shape=(off[-1], off[-1]))
-        Us = U[np.concatenate([self.dofs[l] for l in which])]
-        HU = H @ Us
+        pattern, elems, off, dofs = self._stacked(which)
+        HU = pattern.matrix(pattern.scatter(He[elems])) @ U[dofs]
+        Us = U[dofs]
         for k in range(len(which)):  # small dense products, one per subdomain
             seg = slice(off[k], off[k + 1])
             out[k] = Us[seg].T @ HU[seg]
         return out
+
+    def _stacked(self, which):
+        """Pattern of the block-diagonal Hessian of subdomains ``which`` over their stacked local
+        DOFs (reused: the set of exactly evaluated subdomains rarely changes within a step)."""
+        key = which.tobytes()
+        if key not in self._stacks:
+            nds = np.array([self.dofs[l].size for l in which])
+            off = np.concatenate([[0], np.cumsum(nds)])
+            elems = np.concatenate([self.elems[l] for l in which])
+            shift = np.repeat(off[:-1], [self.elems[l].size for l in which])
+            loc = self.local[elems]
+            stacked = np.where(loc >= 0, loc + shift[:, None], off[-1])  # off[-1]: a dropped (fixed) DOF
+            dof_map = np.concatenate([np.arange(off[-1]), [-1]])
+            if len(self._stacks) >= 8:
+                self._stacks.pop(next(iter(self._stacks)))
+            self._stacks[key] = (Pattern(stacked, dof_map), elems, off,
+                                 np.concatenate([self.dofs[l] for l in which]))
+        return self._stacks[key]
 
     def projected_gradients(self, ge, U):
         """U^T grad Psi_l per subdomain, (L, a), from element gradients ge (m, 4, 3)."""

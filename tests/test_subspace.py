@@ -259,3 +259,19 @@ def test_nodal_energy_shares_sum_to_the_incremental_potential(damping):
         W = so.element_energies(sim.system, x.reshape(-1, 3))
         diffs.append(so.nodal_shares(ip, x, W).sum() - ip.energy(x))
     assert np.ptp(diffs) <= 1e-10 * abs(ip.energy(x))
+
+
+def test_subdomain_hessians_sum_to_the_subspace_hessian():
+    """Sec. 3.9: sum_l U^T H_l U over the element subdomains = U^T H U, and each H_l is PSD."""
+    red = reducer(subdomains=6)
+    sim = beam(red)
+    sysm = sim.system
+    x = sysm.p0 + np.random.default_rng(7).normal(scale=0.02, size=sysm.p0.shape)
+    data = sysm.evaluate(x)
+    U = red.U[:, :20]
+    Hl = red.sub.exact(data.He, range(red.sub.L), U)
+    H = sysm.pattern.matrix(data.H)
+    assert np.allclose(Hl.sum(axis=0), U.T @ (H @ U), rtol=1e-10, atol=1e-10 * np.abs(Hl).max())
+    assert all(np.linalg.eigvalsh(h).min() >= -1e-9 * np.abs(h).max() for h in Hl)
+    part = red.sub.exact(data.He, [1, 3], U)  # a subset, in the order asked
+    assert np.allclose(part, Hl[[1, 3]])
