@@ -37,7 +37,7 @@ import scipy.sparse as sp
 
 from . import newton, subspace_oracle as so
 from .newton import vdot
-from ._kernels import element_hessians
+from ._kernels import element_hessians, scatter_add
 from .assembly import Pattern
 from .bases import SkinningEigenmodes, _Basis
 from .integrator import _check_positive
@@ -78,13 +78,13 @@ def bfgs_update(H, s, Y, valid):
     ok = valid & (ys > 1e-12 * np.maximum(scale, 1e-300))
     if not np.any(ok):
         return
-    Hk, Yk = H[ok], Y[ok]
-    Hs = Hk @ s
+    idx = np.flatnonzero(ok)
+    Hs = np.einsum("lab,b->la", H[idx], s)
     sHs = Hs @ s
-    big = sHs > 1e-14 * np.maximum(np.abs(ys[ok]), 1e-300)
-    Hk += np.einsum("la,lb->lab", Yk, Yk) / ys[ok][:, None, None]
-    Hk[big] -= np.einsum("la,lb->lab", Hs[big], Hs[big]) / sHs[big][:, None, None]
-    H[ok] = 0.5 * (Hk + Hk.transpose(0, 2, 1))
+    big = sHs > 1e-14 * np.abs(ys[idx])
+    V = np.stack([Y[idx], Hs], axis=2)  # (l, a, 2): the two rank-one terms, one symmetric product
+    coef = np.column_stack([1.0 / ys[idx], np.where(big, -1.0 / np.where(big, sHs, 1.0), 0.0)])
+    H[idx] += np.einsum("lak,lk,lbk->lab", V, coef, V, optimize=True)
 
 
 def pcg(apply, b, precond, tol, maxiter):
@@ -171,6 +171,24 @@ def element_blocks(system, F, elems, project=True):
     return He
 
 
+class _BlockDiagonal:
+    """CSR pattern of a block-diagonal matrix stacked from per-block :class:`Pattern` s."""
+
+    def __init__(self, patterns):
+        nnz = np.cumsum([0] + [p.nnz for p in patterns])
+        size = np.cumsum([0] + [p.shape[0] for p in patterns])
+        self.slot = np.concatenate([np.where(p.slot >= 0, p.slot + o, -1) for p, o in zip(patterns, nnz[:-1])])
+        self.indices = np.concatenate([p.indices + s for p, s in zip(patterns, size[:-1])]).astype(np.int32)
+        self.indptr = np.concatenate([[0]] + [p.indptr[1:] + o for p, o in zip(patterns, nnz[:-1])]).astype(np.int32)
+        self.nnz, self.shape = int(nnz[-1]), (int(size[-1]), int(size[-1]))
+
+    def scatter(self, blocks):
+        return scatter_add(self.slot, blocks.reshape(-1), self.nnz)
+
+    def matrix(self, data):
+        return sp.csr_matrix((data, self.indices, self.indptr), shape=self.shape)
+
+
 class _Subdomains:
     """Element subdomains of a fixed vertex partition with the data for exact U^T H_l U (sec. 3.9)."""
 
@@ -180,7 +198,7 @@ class _Subdomains:
         self.of_element = parts[system.t[0]]
         dof_map = np.full(3 * system.n, -1, dtype=np.int64)
         dof_map[system.free] = np.arange(system.free.size)
-        self.elems, self.dofs = [], []
+        self.elems, self.dofs, self.patterns = [], [], []
         self.local = np.full((system.m, 12), -1, dtype=np.int64)  # DOF's index within its element's subdomain
         order = np.argsort(self.of_element, kind="stable")
         bounds = np.searchsorted(self.of_element[order], np.arange(self.L + 1))
@@ -191,6 +209,9 @@ class _Subdomains:
             self.local[el] = np.where(ed >= 0, np.searchsorted(dofs, np.where(ed >= 0, ed, 0)), -1)
             self.elems.append(el)
             self.dofs.append(dofs)
+            loc = self.local[el]
+            self.patterns.append(Pattern(np.where(loc >= 0, loc, dofs.size),
+                                         np.concatenate([np.arange(dofs.size), [-1]])))
         rows = dof_map[system.edofs].ravel()
         ok = rows >= 0
         self.grad_rows, self.grad_cols, self.grad_keep = rows[ok], np.repeat(self.of_element, 12)[ok], ok
@@ -217,21 +238,32 @@ class _Subdomains:
             out[k] = Us[seg].T @ HU[seg]
         return out
 
+    def exact_sum(self, He, which, U, masked=None):
+        """sum_l B_l^T H_l B_l over subdomains ``which`` (a, a), B = U with the rows in the boolean
+        mask ``masked`` (free DOFs) zeroed; only the unmasked rows are multiplied."""
+        which = np.asarray(list(which), dtype=np.int64)
+        a = U.shape[1]
+        if not which.size:
+            return np.zeros((a, a))
+        pattern, elems, off, dofs = self._stacked(which)
+        H = pattern.matrix(pattern.scatter(He[elems]))
+        if masked is None:
+            Us = U[dofs]
+            return Us.T @ (H @ Us)
+        keep = np.flatnonzero(~masked[dofs])
+        Bs = U[dofs[keep]]
+        return Bs.T @ (H[keep][:, keep] @ Bs)
+
     def _stacked(self, which):
-        """Pattern of the block-diagonal Hessian of subdomains ``which`` over their stacked local
-        DOFs (reused: the set of exactly evaluated subdomains rarely changes within a step)."""
+        """Block-diagonal pattern of subdomains ``which`` over their stacked local DOFs, stacked
+        from the per-subdomain patterns (no sorting), with the elements, DOF offsets and DOFs."""
         key = which.tobytes()
         if key not in self._stacks:
-            nds = np.array([self.dofs[l].size for l in which])
-            off = np.concatenate([[0], np.cumsum(nds)])
-            elems = np.concatenate([self.elems[l] for l in which])
-            shift = np.repeat(off[:-1], [self.elems[l].size for l in which])
-            loc = self.local[elems]
-            stacked = np.where(loc >= 0, loc + shift[:, None], off[-1])  # off[-1]: a dropped (fixed) DOF
-            dof_map = np.concatenate([np.arange(off[-1]), [-1]])
             if len(self._stacks) >= 8:
                 self._stacks.pop(next(iter(self._stacks)))
-            self._stacks[key] = (Pattern(stacked, dof_map), elems, off,
+            off = np.concatenate([[0], np.cumsum([self.dofs[l].size for l in which])])
+            self._stacks[key] = (_BlockDiagonal([self.patterns[l] for l in which]),
+                                 np.concatenate([self.elems[l] for l in which]), off,
                                  np.concatenate([self.dofs[l] for l in which]))
         return self._stacks[key]
 
@@ -394,13 +426,9 @@ class AdaptiveSubspace:
                 valid = np.ones(sub.L, dtype=bool)
                 valid[invalid] = False
                 bfgs_update(Hl, s_prev, Y - Y_prev, valid)
-                if invalid.size:
-                    self._blocks(F, He, he_valid, self._elements_of(invalid))
-                    Hl[invalid] = sub.exact(He, invalid, Ua)
             Y_prev = sub.projected_gradients(ge, Ua)
             Mk = Meff if ip.contact is None else Meff + sysm.pattern.matrix(ip.contact_data(x))  # exact contact
-            Hl_sum = Hl.sum(axis=0)
-            Hu = self._sandwich(UMU, cols, Mk - Meff, Ua) + w * Hl_sum
+            Hu = self._sandwich(UMU, cols, Mk - Meff, Ua) + w * self._elastic(Hl, invalid, F, He, he_valid, Ua)
             t2 = time.perf_counter()
             rec["reduced_assembly"] = rec.get("reduced_assembly", 0.0) + t2 - t1
             # ---- oracle (sec. 3.7): tentative subspace step (eq. 18), then error and progress
@@ -417,11 +445,10 @@ class AdaptiveSubspace:
             S = self._enriched_dofs()
             Ba = Ua.copy()
             Ba[S] = 0.0
-            Hq_el = Hl.sum(axis=0)
-            if invalid.size:
-                self._blocks(F, He, he_valid, self._elements_of(invalid))
-                Hq_el += sub.exact(He, invalid, Ba).sum(axis=0) - Hl[invalid].sum(axis=0)
-            Hq = self._sandwich(UMU, cols, Mk - Meff, Ua, Mk, S) + w * Hq_el
+            masked = np.zeros(free.size, dtype=bool)
+            masked[S] = True
+            Hq = self._sandwich(UMU, cols, Mk - Meff, Ua, Mk, S) + w * self._elastic(Hl, invalid, F, He, he_valid,
+                                                                                   Ua, masked)
             # relative 1e-10 shift: fully masked or mutually dependent columns stay solvable
             Hq += (1e-10 * max(np.trace(Hu) / max(cols.size, 1), 1e-300)) * np.eye(cols.size)
             if S.size:
@@ -505,6 +532,17 @@ class AdaptiveSubspace:
     def _elements_of(self, subs):
         return np.concatenate([self.sub.elems[l] for l in subs]) if len(subs) else np.zeros(0, np.int64)
 
+    def _elastic(self, Hl, invalid, F, He, he_valid, Ua, masked=None):
+        """Elastic subspace Hessian (sec. 3.9): BFGS H_l in valid subdomains plus the exact
+        U^T H_l U (masked: B^T H_l B) summed over the subdomains that enrichment touches."""
+        valid = np.ones(Hl.shape[0])
+        valid[invalid] = 0.0
+        total = np.einsum("l,lab->ab", valid, Hl)  # sum over valid subdomains without copying them
+        if invalid.size:
+            self._blocks(F, He, he_valid, self._elements_of(invalid))
+            total += self.sub.exact_sum(He, invalid, Ua, masked)
+        return total
+
     def _initial_hessians(self, F, He, he_valid, cols, Ua):
         """Per-subdomain elastic subspace Hessians that BFGS starts from (sec. 3.9).
 
@@ -513,7 +551,7 @@ class AdaptiveSubspace:
         Subdomains needing exact evaluation are overwritten by the caller either way.
         """
         if self.hessian_init == "rest":
-            return self.rest_hessians[:, cols][:, :, cols]
+            return np.ascontiguousarray(self.rest_hessians[:, cols][:, :, cols])
         self._blocks(F, He, he_valid, np.arange(self.system.m))
         return self.sub.exact(He, range(self.sub.L), Ua)
 

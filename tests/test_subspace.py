@@ -275,3 +275,19 @@ def test_subdomain_hessians_sum_to_the_subspace_hessian():
     assert all(np.linalg.eigvalsh(h).min() >= -1e-9 * np.abs(h).max() for h in Hl)
     part = red.sub.exact(data.He, [1, 3], U)  # a subset, in the order asked
     assert np.allclose(part, Hl[[1, 3]])
+
+
+def test_masked_exact_sum_equals_the_dense_product():
+    red = reducer(subdomains=6)
+    sim = beam(red)
+    sysm = sim.system
+    data = sysm.evaluate(sysm.p0 + np.random.default_rng(8).normal(scale=0.02, size=sysm.p0.shape))
+    U = red.U[:, :16]
+    masked = np.zeros(sysm.free.size, dtype=bool)
+    masked[10:40] = True
+    B = U.copy()
+    B[masked] = 0.0
+    which = [0, 2, 5]
+    expect = red.sub.exact(data.He, which, B).sum(axis=0)
+    assert np.allclose(red.sub.exact_sum(data.He, which, U, masked), expect, atol=1e-10 * np.abs(expect).max())
+    assert np.allclose(red.sub.exact_sum(data.He, which, U), red.sub.exact(data.He, which, U).sum(axis=0))
