@@ -121,3 +121,20 @@ def test_a_cube_sliding_rigidly_down_a_frictionless_ramp_gets_no_enrichment():
         assert s.v[:, 0].mean() == pytest.approx(9.81 * np.sin(th) * frames * sim.dt, rel=1e-2)  # frictionless slide
     assert max(late[1e-4]) == 0.0
     assert max(late[np.inf]) > 0.0  # the error alone would have enriched
+
+
+def test_raising_the_nodal_threshold_on_a_drop_enriches_less_and_leaves_a_larger_residual():
+    """Fig. 12's trend on a small drop scene with contact (mean over the frames after impact)."""
+    ratio, residual = [], []
+    for eps in (0.0, 3e-3, 1e-2, 3e-2):
+        red = sa.AdaptiveSubspace(basis=sa.SkinningEigenmodes(n=4, cache=False), eps_nodal=eps, eps_modal=0.5,
+                                  subdomains=16, newton_tol=1e-4, record_residual=True)
+        sim = sa.scenes.free_body(resolution=3, size=0.5, velocity=(0, 0, -2.0), spin=(0, 0, 0), gravity=(0, 0, -9.81),
+                                  integrator="implicit_euler", reducer=red)
+        sim.colliders = [Plane((0, 0, -0.27), (0, 0, 1))]
+        for _ in sim.run(12):
+            pass
+        ratio.append(np.mean([r["enriched_ratio"] for r in sim.stats[4:]]))
+        residual.append(np.mean([r["full_residual"] for r in sim.stats[4:]]))
+    assert ratio[0] == 1.0 and np.all(np.diff(ratio) < 0) and ratio[-1] < 0.1, ratio
+    assert np.all(np.diff(residual) > 0) and residual[0] < 1e-4 * residual[-1], residual
