@@ -7,8 +7,10 @@
 >>> state.frame, state.x.shape
 (1, (27, 3))
 """
-from . import assembly, clustering, io, kinematics, materials, oracle, reduction, scenes, solvers
+from . import assembly, clustering, colliders, contact, io, kinematics, materials, oracle, reduction, scenes, solvers
 from .body import ElasticBody
+from .colliders import Bowl, Box, Capsule, Plane, SDFCollider, Sphere
+from .contact import PGS
 from .integrator import Rayleigh, Simulation, SimulationDiverged, State, Stats
 from .materials import Corotational, Material, NeoHookean, StVK
 from .reducers import Affinification, Rigidification
@@ -17,4 +19,5 @@ __version__ = "0.1.0"
 
 __all__ = ["ElasticBody", "Simulation", "SimulationDiverged", "State", "Stats", "Rayleigh",
            "Material", "StVK", "Corotational", "NeoHookean", "Affinification", "Rigidification",
+           "Plane", "Sphere", "Box", "Capsule", "Bowl", "SDFCollider", "PGS", "colliders", "contact",
            "assembly", "clustering", "io", "kinematics", "materials", "oracle", "reduction", "scenes", "solvers"]

@@ -28,6 +28,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from . import contact as _contact
 from .assembly import ElasticSystem
 from .body import ElasticBody
 from .solvers import SolverError, make_solver
@@ -126,10 +127,19 @@ class Simulation:
     project_hessian : bool
         Project element Hessians to PSD (default True) so that A is SPD.
     mass : {"lumped", "consistent"}
+    colliders : list of colliders, optional
+        Static obstacles (:mod:`skfem_affine.colliders`: ``sa.Plane``, ``sa.Sphere``, ...).
+    contact : PGS, optional
+        Contact solver settings (:class:`skfem_affine.contact.PGS`); the default ``PGS()``
+        is used when there are colliders or several bodies. ``False`` turns contact off.
+        Without colliders and with a single body no contact code runs. With contact, the
+        ``"auto"`` solver means the direct solver: the Delassus operator needs A^-1 on
+        many columns.
     """
 
     def __init__(self, bodies, dt=0.01, gravity=(0.0, 0.0, 0.0), damping=None, reducer=None,
-                 solver="auto", newton_iters=1, newton_tol=1e-9, project_hessian=True, mass="lumped"):
+                 solver="auto", newton_iters=1, newton_tol=1e-9, project_hessian=True, mass="lumped",
+                 colliders=None, contact=None):
         bodies = [bodies] if isinstance(bodies, ElasticBody) else list(bodies)
         if not bodies or not all(isinstance(b, ElasticBody) for b in bodies):
             raise TypeError("Simulation needs an ElasticBody or a non-empty list of them")
@@ -147,6 +157,10 @@ class Simulation:
         self.project_hessian = bool(project_hessian)
         self.system = ElasticSystem(bodies, mass=mass)
         self.bodies = self.system.bodies
+        self.contact = _contact.make_contact(self, colliders, contact)
+        self.colliders = [] if self.contact is None else self.contact.colliders
+        if self.contact is not None and isinstance(solver, str) and solver == "auto":
+            solver = "direct"
         self.solver = make_solver(solver)
         if reducer is not None and not (hasattr(reducer, "attach") and hasattr(reducer, "solve")):
             raise TypeError(f"reducer must be None or a reducer such as sa.Affinification(...), "
@@ -174,12 +188,16 @@ class Simulation:
     def step(self):
         """Advance one time step; returns the new state."""
         t0 = time.perf_counter()
-        rec = {"frame": self.state.frame + 1}
+        rec = {"frame": self.state.frame + 1, "contact": 0.0}
         try:
+            if self.contact is not None:
+                self.contact.detect(self, rec)  # Algorithm 1: find contacts at x_t
             if self.newton_iters == 1:
                 dv = self._linear_step(rec)
             else:
                 dv = self._newton_step(rec)
+            if self.contact is not None:  # Algorithm 1: PGS contact solve with the frame's factorization
+                dv = dv + self.contact.resolve(self, dv, self._resolvent(), rec)
         except SolverError as err:
             raise SimulationDiverged(self.state.frame + 1, f"linear solve failed ({err})") from err
         s = self.state
@@ -193,6 +211,18 @@ class Simulation:
         rec["wall"] = time.perf_counter() - t0
         self.stats.append(rec)
         return self.state
+
+    def contact_impulse(self):
+        """Contact impulses J^T lambda (free DOFs) that the oracle's prediction takes as explicit
+        forces (sec. 3.4): warm-started, and estimated for new contacts; 0 without contact."""
+        return 0.0 if self.contact is None else self.contact.prediction_impulse()
+
+    def _resolvent(self):
+        """A^-1 on columns with this frame's factorization, through the reducer's G (sec. 3.3)."""
+        red = self.reducer
+        if red is None:
+            return _contact.Resolvent(self.solver, block=self.contact.settings.block)
+        return _contact.Resolvent(red.solver, red.G, block=self.contact.settings.block)
 
     def energy(self, state=None):
         """Kinetic, strain, gravitational and total energy (J) of a state."""
