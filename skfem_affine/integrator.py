@@ -219,10 +219,10 @@ class Simulation:
 
     def _resolvent(self):
         """A^-1 on columns with this frame's factorization, through the reducer's G (sec. 3.3)."""
-        red = self.reducer
+        red, c = self.reducer, self.contact
         if red is None:
-            return _contact.Resolvent(self.solver, block=self.contact.settings.block)
-        return _contact.Resolvent(red.solver, red.G, block=self.contact.settings.block)
+            return _contact.Resolvent(self.solver, self.last_matrix, block=c.settings.block, cache=c.block_solvers)
+        return _contact.Resolvent(red.solver, red.Ar, red.G, block=c.settings.block, cache=c.block_solvers)
 
     def energy(self, state=None):
         """Kinetic, strain, gravitational and total energy (J) of a state."""
@@ -269,6 +269,7 @@ class Simulation:
         """Factorize and solve A dv = b in full space with the configured solver."""
         t0 = time.perf_counter()
         self.solver.factorize(A)
+        self.last_matrix = A
         t1 = time.perf_counter()
         dv = self.solver.solve(b)
         t2 = time.perf_counter()

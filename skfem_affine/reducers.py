@@ -154,6 +154,7 @@ class _ClusteringReducer(Reducer):
         t5 = time.perf_counter()
         rec["reduced_assembly"] = t5 - t4
         self.solver.factorize(Ar)
+        self.Ar = Ar  # with G, for the contact solve's Delassus operator
         t6 = time.perf_counter()
         dq = self.solver.solve(br)
         t7 = time.perf_counter()
