@@ -312,7 +312,8 @@ def projected_gauss_seidel(W, u0, lam, mu, iterations, tolerance):
 
     ``lam`` (3k,) holds the warm start and is updated in place. Per contact: the
     normal row by a projected Gauss-Seidel step, then both tangent rows, projected
-    jointly onto the disk of radius mu lam_n. Returns the sweeps done.
+    jointly onto the disk of radius mu lam_n (Euclidean projection after a gradient step of
+    the 2 x 2 tangent block's largest eigenvalue). Returns the sweeps done.
     """
     m = lam.size
     k = m // 3
@@ -334,8 +335,14 @@ def projected_gauss_seidel(W, u0, lam, mu, iterations, tolerance):
                 lam[r] = new_n
                 for j in range(m):
                     u[j] += W[r, j] * dn
-            t1 = lam[r + 1] - u[r + 1] / W[r + 1, r + 1] if W[r + 1, r + 1] > 0.0 else 0.0
-            t2 = lam[r + 2] - u[r + 2] / W[r + 2, r + 2] if W[r + 2, r + 2] > 0.0 else 0.0
+            # one projected gradient step on both tangents with the largest eigenvalue of their
+            # 2 x 2 block: its fixed point is exactly Coulomb's maximal dissipation
+            a, b, c2 = W[r + 1, r + 1], W[r + 1, r + 2], W[r + 2, r + 2]
+            step = 0.5 * (a + c2) + np.sqrt(0.25 * (a - c2) ** 2 + b * b)
+            if step <= 0.0:
+                continue
+            t1 = lam[r + 1] - u[r + 1] / step
+            t2 = lam[r + 2] - u[r + 2] / step
             bound = mu * lam[r]
             norm = np.sqrt(t1 * t1 + t2 * t2)
             if norm > bound:

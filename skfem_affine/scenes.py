@@ -159,7 +159,7 @@ def drop(resolution=2, shape="ball", size=0.5, height=0.3, frames=150, **kwargs)
 def stacked_beams(resolution=2, n=2, length=2.0, width=0.4, gap=0.02, frames=200, **kwargs):
     """``n`` beams stacked crosswise (paper Fig. 8) and dropped by ``gap`` onto a plane and each other.
 
-    Defaults: Neo-Hookean E = 1e5, nu = 0.35, density 1000, h = 0.01, friction 0.5;
+    Defaults: Neo-Hookean E = 1e6, nu = 0.35, density 1000, h = 0.01, friction 0.5;
     each beam has ``resolution`` cells across its width (6 k^2 round(k length / width) tets).
     """
     sim_kw, body_kw = _split(dict(kwargs))
@@ -171,7 +171,7 @@ def stacked_beams(resolution=2, n=2, length=2.0, width=0.4, gap=0.02, frames=200
     if int(n) < 1:
         raise ValueError(f"n must be >= 1, got {n}")
     along = max(1, int(round(k * length / width)))
-    body_kw.setdefault("material", NeoHookean(E=1e5, nu=0.35))
+    body_kw.setdefault("material", NeoHookean(E=1e6, nu=0.35))
     body_kw.setdefault("density", 1000.0)
     bodies = []
     for i in range(int(n)):
