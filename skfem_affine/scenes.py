@@ -127,6 +127,22 @@ def capsule_mesh(radius, half_length, resolution, center=(0.0, 0.0, 0.0), axis=0
     return skfem.MeshTet(np.ascontiguousarray(p.T), mesh.t)
 
 
+def _contact_scene_kwargs(kwargs, friction, collider):
+    """Split keyword overrides; defaults h = 0.01, gravity -z, ``collider`` and PGS(friction)."""
+    sim_kw, body_kw = _split(dict(kwargs))
+    sim_kw.setdefault("dt", 0.01)
+    sim_kw.setdefault("gravity", (0.0, 0.0, -9.81))
+    sim_kw.setdefault("colliders", [collider])
+    sim_kw.setdefault("contact", PGS(friction=friction))
+    return sim_kw, body_kw
+
+
+def _count(n):
+    if int(n) < 1:
+        raise ValueError(f"n must be >= 1, got {n}")
+    return int(n)
+
+
 def _scene(sim, name, frames):
     sim.frames, sim.scene = frames, name
     return sim
@@ -138,11 +154,7 @@ def drop(resolution=2, shape="ball", size=0.5, height=0.3, frames=150, **kwargs)
     Defaults: Neo-Hookean E = 1e5 Pa, nu = 0.35, density 1000, h = 0.01 s, friction 0.5;
     ``resolution=k``: 8^(k+1) tets for the ball, 6 (2k)^3 for the box.
     """
-    sim_kw, body_kw = _split(dict(kwargs))
-    sim_kw.setdefault("dt", 0.01)
-    sim_kw.setdefault("gravity", (0.0, 0.0, -9.81))
-    sim_kw.setdefault("colliders", [Plane((0.0, 0.0, 0.0), (0.0, 0.0, 1.0))])
-    sim_kw.setdefault("contact", PGS(friction=0.5))
+    sim_kw, body_kw = _contact_scene_kwargs(kwargs, 0.5, Plane((0.0, 0.0, 0.0), (0.0, 0.0, 1.0)))
     k = _resolution(resolution)
     centre = (0.0, 0.0, height + size / 2)
     if shape == "ball":
@@ -162,19 +174,14 @@ def stacked_beams(resolution=2, n=2, length=2.0, width=0.4, gap=0.02, frames=200
     Defaults: Neo-Hookean E = 1e6, nu = 0.35, density 1000, h = 0.01, friction 0.5;
     each beam has ``resolution`` cells across its width (6 k^2 round(k length / width) tets).
     """
-    sim_kw, body_kw = _split(dict(kwargs))
-    sim_kw.setdefault("dt", 0.01)
-    sim_kw.setdefault("gravity", (0.0, 0.0, -9.81))
-    sim_kw.setdefault("colliders", [Plane()])
-    sim_kw.setdefault("contact", PGS(friction=0.5))
+    sim_kw, body_kw = _contact_scene_kwargs(kwargs, 0.5, Plane())
     k = _resolution(resolution)
-    if int(n) < 1:
-        raise ValueError(f"n must be >= 1, got {n}")
+    n = _count(n)
     along = max(1, int(round(k * length / width)))
     body_kw.setdefault("material", NeoHookean(E=1e6, nu=0.35))
     body_kw.setdefault("density", 1000.0)
     bodies = []
-    for i in range(int(n)):
+    for i in range(n):
         z = gap + i * (width + gap) + width / 2
         size, cells = ((length, width, width), (along, k, k)) if i % 2 == 0 else ((width, length, width), (k, along, k))
         bodies.append(ElasticBody(box_mesh(size, cells, (0.0, 0.0, z)), name=f"beam{i}", **body_kw))
@@ -189,20 +196,16 @@ def pills(n=8, resolution=1, radius=0.1, half_length=0.12, bowl_radius=0.6, fram
     bowl's rim height. Defaults: Neo-Hookean (E = 2e4, nu = 0.34) and (E = 1e6,
     nu = 0.36), density 1000, h = 0.01, friction 0.3; ``materials`` overrides the pair.
     """
-    sim_kw, body_kw = _split(dict(kwargs))
-    sim_kw.setdefault("dt", 0.01)
-    sim_kw.setdefault("gravity", (0.0, 0.0, -9.81))
-    sim_kw.setdefault("colliders", [Bowl(center=(0.0, 0.0, bowl_radius), radius=bowl_radius)])
-    sim_kw.setdefault("contact", PGS(friction=0.3))
-    if int(n) < 1:
-        raise ValueError(f"n must be >= 1, got {n}")
+    bowl = Bowl(center=(0.0, 0.0, bowl_radius), radius=bowl_radius)
+    sim_kw, body_kw = _contact_scene_kwargs(kwargs, 0.3, bowl)
+    n = _count(n)
     mats = materials or (NeoHookean(E=2e4, nu=0.34), NeoHookean(E=1e6, nu=0.36))
     body_kw.setdefault("density", 1000.0)
     if "material" in body_kw:
         mats = (body_kw.pop("material"),) * 2
     spacing = 2 * radius + 0.025 * bowl_radius
     bodies = []
-    for i in range(int(n)):
+    for i in range(n):
         layer, slot = divmod(i, 4)
         offset = (slot - 1.5) * spacing
         axis = layer % 2
@@ -221,15 +224,9 @@ def bowling(n=3, resolution=1, radius=0.15, heights=None, mattress=(2.0, 0.8, 0.
     E = 1e7, nu = 0.3, density 1500; mattress E = 2e4, nu = 0.3, density 200; h = 0.01,
     friction 0.5. ``ball_material`` and ``mattress_material`` override the materials.
     """
-    sim_kw, body_kw = _split(dict(kwargs))
-    sim_kw.setdefault("dt", 0.01)
-    sim_kw.setdefault("gravity", (0.0, 0.0, -9.81))
-    sim_kw.setdefault("colliders", [Plane()])
-    sim_kw.setdefault("contact", PGS(friction=0.5))
+    sim_kw, body_kw = _contact_scene_kwargs(kwargs, 0.5, Plane())
     k = _resolution(resolution)
-    n = int(n)
-    if n < 1:
-        raise ValueError(f"n must be >= 1, got {n}")
+    n = _count(n)
     heights = np.linspace(0.1, 0.6, n) if heights is None else np.broadcast_to(np.asarray(heights, float), (n,))
     ball_mat = body_kw.pop("ball_material", NeoHookean(E=1e7, nu=0.3))
     mat_mat = body_kw.pop("mattress_material", NeoHookean(E=2e4, nu=0.3))
@@ -272,11 +269,7 @@ def toothbrush(resolution=1, speed=0.5, frames=150, **kwargs):
     E = 5e4 (nu = 0.38 both), density 1000, h = 0.01, friction 0.8; ``handle_material`` and
     ``bristle_material`` override the materials.
     """
-    sim_kw, body_kw = _split(dict(kwargs))
-    sim_kw.setdefault("dt", 0.01)
-    sim_kw.setdefault("gravity", (0.0, 0.0, -9.81))
-    sim_kw.setdefault("colliders", [Plane()])
-    sim_kw.setdefault("contact", PGS(friction=0.8))
+    sim_kw, body_kw = _contact_scene_kwargs(kwargs, 0.8, Plane())
     mesh, bristle = toothbrush_mesh(resolution)
     hard = body_kw.pop("handle_material", NeoHookean(E=1e7, nu=0.38))
     soft = body_kw.pop("bristle_material", NeoHookean(E=5e4, nu=0.38))

@@ -272,3 +272,24 @@ def test_prediction_takes_contact_impulses_as_explicit_forces():
     sim.step()
     sim.contact.detect(sim, rec)
     assert np.all(sim.contact.matched[np.isin(sim.contact.current.vertex, bottom)])
+
+
+@pytest.mark.parametrize("name", ["drop", "stacked_beams", "pills", "bowling", "toothbrush"])
+def test_contact_scenes_take_overrides_and_run(name):
+    sim = sa.scenes.SCENES[name](resolution=1, dt=0.005, contact=sa.PGS(friction=0.1, iterations=20))
+    assert sim.scene == name and sim.frames > 0 and sim.dt == 0.005
+    assert sim.contact.settings.friction == 0.1 and sim.colliders
+    for s in sim.run(3):
+        pass
+    assert np.all(np.isfinite(s.x)) and all("n_contacts" in r for r in sim.stats)
+    with pytest.raises(ValueError, match="resolution"):
+        sa.scenes.SCENES[name](resolution=0)
+
+
+def test_capsule_mesh_is_a_capsule():
+    mesh = sa.scenes.capsule_mesh(0.1, 0.2, 2, center=(1.0, 2.0, 3.0), axis=2)
+    body = sa.ElasticBody(mesh, sa.NeoHookean(E=1e5, nu=0.3))   # valid: no folded or flat elements
+    d, _ = sa.Capsule(a=(1, 2, 2.8), b=(1, 2, 3.2), radius=0.1).query(mesh.p[:, mesh.boundary_nodes()].T)
+    assert np.abs(d).max() < 1e-12
+    exact = np.pi * 0.1 ** 2 * 0.4 + 4 / 3 * np.pi * 0.1 ** 3
+    assert body.volumes.sum() == pytest.approx(exact, rel=0.08)  # inscribed polyhedron, 4 cells across
