@@ -12,11 +12,18 @@ scene's size. Usage::
 import argparse
 import json
 import os
+import sys
 import time
 
-import numpy as np
+# BLAS/MKL threads, set before numpy loads them (default 1: on a shared machine spinning threads
+# made small solves 10-100x slower; the same setting holds for every method of a run)
+THREADS = sys.argv[sys.argv.index("--threads") + 1] if "--threads" in sys.argv else "1"
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, THREADS)
 
-import skfem_affine as sa
+import numpy as np  # noqa: E402
+
+import skfem_affine as sa  # noqa: E402
 
 
 DEFAULT_RESOLUTIONS = {"drop": [2, 3], "pills": [1, 2]}
@@ -49,6 +56,7 @@ def main(argv=None):
     p.add_argument("--tau", default="0.5,1.0", help="affinification tau_a,tau_e")
     p.add_argument("--tau-r", type=float, default=1e-2, help="rigidification tau_r (tau_e = 2 tau_r)")
     p.add_argument("--solver", default="pardiso" if sa.solvers.has_pardiso() else "superlu")
+    p.add_argument("--threads", default="1", help="BLAS/MKL threads (read before numpy is imported)")
     p.add_argument("--json", default="benchmarks/results/contact.json")
     args = p.parse_args(argv)
     tau_a, tau_e = map(float, args.tau.split(","))

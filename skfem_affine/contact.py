@@ -48,6 +48,7 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from .colliders import check_colliders
+from .reduction import group_sum
 
 # Blocks (bodies) of the Delassus operator below this many unknowns are factorised by SuperLU.
 BLOCK_DIRECT_MIN = 2000
@@ -181,6 +182,39 @@ def tangent_basis(n):
     return t1, np.cross(n, t1)
 
 
+def closest_surface_points(points, rows, tri, corners, tiny):
+    """Signed distance of each point to a closed triangle surface, from candidate pairs.
+
+    ``rows[j]`` is the point and ``tri[j]`` the triangle of candidate pair j; ``corners``
+    (T, 3, 3) are the outward-oriented triangles. For every point with candidates, the
+    closest triangle gives the gap, barycentric weights and direction; the sign comes from
+    the pseudo-normal (the sum of the face normals of all equally close triangles, which
+    share the closest edge or vertex), so that a point beside an edge or a corner is not
+    taken for one inside. The normal points from the surface to the point (the face
+    pseudo-normal when the gap is below ``tiny``).
+
+    Returns ``(points_found, triangle, weights (k, 3), signed distance (k,), normal (k, 3))``.
+    """
+    a, b, c = corners[tri, 0], corners[tri, 1], corners[tri, 2]
+    p = points[rows]
+    W = closest_points_on_triangles(p, a, b, c)
+    diff = p - (W[:, :1] * a + W[:, 1:2] * b + W[:, 2:] * c)
+    gap = np.linalg.norm(diff, axis=1)
+    fn = np.cross(b - a, c - a)
+    fn /= np.linalg.norm(fn, axis=1, keepdims=True)
+    gmin = np.full(len(points), np.inf)
+    np.minimum.at(gmin, rows, gap)
+    tie = gap <= gmin[rows] * (1.0 + 1e-9) + tiny
+    pseudo = np.zeros((len(points), 3))
+    np.add.at(pseudo, rows[tie], fn[tie])
+    first = np.flatnonzero(tie)[np.unique(rows[tie], return_index=True)[1]]  # one closest pair per point
+    r, g = rows[first], gap[first]
+    side = np.where(np.einsum("ij,ij->i", diff[first], pseudo[r]) < 0, -1.0, 1.0)
+    pn = pseudo[r] / np.maximum(np.linalg.norm(pseudo[r], axis=1, keepdims=True), 1e-300)
+    normal = np.where((g > tiny)[:, None], side[:, None] * diff[first] / np.maximum(g, 1e-300)[:, None], pn)
+    return r, tri[first], W[first], side * g, normal
+
+
 @dataclass
 class ContactSet:
     """The contacts of one frame (k of them), found at x_t."""
@@ -245,9 +279,10 @@ class Resolvent:
         self.iterative = bool(getattr(current, "iterative", False))
         n_comp, labels = connected_components(A, directed=False)
         self.parts = None
-        if n_comp > 1:
-            order = np.argsort(labels, kind="stable")
-            self.parts = np.split(order, np.cumsum(np.bincount(labels, minlength=n_comp))[:-1])
+        if n_comp > 1:  # renumber component by component, so that blocks are contiguous slices
+            self.order = np.argsort(labels, kind="stable")
+            self.bounds = np.concatenate([[0], np.cumsum(np.bincount(labels, minlength=n_comp))])
+            self.parts = range(n_comp)
         self.cache = {} if cache is None else cache
 
     def _solve(self, solver, R, iterative=False):
@@ -265,7 +300,7 @@ class Resolvent:
 
     def _block_solver(self, idx):
         from .solvers import SuperLU, direct_solver
-        key = (idx.size, int(idx[0]))  # components keep their DOFs while the pattern is fixed
+        key = (idx.size, int(idx[0]))  # components keep their unknowns while the pattern is fixed
         if key not in self.cache:
             self.cache[key] = SuperLU() if idx.size < BLOCK_DIRECT_MIN else direct_solver()
         return self.cache[key]
@@ -279,17 +314,20 @@ class Resolvent:
             W = Jr @ self._blocks(self.solver, Jr.T.tocsc(), self.iterative)
             return 0.5 * (W + W.T)
         W = np.zeros((k, k))
-        Jc = Jr.tocsc()
+        Jc = Jr[:, self.order].tocsc()
+        Ap = sp.csr_matrix(self.A)[self.order][:, self.order].tocsr()
         self.local = []
-        for idx in self.parts:
-            Jb = Jc[:, idx].tocsr()
+        for c in self.parts:
+            s, e = self.bounds[c], self.bounds[c + 1]
+            Jb = Jc[:, s:e].tocsr()
             rows = np.flatnonzero(np.diff(Jb.indptr))
             if not rows.size:
                 continue
             Jb = Jb[rows]
+            idx = self.order[s:e]
             solver = self._block_solver(idx)
             with single_threaded_blas() if idx.size < BLOCK_DIRECT_MIN else _nothing():
-                solver.factorize(sp.csr_matrix(self.A[idx][:, idx]))
+                solver.factorize(Ap[s:e, s:e])
                 W[np.ix_(rows, rows)] += Jb @ self._blocks(solver, Jb.T.tocsc())
             self.local.append((idx, rows, Jb, solver))
         return 0.5 * (W + W.T)
@@ -391,7 +429,10 @@ class Contact:
 
     # -------------------------------------------------------------- detection
     def find(self, x, v, dt):
-        """All contacts at positions x (n, 3) with vertex velocities v (detection radius margin + 2 h |v|)."""
+        """All contacts at positions x (n, 3) with vertex velocities v (n, 3), or None.
+
+        A surface vertex is a contact when its gap is below ``margin + 2 h`` times its
+        normal approach speed (towards a collider, or relative to the other body)."""
         sv = self.surface
         xs, vs = x[sv], v[sv]
         sets = []
@@ -412,69 +453,45 @@ class Contact:
     def _body_contacts(self, x, v, xs, vs, dt):
         """Surface vertices of every body against the boundary triangles of each other body.
 
-        Broad phase: the other body's bounding box, then a KD-tree on its triangle
-        centroids (12 nearest within reach). Narrow phase: exact closest points; the
-        sign comes from the pseudo-normal (sum of the face normals of the closest
-        triangles, which share the closest edge or vertex), so that a vertex beside an
-        edge is not taken for a penetrating one.
+        Broad phase: the other body's bounding box grown by a bound on the relative
+        motion within the step, then a KD-tree on its triangle centroids (the 12
+        nearest within reach). Narrow phase: :func:`closest_surface_points`; a pair is
+        a contact when its gap may close at the relative normal approach speed.
         """
         sv, out = self.surface, []
         owner = self.body_of_vertex[sv]
-        n_bodies = int(owner.max()) + 1
-        # relative speeds are bounded by deviations from each body's mean velocity
-        mean_v = np.stack([vs[owner == b].mean(axis=0) if np.any(owner == b) else np.zeros(3) for b in range(n_bodies)])
+        nb = int(self.body_of_vertex.max()) + 1
+        # |v_i - v_j| <= |v_i - vbar_a| + |vbar_a - vbar_b| + max_j |v_j - vbar_b| for i in a, j in b
+        mean_v = group_sum(owner, vs, nb) / np.maximum(np.bincount(owner, minlength=nb), 1)[:, None]
         spread = np.linalg.norm(vs - mean_v[owner], axis=1)
-        max_spread = np.array([spread[owner == b].max() if np.any(owner == b) else 0.0 for b in range(n_bodies)])
+        max_spread = np.zeros(nb)
+        np.maximum.at(max_spread, owner, spread)
         for b in np.unique(self.tri_body):
             tris = self.tris[self.tri_body == b]
-            a, bb, c = x[tris[:, 0]], x[tris[:, 1]], x[tris[:, 2]]
+            corners = x[tris]                                             # (T, 3 corners, 3)
             bound = spread + np.linalg.norm(mean_v[owner] - mean_v[b], axis=1) + max_spread[b]
-            radius = self.margin + 2.0 * dt * bound  # broad phase: any relative motion
-            lo = np.minimum(np.minimum(a, bb), c).min(axis=0)
-            hi = np.maximum(np.maximum(a, bb), c).max(axis=0)
+            radius = self.margin + 2.0 * dt * bound
+            lo, hi = corners.min(axis=(0, 1)), corners.max(axis=(0, 1))
             cand = np.flatnonzero((owner != b) & np.all((xs >= lo - radius[:, None]) & (xs <= hi + radius[:, None]),
                                                         axis=1))
             if not cand.size:
                 continue
-            centroid = (a + bb + c) / 3.0
-            reach = np.sqrt(np.max([np.einsum("ij,ij->i", q - centroid, q - centroid) for q in (a, bb, c)]))
+            centroid = corners.mean(axis=1)
+            reach = np.sqrt(((corners - centroid[:, None]) ** 2).sum(axis=2).max())
             kq = min(12, len(tris))
             _, idx = cKDTree(centroid).query(xs[cand], k=kq, distance_upper_bound=radius[cand].max() + reach)
-            idx = idx.reshape(len(cand), kq)
-            rows, cols = np.nonzero(idx < len(tris))
+            rows, cols = np.nonzero(idx.reshape(len(cand), kq) < len(tris))
             if not rows.size:
                 continue
-            tri = idx[rows, cols]
-            p = xs[cand[rows]]
-            Wb = closest_points_on_triangles(p, a[tri], bb[tri], c[tri])
-            q = Wb[:, :1] * a[tri] + Wb[:, 1:2] * bb[tri] + Wb[:, 2:] * c[tri]
-            gap = np.linalg.norm(p - q, axis=1)
-            fn = np.cross(bb[tri] - a[tri], c[tri] - a[tri])
-            fn /= np.linalg.norm(fn, axis=1, keepdims=True)
-            gmin = np.full(len(cand), np.inf)
-            np.minimum.at(gmin, rows, gap)
-            tie = gap <= gmin[rows] * (1.0 + 1e-9) + 1e-12 * self.mean_edge
-            pseudo = np.zeros((len(cand), 3))
-            np.add.at(pseudo, rows[tie], fn[tie])
-            # per vertex: its first closest candidate
-            first = np.flatnonzero(tie)[np.unique(rows[tie], return_index=True)[1]]
-            r = rows[first]
-            diff = p[first] - q[first]
-            side = np.where(np.einsum("ij,ij->i", diff, pseudo[r]) < 0, -1.0, 1.0)
-            d = side * gap[first]
-            far = gap[first] > 1e-9 * self.mean_edge
-            pn = pseudo[r] / np.maximum(np.linalg.norm(pseudo[r], axis=1, keepdims=True), 1e-300)
-            normal = np.where(far[:, None], side[:, None] * diff / np.maximum(gap[first], 1e-300)[:, None], pn)
-            # narrow phase: the gap may close at the relative normal approach speed
-            tv = tris[tri[first]]
-            vq = np.einsum("kj,kjc->kc", Wb[first], v[tv])
-            approach = np.maximum(0.0, -np.einsum("ij,ij->i", vs[cand[r]] - vq, normal))
+            found, tri, W, d, normal = closest_surface_points(xs[cand], rows, idx.reshape(len(cand), kq)[rows, cols],
+                                                              corners, 1e-9 * self.mean_edge)
+            vq = np.einsum("kj,kjc->kc", W, v[tris[tri]])
+            approach = np.maximum(0.0, -np.einsum("ij,ij->i", vs[cand[found]] - vq, normal))
             hit = d < self.margin + 2.0 * dt * approach
-            if not np.any(hit):
-                continue
-            vtx = sv[cand[r][hit]]
-            out.append(ContactSet(vtx, tris[tri[first][hit]], Wb[first][hit], normal[hit], d[hit],
-                                  vtx * self.n_kinds + len(self.colliders) + b))
+            if np.any(hit):
+                vtx = sv[cand[found[hit]]]
+                out.append(ContactSet(vtx, tris[tri[hit]], W[hit], normal[hit], d[hit],
+                                      vtx * self.n_kinds + len(self.colliders) + b))
         return out
 
     # -------------------------------------------------------------- frame hooks
