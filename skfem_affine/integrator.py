@@ -222,6 +222,9 @@ class Simulation:
         red, c = self.reducer, self.contact
         if red is None:
             return _contact.Resolvent(self.solver, self.last_matrix, block=c.settings.block, cache=c.block_solvers)
+        if not all(hasattr(red, k) for k in ("G", "Ar", "solver")):
+            raise TypeError(f"contact needs the reducer's frame mapping G, reduced matrix Ar and its factorised "
+                            f"solver; {type(red).__name__} does not expose them")
         return _contact.Resolvent(red.solver, red.Ar, red.G, block=c.settings.block, cache=c.block_solvers)
 
     def energy(self, state=None):
