@@ -55,6 +55,8 @@ from .reduction import group_sum
 # factor L gives W_b = X^T X, X = L^-1 J_b^T (one triangular solve; 2.5x faster than sparse
 # solves on the pills' reduced blocks); below BLOCK_DIRECT_MIN SuperLU, else the direct solver.
 BLOCK_DENSE_MAX = 800
+# Broad phase: candidate triangles per vertex (nearest centroids within reach).
+NEAREST_TRIANGLES = 8
 BLOCK_DIRECT_MIN = 2000
 _CONTROLLER = []
 
@@ -206,12 +208,12 @@ def closest_surface_points(points, rows, tri, corners, tiny):
     gap = np.linalg.norm(diff, axis=1)
     fn = np.cross(b - a, c - a)
     fn /= np.linalg.norm(fn, axis=1, keepdims=True)
-    gmin = np.full(len(points), np.inf)
-    np.minimum.at(gmin, rows, gap)
+    order = np.lexsort((gap, rows))
+    first = order[np.r_[True, rows[order][1:] != rows[order][:-1]]]          # the closest pair per point
+    gmin = np.zeros(len(points))
+    gmin[rows[first]] = gap[first]
     tie = gap <= gmin[rows] * (1.0 + 1e-9) + tiny
-    pseudo = np.zeros((len(points), 3))
-    np.add.at(pseudo, rows[tie], fn[tie])
-    first = np.flatnonzero(tie)[np.unique(rows[tie], return_index=True)[1]]  # one closest pair per point
+    pseudo = group_sum(rows[tie], fn[tie], len(points))
     r, g = rows[first], gap[first]
     side = np.where(np.einsum("ij,ij->i", diff[first], pseudo[r]) < 0, -1.0, 1.0)
     pn = pseudo[r] / np.maximum(np.linalg.norm(pseudo[r], axis=1, keepdims=True), 1e-300)
@@ -470,9 +472,10 @@ class Contact:
         """Surface vertices of every body against the boundary triangles of each other body.
 
         Broad phase: the other body's bounding box grown by a bound on the relative
-        motion within the step, then a KD-tree on its triangle centroids (the 12
-        nearest within reach). Narrow phase: :func:`closest_surface_points`; a pair is
-        a contact when its gap may close at the relative normal approach speed.
+        motion within the step, then a KD-tree on its triangle centroids (the
+        :data:`NEAREST_TRIANGLES` nearest within reach). Narrow phase:
+        :func:`closest_surface_points`; a pair is a contact when its gap may close at the
+        relative normal approach speed.
         """
         sv, out = self.surface, []
         owner = self.body_of_vertex[sv]
@@ -494,7 +497,7 @@ class Contact:
                 continue
             centroid = corners.mean(axis=1)
             reach = np.sqrt(((corners - centroid[:, None]) ** 2).sum(axis=2).max())
-            kq = min(12, len(tris))
+            kq = min(NEAREST_TRIANGLES, len(tris))
             _, idx = cKDTree(centroid).query(xs[cand], k=kq, distance_upper_bound=radius[cand].max() + reach)
             rows, cols = np.nonzero(idx.reshape(len(cand), kq) < len(tris))
             if not rows.size:
