@@ -42,7 +42,8 @@ def run(scene, k, frames, solver, reducer=None, reference=None):
     wall = time.perf_counter() - t0
     st = sim.stats
     return sim, {"wall": wall, "dofs": st.total("dofs"), "contacts": st.mean("n_contacts"),
-                 "sweeps": st.mean("pgs_iterations"), "contact_share": st.total("contact") / max(st.total("wall"), 1e-300),
+                 "sweeps": st.mean("pgs_iterations"),
+                 "contact_share": st.total("contact") / max(st.total("wall"), 1e-300),
                  "com_err": err / sim.size, "reduced": float(np.mean([r.get("reduced_fraction", 0.0) for r in st])),
                  "phases": st.phase_totals()}, coms
 

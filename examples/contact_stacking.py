@@ -43,5 +43,6 @@ pills_contacts = np.mean([r["n_contacts"] for r in pills.stats[-20:]])
 
 if __name__ == "__main__":
     print(f"stacked beams: tops at {np.round(beam_tops, 3)} m (rest: 0.4, 0.8), deepest {beams_depth * 1e3:.3f} mm")
-    print(f"pills: {pills.system.m} tets in {len(pills.bodies)} bodies, {pills_contacts:.0f} contacts per frame at the end, "
+    print(f"pills: {pills.system.m} tets in {len(pills.bodies)} bodies, "
+          f"{pills_contacts:.0f} contacts per frame at the end, "
           f"deepest {pills_depth * 1e3:.2f} mm, largest speed {pills_speed:.3f} m/s")

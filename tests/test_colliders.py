@@ -55,7 +55,8 @@ def test_closed_forms():
     d0, n0 = box.query(q)
     d1, n1 = turned.query(q @ R.T + (1, 2, 3))
     assert np.allclose(d0, d1) and np.allclose(n0 @ R.T, n1)
-    d, _ = sa.Capsule(a=(0, 0, 0), b=(2, 0, 0), radius=0.5).query(np.array([[1.0, 0, 1.0], [-1.0, 0, 0], [1.0, 0.2, 0]]))
+    capsule = sa.Capsule(a=(0, 0, 0), b=(2, 0, 0), radius=0.5)
+    d, _ = capsule.query(np.array([[1.0, 0, 1.0], [-1.0, 0, 0], [1.0, 0.2, 0]]))
     assert np.allclose(d, [0.5, 0.5, -0.3])
 
 
