@@ -122,6 +122,10 @@ def test_bad_collider_input_raises_clearly():
         sa.Simulation(body, colliders=[sa.Plane(), "floor"])
     with pytest.raises(TypeError, match="sa.PGS"):
         sa.Simulation(body, colliders=[sa.Plane()], contact="pgs")
+    with pytest.raises(ValueError, match="contact=False"):
+        sa.Simulation(body, colliders=[sa.Plane()], contact=False)
+    assert sa.Simulation([body, body], contact=False).contact is None        # two bodies, contact off
+    assert sa.Simulation(body, colliders=sa.Plane()).colliders[0].normal[2] == 1.0  # one collider, no list
     with pytest.raises(ValueError, match="friction"):
         sa.PGS(friction=-0.1)
     with pytest.raises(ValueError, match="iterations"):
