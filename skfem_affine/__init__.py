@@ -7,7 +7,7 @@
 >>> state.frame, state.x.shape
 (1, (27, 3))
 """
-from . import assembly, clustering, io, kinematics, materials, oracle, reduction, scenes, solvers
+from . import assembly, clustering, io, kinematics, materials, metrics, oracle, reduction, runners, scenes, solvers
 from .body import ElasticBody
 from .integrator import Rayleigh, Simulation, SimulationDiverged, State, Stats
 from .materials import Corotational, Material, NeoHookean, StVK
@@ -17,4 +17,5 @@ __version__ = "0.1.0"
 
 __all__ = ["ElasticBody", "Simulation", "SimulationDiverged", "State", "Stats", "Rayleigh",
            "Material", "StVK", "Corotational", "NeoHookean", "Affinification", "Rigidification",
-           "assembly", "clustering", "io", "kinematics", "materials", "oracle", "reduction", "scenes", "solvers"]
+           "assembly", "clustering", "io", "kinematics", "materials", "metrics", "oracle", "reduction", "runners",
+           "scenes", "solvers"]

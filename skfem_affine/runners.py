@@ -313,7 +313,7 @@ def sweep_taus(grid=9, tau_range=(1e-3, 1.0)):
         raise ValueError(f"tau range must satisfy 0 < lo <= hi, got {tau_range}")
     if int(grid) < 1:
         raise ValueError(f"grid must be >= 1, got {grid}")
-    return np.logspace(np.log10(lo), np.log10(hi), int(grid))
+    return np.array([float(f"{t:.6g}") for t in np.logspace(np.log10(lo), np.log10(hi), int(grid))])
 
 
 def cell_key(row):
