@@ -24,7 +24,6 @@ run from the shell, with plots, a picture of the clusters and ParaView output::
 
     skfem-affine compare cantilever --resolution 2 --frames 60 --tau-a 0.3 --tau-e 0.6
 """
-import skfem_affine as sa
 from skfem_affine import runners
 
 spec = runners.SceneSpec.make("cantilever", resolution=2)           # 192 tets

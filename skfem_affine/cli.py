@@ -17,6 +17,7 @@ import time
 import numpy as np
 
 from . import io, plots, runners, scenes
+from .integrator import SimulationDiverged
 
 SUMMARY_KEYS = ("scene", "method", "frames", "elements", "vertices", "wall_s", "speedup", "dof_ratio",
                 "mean_clusters", "max_distance_error")
@@ -443,3 +444,6 @@ def main(argv=None):
     except (ValueError, TypeError, ImportError) as err:
         print(f"skfem-affine {args.command}: error: {err}", file=sys.stderr)
         return 2
+    except SimulationDiverged as err:
+        print(f"skfem-affine {args.command}: {err}", file=sys.stderr)
+        return 1

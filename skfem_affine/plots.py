@@ -15,7 +15,6 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.colors import LogNorm, to_rgb
 from matplotlib.figure import Figure
 from matplotlib.patches import Patch
-from matplotlib.ticker import MaxNLocator
 
 from .integrator import Stats
 
@@ -39,9 +38,14 @@ def _save(fig, path):
     return path
 
 
-def _legend_right(fig, ax):
+def _finish_over_time(fig, ax, ylabel, title, path):
+    """Label a per-frame plot (time axis in seconds), put the legend on the right, save it."""
+    ax.set_xlabel("simulated time (s)")
+    ax.set_ylabel(ylabel)
+    ax.set_title(title)
     ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0)
     fig.tight_layout()
+    return _save(fig, path)
 
 
 def _times(run):
@@ -63,11 +67,8 @@ def speedup_per_frame(runs, path, reference="full"):
         ax.axhline(mean, color=_color(name, i), lw=2, ls="--", label=f"{name}, mean {mean:.2f}x")
     ax.axhline(1.0, color="k", lw=0.8, ls=":")
     ax.set_yscale("log")
-    ax.set_xlabel("simulated time (s)")
-    ax.set_ylabel("speedup over full space (x)")
-    ax.set_title("Speedup per frame (mean = total full time / total time)")
-    _legend_right(fig, ax)
-    return _save(fig, path)
+    return _finish_over_time(fig, ax, "speedup over full space (x)",
+                             "Speedup per frame (mean = total full time / total time)", path)
 
 
 def dofs_over_time(runs, path):
@@ -82,11 +83,7 @@ def dofs_over_time(runs, path):
             ax.plot(t, [r["dofs"] for r in run.records], color=_color(name, i), lw=1, ls="--",
                     label=f"{name}: DOFs solved (elastic + bodies)")
     ax.set_ylim(bottom=0)
-    ax.set_xlabel("simulated time (s)")
-    ax.set_ylabel("degrees of freedom")
-    ax.set_title("DOFs per frame")
-    _legend_right(fig, ax)
-    return _save(fig, path)
+    return _finish_over_time(fig, ax, "degrees of freedom", "DOFs per frame", path)
 
 
 def phase_breakdown(runs, path):
@@ -130,11 +127,8 @@ def error_over_time(runs, path):
         ax.set_yscale("log")
         top = ax.get_ylim()[1]
         ax.set_ylim(bottom=max(ax.get_ylim()[0], top * 1e-6))
-    ax.set_xlabel("simulated time (s)")
-    ax.set_ylabel("max vertex distance / scene size")
-    ax.set_title("Error against the full-space reference")
-    _legend_right(fig, ax)
-    return _save(fig, path)
+    return _finish_over_time(fig, ax, "max vertex distance / scene size", "Error against the full-space reference",
+                             path)
 
 
 # ---------------------------------------------------------------- pictures of the bodies
@@ -296,7 +290,7 @@ def sweep_heatmaps(rows, path, title=None):
             grid = np.where(grid > 0, grid, np.nan)
         ax.set_facecolor("0.9")
         mesh = ax.pcolormesh(_edges(ta), _edges(te), np.ma.masked_invalid(grid), norm=norm, cmap="viridis")
-        fig.colorbar(mesh, ax=ax).ax.tick_params(labelsize=7)
+        fig.colorbar(mesh, ax=ax).ax.tick_params(labelsize=7, which="both")
         if failed:
             ax.plot(*zip(*failed), "x", color="red", ms=7, mew=2, label="diverged / failed")
         lims = _edges(ta)[[0, -1]]
