@@ -101,7 +101,8 @@ def _table(summaries):
     lines = [head, "-" * len(head)]
     for s in summaries:
         lines.append(f"{s['method']:>16} {s['status']:>8} {s['wall_s']:8.2f} {_fmt(s['speedup'], '8.2f')} "
-                     f"{_fmt(s['dof_ratio'], '9.3f')} {s['mean_clusters']:7.1f} {_fmt(s['max_distance_error'], '9.1e')} "
+                     f"{_fmt(s['dof_ratio'], '9.3f')} {s['mean_clusters']:7.1f} "
+                     f"{_fmt(s['max_distance_error'], '9.1e')} "
                      f"{_fmt(s['max_step_error'], '9.1e')} {_fmt(s['max_residual'], '9.1e')} "
                      f"{_fmt(s['max_energy_error'], '10.1e')}")
     return "\n".join(lines)
@@ -297,7 +298,8 @@ def cmd_scaling(args):
         print(f"{'res':>4} {'elements':>9} {'vertices':>9} {'frames':>6} {'full s':>8} {'reduced s':>9} "
               f"{'speedup':>8} {'dist err':>9} {'DOF ratio':>9}")
         for r in rows:
-            print(f"{r['resolution']:4d} {r['elements']:9d} {r['vertices']:9d} {r['frames']:6d} {r['time_full_s']:8.2f} "
+            print(f"{r['resolution']:4d} {r['elements']:9d} {r['vertices']:9d} {r['frames']:6d} "
+                  f"{r['time_full_s']:8.2f} "
                   f"{r['time_reduced_s']:9.2f} {_fmt(r['speedup'], '8.2f')} {_fmt(r['max_distance_error'], '9.1e')} "
                   f"{_fmt(r['dof_ratio'], '9.3f')}")
         print(f"wrote {table} and {figure}")
@@ -333,7 +335,8 @@ def _common(p, frames_help="frames to simulate (default: the scene's own)", fram
     if frames:
         p.add_argument("--frames", type=int, default=None, help=frames_help)
     p.add_argument("--set", action="append", metavar="KEY=VALUE", default=[],
-                   help="a scene keyword override, e.g. --set dt=0.005 --set solver=\"'superlu'\" (repeatable)")
+                   help="a scene keyword override, e.g. --set dt=0.005 --set solver=superlu "
+                        "(repeatable; values are Python literals, else strings)")
     p.add_argument("--out", default="out", help="output folder (default ./out); each command writes a subfolder")
     p.add_argument("--json", action="store_true", help="print exactly one JSON summary object on stdout, nothing else")
 

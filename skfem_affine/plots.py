@@ -355,9 +355,9 @@ def compare_plots(runs, out, frame=None, stem="compare"):
         frame = pick_state(reduced[0].states).frame
     panels = [(name, run.sim, pick_state(run.states, frame)) for name, run in kept.items()]
     if panels:
-        t = panels[0][2].time
-        paths.append(clusters_picture(panels, os.path.join(out, f"{stem}_clusters.png"),
-                                      title=f"Frame {panels[0][2].frame} (t = {t:.2f} s): elastic grey, bodies coloured"))
+        shown = panels[0][2]
+        title = f"Frame {shown.frame} (t = {shown.time:.2f} s): elastic grey, bodies coloured"
+        paths.append(clusters_picture(panels, os.path.join(out, f"{stem}_clusters.png"), title=title))
     return paths
 
 
