@@ -259,7 +259,8 @@ def cmd_sweep(args):
                f"on {args.scheduler or 'an embedded LocalCluster'}; table {table}")
     rows = runners.sweep(spec, args.frames, method, args.grid, (lo, hi), table, scheduler=args.scheduler,
                          workers=args.workers, processes=not args.threads, step_error=not args.no_step_error,
-                         residual=not args.no_residual, retry_failed=args.retry_failed, progress=_progress(args))
+                         residual=not args.no_residual, retry_failed=args.retry_failed, progress=_progress(args),
+                         paired_timing=args.paired_timing)
     heatmaps = plots.sweep_heatmaps(rows, os.path.join(out, f"{method.name}_heatmaps.png"),
                                     title=f"{spec.label}: {method.name} sweep ({len(rows)} cells)")
     ok = [r for r in rows if r.get("status") == "ok"]
@@ -416,6 +417,9 @@ def parser():
     p.add_argument("--table", default=None, help="results table (.csv or .parquet; default OUT/sweep_SCENE/METHOD.csv)")
     p.add_argument("--format", choices=("csv", "parquet"), default="csv", help="default table format (csv)")
     p.add_argument("--retry-failed", action="store_true", help="recompute cells recorded as failed")
+    p.add_argument("--paired-timing", action="store_true",
+                   help="time a full-space twin in lockstep in every cell (speedups robust to shared, busy cores; "
+                        "one more full run per cell)")
     _measure(p)
     p.set_defaults(func=cmd_sweep)
 

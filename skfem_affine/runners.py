@@ -158,11 +158,16 @@ def _record(rec):
 
 
 def run(spec, method="full", frames=None, tau_a=None, tau_e=None, reference=None, step_error=True,
-        residual=True, keep_every=0, keep_frames=(), progress=False, on_state=None):
+        residual=True, keep_every=0, keep_frames=(), progress=False, on_state=None, paired_timing=False):
     """Run ``spec`` with ``method``; measure it against ``reference`` when given.
 
     Parameters
     ----------
+    paired_timing : bool
+        Step a full-space twin in lockstep, frame by frame in this process, and
+        take the speedup from it (``full_wall`` per frame) rather than from the
+        reference's wall time: both then run under the same machine load, as
+        when sweep cells share cores. Costs one more full-space run.
     keep_every : int
         Keep every k-th state (and frame 0) in ``Run.states`` (0: none), plus ``keep_frames``.
     progress : bool
@@ -195,6 +200,7 @@ def run(spec, method="full", frames=None, tau_a=None, tau_e=None, reference=None
     if on_state:
         on_state(sim, first)
     trajectory = [first] if evaluator is not None else None
+    twin = spec.build() if paired_timing else None
     status, message = "ok", ""
     bar = _bar(frames, f"{spec.label} {method.name}", progress)
     try:
@@ -207,6 +213,9 @@ def run(spec, method="full", frames=None, tau_a=None, tau_e=None, reference=None
                 rec["distance_error"] = metrics.distance_error(state.x, reference.x[state.frame], reference.size)
                 rec["energy_error"] = float(metrics.energy_error(rec["strain_energy"], reference.strain[state.frame],
                                                                  strain_scale))
+            if twin is not None:
+                twin.step()
+                rec["full_wall"] = twin.stats[-1]["wall"]
             records.append(rec)
             if trajectory is not None:
                 trajectory.append(state)
@@ -230,7 +239,11 @@ def run(spec, method="full", frames=None, tau_a=None, tau_e=None, reference=None
                "tau_a": tau_a if sim.reducer is not None else None,
                "tau_e": tau_e if sim.reducer is not None else None,
                "elements": int(sim.system.m), "vertices": int(sim.system.n),
-               **metrics.summarise(records, reference), "status": status, "message": message}
+               **metrics.summarise(records, reference), "setup_s": float(getattr(sim.reducer, "setup_time", 0.0)),
+               "timing": "reference", "status": status, "message": message}
+    if twin is not None and records:
+        summary.update(speedup=metrics.speedup(metrics.column(records, "full_wall").sum(), summary["wall_s"]),
+                       timing="paired")
     return Run(method.name, summary, records, kept, sim)
 
 
@@ -322,14 +335,14 @@ def cell_key(row):
             f"{float(row['tau_a']):.6g}", f"{float(row['tau_e']):.6g}")
 
 
-def sweep_cell(spec, method, frames, tau_a, tau_e, reference, step_error=True, residual=True):
+def sweep_cell(spec, method, frames, tau_a, tau_e, reference, step_error=True, residual=True, paired_timing=False):
     """One sweep cell: a measured run, as a flat table row. Never raises for a failed simulation."""
     base = {"scene": spec.label, "scene_key": spec.key(), "frames_asked": int(frames),
             "method": get_method(method).name, "tau_a": float(tau_a), "tau_e": float(tau_e)}
     t0 = time.perf_counter()
     try:
         result = run(spec, method, frames, tau_a, tau_e, reference=reference, step_error=step_error,
-                     residual=residual)
+                     residual=residual, paired_timing=paired_timing)
         row = {**result.summary, **base}
     except Exception as err:  # recorded, so that one bad cell neither stops nor hides in the sweep
         row = {**base, "status": "error", "message": f"{type(err).__name__}: {err}"}
@@ -354,13 +367,15 @@ def connect(scheduler=None, workers=None, processes=True):
 
 def sweep(spec, frames=None, method="affinification", grid=9, tau_range=(1e-3, 1.0), table="out/sweep.csv",
           scheduler=None, workers=None, processes=True, step_error=True, residual=True, retry_failed=False,
-          progress=False):
+          progress=False, paired_timing=False):
     """A tau_a x tau_e grid of runs against one shared reference, on Dask (paper Fig. 6).
 
     Rows are written to ``table`` (.csv, or .parquet with pyarrow) as cells
     finish; cells already in the table are not recomputed (failed ones neither,
     unless ``retry_failed``). The reference is cached next to the table.
-    Returns the rows of this sweep (one per cell).
+    Cells share cores, so their speedups over the reference (timed alone) are
+    pessimistic on a busy machine; ``paired_timing`` times a full-space twin
+    in each cell instead (see :func:`run`). Returns the rows of this sweep.
     """
     method = get_method(method)
     taus = sweep_taus(grid, tau_range)
@@ -386,7 +401,7 @@ def sweep(spec, frames=None, method="affinification", grid=9, tau_range=(1e-3, 1
                 reference = client.submit(_reference_only, spec, frames, pure=False)
                 Reference.save(reference.result(), ref_path)
             futures = [client.submit(sweep_cell, spec, method, frames, ta, te, reference, step_error, residual,
-                                     pure=False) for ta, te in todo]
+                                     paired_timing, pure=False) for ta, te in todo]
             from dask.distributed import as_completed
             bar = _bar(len(futures), f"{spec.label} sweep cells", progress)
             for future in as_completed(futures):

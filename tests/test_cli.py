@@ -77,11 +77,11 @@ def test_compare_json_and_outputs(tmp_path, capsys):
 
 def test_sweep_json(tmp_path, capsys):
     argv = ["sweep", "--resolution", "1", "--frames", "4", "--grid", "2", "--tau-range", "0.01", "0.3",
-            "--workers", "1", "--threads", "--no-step-error", "--out", str(tmp_path)]
+            "--workers", "1", "--threads", "--no-step-error", "--paired-timing", "--out", str(tmp_path)]
     code, s = run_json(capsys, argv)
     assert code == 0 and set(SUMMARY_KEYS) <= set(s) and s["cells"] == 4 and s["failed"] == 0
     assert len(s["rows"]) == 4 and os.path.exists(s["table"]) and os.path.exists(s["heatmaps"])
-    assert s["best_tau_a"] in (0.01, 0.3)
+    assert s["best_tau_a"] in (0.01, 0.3) and all(r["timing"] == "paired" for r in s["rows"])
 
 
 def test_scaling_json(tmp_path, capsys):

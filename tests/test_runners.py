@@ -66,6 +66,15 @@ def test_zero_thresholds_reproduce_the_reference():
     assert r.summary["max_step_error"] < 1e-8 and r.summary["max_residual"] < 1e-6
 
 
+def test_paired_timing_takes_the_speedup_from_a_lockstep_twin():
+    ref, _ = runners.reference_run(TINY, 6)
+    r = runners.run(TINY, "affinification", 6, reference=ref, step_error=False, residual=False, paired_timing=True)
+    walls = [(rec["full_wall"], rec["wall"]) for rec in r.records]
+    assert len(walls) == 6 and r.summary["timing"] == "paired" and r.summary["setup_s"] > 0
+    assert r.summary["speedup"] == pytest.approx(sum(f for f, _ in walls) / sum(w for _, w in walls))
+    assert runners.run(TINY, "full", 6, reference=ref).summary["timing"] == "reference"
+
+
 def test_divergence_is_recorded_not_raised():
     ref, _ = runners.reference_run(TINY, 10)
     r = runners.run(TINY, EXPLODING, 10, reference=ref)
