@@ -330,15 +330,16 @@ def sweep_taus(grid=9, tau_range=(1e-3, 1.0)):
 
 
 def cell_key(row):
-    """What identifies a sweep cell: scene and overrides, frames asked, method, thresholds."""
+    """What identifies a sweep cell: scene and overrides, frames asked, method, thresholds, timing."""
     return (str(row["scene_key"]), int(float(row["frames_asked"])), str(row["method"]),
-            f"{float(row['tau_a']):.6g}", f"{float(row['tau_e']):.6g}")
+            f"{float(row['tau_a']):.6g}", f"{float(row['tau_e']):.6g}", str(row.get("timing_asked") or "reference"))
 
 
 def sweep_cell(spec, method, frames, tau_a, tau_e, reference, step_error=True, residual=True, paired_timing=False):
     """One sweep cell: a measured run, as a flat table row. Never raises for a failed simulation."""
     base = {"scene": spec.label, "scene_key": spec.key(), "frames_asked": int(frames),
-            "method": get_method(method).name, "tau_a": float(tau_a), "tau_e": float(tau_e)}
+            "method": get_method(method).name, "tau_a": float(tau_a), "tau_e": float(tau_e),
+            "timing_asked": "paired" if paired_timing else "reference"}
     t0 = time.perf_counter()
     try:
         result = run(spec, method, frames, tau_a, tau_e, reference=reference, step_error=step_error,
@@ -361,7 +362,7 @@ def connect(scheduler=None, workers=None, processes=True):
     if scheduler:
         return Client(scheduler), None
     cluster = LocalCluster(n_workers=int(workers or os.cpu_count() or 1), threads_per_worker=1,
-                           processes=processes, dashboard_address=None, silence_logs=logging.ERROR)
+                           processes=processes, dashboard_address=":0", silence_logs=logging.ERROR)
     return Client(cluster), cluster
 
 
@@ -382,7 +383,8 @@ def sweep(spec, frames=None, method="affinification", grid=9, tau_range=(1e-3, 1
     if frames is None:
         frames = default_frames(spec.build())
     frames = int(frames)
-    base = {"scene_key": spec.key(), "frames_asked": frames, "method": method.name}
+    base = {"scene_key": spec.key(), "frames_asked": frames, "method": method.name,
+            "timing_asked": "paired" if paired_timing else "reference"}
     cells = [(ta, te) for te in taus for ta in taus]
     keys = [cell_key({**base, "tau_a": ta, "tau_e": te}) for ta, te in cells]
     rows = read_table(table) if os.path.exists(table) else []
