@@ -129,3 +129,13 @@ def test_scaling_rows():
         assert r["max_distance_error"] >= 0 and r["status"] == "ok"
     with pytest.raises(ValueError, match="one per resolution"):
         runners.scaling(TINY, [1, 2], [5, 5, 5])
+
+
+def test_sweep_on_an_existing_scheduler(tmp_path):
+    from dask.distributed import LocalCluster
+    with LocalCluster(n_workers=1, threads_per_worker=1, processes=False, dashboard_address=":0") as cluster:
+        rows = runners.sweep(TINY, frames=4, grid=1, tau_range=(0.1, 0.1), table=str(tmp_path / "s.parquet"),
+                             scheduler=cluster.scheduler_address)
+        assert cluster.scheduler is not None and len(cluster.scheduler.workers) == 1  # still running: not ours
+    assert len(rows) == 1 and rows[0]["status"] == "ok" and rows[0]["tau_a"] == 0.1
+    assert runners.read_table(str(tmp_path / "s.parquet"))[0]["frames"] == 4
