@@ -7,7 +7,8 @@
 >>> state.frame, state.x.shape
 (1, (27, 3))
 """
-from . import assembly, clustering, colliders, contact, io, kinematics, materials, oracle, reduction, scenes, solvers
+from . import (assembly, clustering, colliders, contact, io, kinematics, materials, metrics, oracle, reduction,
+               runners, scenes, solvers)
 from .body import ElasticBody
 from .colliders import Bowl, Box, Capsule, Plane, SDFCollider, Sphere
 from .contact import PGS
@@ -20,4 +21,5 @@ __version__ = "0.1.0"
 __all__ = ["ElasticBody", "Simulation", "SimulationDiverged", "State", "Stats", "Rayleigh",
            "Material", "StVK", "Corotational", "NeoHookean", "Affinification", "Rigidification",
            "Plane", "Sphere", "Box", "Capsule", "Bowl", "SDFCollider", "PGS", "colliders", "contact",
-           "assembly", "clustering", "io", "kinematics", "materials", "oracle", "reduction", "scenes", "solvers"]
+           "assembly", "clustering", "io", "kinematics", "materials", "metrics", "oracle", "reduction", "runners",
+           "scenes", "solvers"]

@@ -16,7 +16,7 @@ def run(name):
 
 def test_every_example_is_tested():
     tested = {"cantilever.py", "beam_frequency.py", "affinification.py", "contact_drop.py",
-              "contact_stacking.py", "contact_materials.py"}
+              "contact_stacking.py", "contact_materials.py", "compare.py"}
     assert set(f for f in os.listdir(EXAMPLES) if f.endswith(".py")) <= tested
 
 
@@ -65,10 +65,11 @@ def test_contact_materials_example():
     assert 1e-3 < g["trail"] < 0.06                                 # friction bends the bristles backwards
 
 
-def test_cli_demo(tmp_path, capsys):
-    from skfem_affine.__main__ import main
-    assert main(["demo", "--resolution", "1", "--frames", "20", "--every", "10", "--out", str(tmp_path)]) == 0
-    out = capsys.readouterr().out
-    assert "frames/s" in out and "cantilever.pvd" in out
-    assert sorted(os.listdir(tmp_path)) == ["cantilever.pvd", "cantilever_00000.vtu", "cantilever_00010.vtu",
-                                            "cantilever_00020.vtu"]
+def test_compare_example_measures_the_trade():
+    g = run("compare.py")
+    s = g["summary"]
+    assert s["full"]["max_distance_error"] == 0 and s["full"]["speedup"] == 1
+    aff = s["affinification"]
+    assert aff["status"] == "ok" and aff["dof_ratio"] < 0.9 and 0 < aff["max_distance_error"] < 0.1
+    assert aff["max_step_error"] < aff["max_distance_error"]  # re-starting the reference discounts drift
+    assert g["reference"].frames == 60 and len(g["runs"]["rigidification"].records) == 60
