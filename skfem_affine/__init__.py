@@ -7,17 +7,22 @@
 >>> state.frame, state.x.shape
 (1, (27, 3))
 """
-from . import assembly, bases, clustering, io, kinematics, materials, newton, oracle, reduction, scenes, solvers
+from . import (assembly, bases, clustering, colliders, contact, io, kinematics, materials, metrics, newton, oracle,
+               reduction, runners, scenes, solvers)
 from .bases import AffineModes, LinearModes, SkinningEigenmodes
-from .subspace import AdaptiveSubspace
 from .body import ElasticBody
+from .colliders import Bowl, Box, Capsule, Plane, SDFCollider, Sphere
+from .contact import PGS
 from .integrator import Rayleigh, Simulation, SimulationDiverged, State, Stats
 from .materials import Corotational, Material, NeoHookean, StVK
 from .reducers import Affinification, Rigidification
+from .subspace import AdaptiveSubspace
 
 __version__ = "0.1.0"
 
 __all__ = ["ElasticBody", "Simulation", "SimulationDiverged", "State", "Stats", "Rayleigh",
            "Material", "StVK", "Corotational", "NeoHookean", "Affinification", "Rigidification",
            "AdaptiveSubspace", "AffineModes", "LinearModes", "SkinningEigenmodes", "bases", "newton",
-           "assembly", "clustering", "io", "kinematics", "materials", "oracle", "reduction", "scenes", "solvers"]
+           "Plane", "Sphere", "Box", "Capsule", "Bowl", "SDFCollider", "PGS", "colliders", "contact",
+           "assembly", "clustering", "io", "kinematics", "materials", "metrics", "oracle", "reduction", "runners",
+           "scenes", "solvers"]

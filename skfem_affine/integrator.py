@@ -33,7 +33,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from . import contact as _contact
 from . import newton
+from .colliders import check_colliders
 from .assembly import ElasticSystem
 from .body import ElasticBody
 from .solvers import SolverError, make_solver
@@ -137,11 +139,19 @@ class Simulation:
     project_hessian : bool
         Project element Hessians to PSD (default True) so that A is SPD.
     mass : {"lumped", "consistent"}
+    colliders : list of colliders, optional
+        Static obstacles (:mod:`skfem_affine.colliders`: ``sa.Plane``, ``sa.Sphere``, ...).
+    contact : PGS, optional
+        Contact solver settings (:class:`skfem_affine.contact.PGS`); the default ``PGS()``
+        is used when there are colliders or several bodies. ``False`` turns contact off.
+        Without colliders and with a single body no contact code runs. With contact, the
+        ``"auto"`` solver means the direct solver: the Delassus operator needs A^-1 on
+        many columns.
     """
 
     def __init__(self, bodies, dt=0.01, gravity=(0.0, 0.0, 0.0), damping=None, reducer=None,
                  solver="auto", newton_iters=None, newton_tol=None, project_hessian=True, mass="lumped",
-                 integrator="linearized"):
+                 colliders=None, contact=None, integrator="linearized"):
         bodies = [bodies] if isinstance(bodies, ElasticBody) else list(bodies)
         if not bodies or not all(isinstance(b, ElasticBody) for b in bodies):
             raise TypeError("Simulation needs an ElasticBody or a non-empty list of them")
@@ -162,6 +172,16 @@ class Simulation:
         self.project_hessian = bool(project_hessian)
         self.system = ElasticSystem(bodies, mass=mass)
         self.bodies = self.system.bodies
+        if linearized:
+            self.contact = _contact.make_contact(self, colliders, contact)
+            self.colliders = [] if self.contact is None else self.contact.colliders
+        else:  # Newton integrators: colliders enter the incremental potential as an IPC barrier (barrier.py)
+            if contact not in (None, False):
+                raise ValueError("PGS contact runs with integrator='linearized'; the Newton integrators "
+                                 "use the IPC barrier against the colliders")
+            self.contact, self.colliders = None, check_colliders(colliders)
+        if self.contact is not None and isinstance(solver, str) and solver == "auto":
+            solver = "direct"
         self.solver = make_solver(solver)
         if reducer is not None and not (hasattr(reducer, "attach") and hasattr(reducer, "solve")):
             raise TypeError(f"reducer must be None or a reducer such as sa.Affinification(...), "
@@ -191,15 +211,17 @@ class Simulation:
     def step(self):
         """Advance one time step; returns the new state."""
         t0 = time.perf_counter()
-        rec = {"frame": self.state.frame + 1}
+        rec = {"frame": self.state.frame + 1, "contact": 0.0}
         s = self.state
         try:
-            if self.stepper is not None:
+            if self.stepper is not None:  # Newton on the incremental potential (newton.py)
                 x, v = self.stepper.step(rec)
-            elif self.newton_iters == 1:
-                dv = self._linear_step(rec)
             else:
-                dv = self._newton_step(rec)
+                if self.contact is not None:
+                    self.contact.detect(self, rec)  # Algorithm 1: find contacts at x_t
+                dv = self._linear_step(rec) if self.newton_iters == 1 else self._newton_step(rec)
+                if self.contact is not None:  # Algorithm 1: PGS contact solve with the frame's factorization
+                    dv = dv + self.contact.resolve(self, dv, self._resolvent(), rec)
         except SolverError as err:
             raise SimulationDiverged(self.state.frame + 1, f"linear solve failed ({err})") from err
         if self.stepper is None:
@@ -213,6 +235,21 @@ class Simulation:
         rec["wall"] = time.perf_counter() - t0
         self.stats.append(rec)
         return self.state
+
+    def contact_impulse(self):
+        """Contact impulses J^T lambda (free DOFs) that the oracle's prediction takes as explicit
+        forces (sec. 3.4): warm-started, and estimated for new contacts; 0 without contact."""
+        return 0.0 if self.contact is None else self.contact.prediction_impulse()
+
+    def _resolvent(self):
+        """A^-1 on columns with this frame's factorization, through the reducer's G (sec. 3.3)."""
+        red, c = self.reducer, self.contact
+        if red is None:
+            return _contact.Resolvent(self.solver, self.last_matrix, block=c.settings.block, cache=c.block_solvers)
+        if not all(hasattr(red, k) for k in ("G", "Ar", "solver")):
+            raise TypeError(f"contact needs the reducer's frame mapping G, reduced matrix Ar and its factorised "
+                            f"solver; {type(red).__name__} does not expose them")
+        return _contact.Resolvent(red.solver, red.Ar, red.G, block=c.settings.block, cache=c.block_solvers)
 
     def energy(self, state=None):
         """Kinetic, strain, gravitational and total energy (J) of a state."""
@@ -259,6 +296,7 @@ class Simulation:
         """Factorize and solve A dv = b in full space with the configured solver."""
         t0 = time.perf_counter()
         self.solver.factorize(A)
+        self.last_matrix = A
         t1 = time.perf_counter()
         dv = self.solver.solve(b)
         t2 = time.perf_counter()

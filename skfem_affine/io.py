@@ -61,6 +61,18 @@ def write_series(path, sim, frames=None, every=1):
     return writer.pvd
 
 
+def write_states(path, sim, states):
+    """Write already computed states (e.g. ``runners.Run.states``) of ``sim`` as a ParaView series.
+
+    Each VTU holds point ``velocity`` and ``displacement`` and cell data ``cluster``
+    (body id, -1 elastic), ``affine`` (0/1) and ``material``; returns the .pvd path.
+    """
+    writer = SeriesWriter(path)
+    for state in states:
+        writer.write(sim, state)
+    return writer.pvd
+
+
 def load_mesh(path):
     """Read a tetrahedral mesh file (e.g. MEDIT .mesh) into a skfem.MeshTet.
 

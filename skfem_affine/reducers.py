@@ -118,7 +118,7 @@ class _ClusteringReducer(Reducer):
         rec["assembly"] = t1 - t0
         # prediction (eq. 13-14): one PCG iteration, gravity split out, A applied matrix-free
         b = sim.rhs(data.f, Hop, s.v)
-        b_ng = b - h * sim.f_gravity[free]
+        b_ng = b - h * sim.f_gravity[free] + sim.contact_impulse()  # contact impulses as explicit forces (sec. 3.4)
         apply_A = self._operator(sim, Hop)
         dv_pred = oracle.predict(apply_A, b_ng, self.precond, gravity_dv=self.gravity_dv)
         t2 = time.perf_counter()
@@ -135,7 +135,7 @@ class _ClusteringReducer(Reducer):
         Gam = self._map(sim, vcluster, n_bodies)
         free_vertex = free // 3
         elastic_dofs = np.flatnonzero(vcluster[free_vertex] < 0)
-        G = reduction.assemble_G(free, vcluster, Gam, elastic_dofs, n_bodies, self.width)
+        G = self.G = reduction.assemble_G(free, vcluster, Gam, elastic_dofs, n_bodies, self.width)  # also for contact
         vf = s.v.reshape(-1)[free]
         q = reduction.project(G, sysm.Mff.diagonal(), vf) if n_bodies else vf  # eq. 9
         d = reduction.discrepancy(G, q, vf) if n_bodies else np.zeros_like(vf)  # eq. 11
@@ -154,6 +154,7 @@ class _ClusteringReducer(Reducer):
         t5 = time.perf_counter()
         rec["reduced_assembly"] = t5 - t4
         self.solver.factorize(Ar)
+        self.Ar = Ar  # with G, for the contact solve's Delassus operator
         t6 = time.perf_counter()
         dq = self.solver.solve(br)
         t7 = time.perf_counter()

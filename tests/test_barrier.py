@@ -138,3 +138,14 @@ def test_raising_the_nodal_threshold_on_a_drop_enriches_less_and_leaves_a_larger
         residual.append(np.mean([r["full_residual"] for r in sim.stats[4:]]))
     assert ratio[0] == 1.0 and np.all(np.diff(ratio) < 0) and ratio[-1] < 0.1, ratio
     assert np.all(np.diff(residual) > 0) and residual[0] < 1e-4 * residual[-1], residual
+
+
+def test_the_package_colliders_passed_to_simulation_act_as_a_barrier_for_newton_integrators():
+    sim = sa.scenes.free_body(resolution=2, size=0.5, velocity=(0, 0, -2.0), spin=(0, 0, 0), gravity=(0, 0, -9.81),
+                              integrator="implicit_euler", colliders=[sa.Plane(point=(0, 0, -0.3), normal=(0, 0, 1))])
+    assert sim.contact is None and len(sim.colliders) == 1  # no PGS with the Newton integrators
+    for s in sim.run(20):
+        assert s.x[:, 2].min() > -0.3
+    assert sim.state.v[:, 2].mean() > -0.5
+    with pytest.raises(ValueError, match="PGS"):
+        sa.scenes.free_body(resolution=2, integrator="bdf2", contact=sa.PGS())

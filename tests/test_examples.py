@@ -15,7 +15,8 @@ def run(name):
 
 
 def test_every_example_is_tested():
-    tested = {"cantilever.py", "beam_frequency.py", "affinification.py", "adaptive_subspace.py"}
+    tested = {"cantilever.py", "beam_frequency.py", "affinification.py", "contact_drop.py",
+              "contact_stacking.py", "contact_materials.py", "compare.py", "adaptive_subspace.py"}
     assert set(f for f in os.listdir(EXAMPLES) if f.endswith(".py")) <= tested
 
 
@@ -50,10 +51,34 @@ def test_adaptive_subspace_example_trades_enrichment_for_error():
     assert r[0.5]["enriched"].max() == 0.0
 
 
-def test_cli_demo(tmp_path, capsys):
-    from skfem_affine.__main__ import main
-    assert main(["demo", "--resolution", "1", "--frames", "20", "--every", "10", "--out", str(tmp_path)]) == 0
-    out = capsys.readouterr().out
-    assert "frames/s" in out and "cantilever.pvd" in out
-    assert sorted(os.listdir(tmp_path)) == ["cantilever.pvd", "cantilever_00000.vtu", "cantilever_00010.vtu",
-                                            "cantilever_00020.vtu"]
+def test_contact_drop_example():
+    g = run("contact_drop.py")
+    assert g["energy_gain"] <= 0.0                 # zero restitution: energy never grows
+    assert g["contacts"].max() >= 9                # the box's bottom face (3 x 3 vertices) lands
+    assert g["affine_share"] > 0.5 and g["com_gap"] < 0.03
+    assert 0.05 < g["ball_travel"] < 1.0           # rolls down the SDF ramp (+x), not through it
+    d, _ = g["ball"].colliders[0].query(g["ball"].state.x)
+    assert d.min() > -1e-3
+
+
+def test_contact_stacking_example():
+    g = run("contact_stacking.py")
+    assert g["beam_tops"] == pytest.approx([0.4, 0.8], abs=0.02)
+    assert g["beams_depth"] < 1e-3 and g["pills_depth"] < 1e-2
+    assert g["pills_contacts"] > 10 and np.isfinite(g["pills_speed"])
+
+
+def test_contact_materials_example():
+    g = run("contact_materials.py")
+    assert 0 < g["peak_elastic"][0] <= g["peak_elastic"][1] <= 1  # higher drop, larger elastic region
+    assert 1e-3 < g["trail"] < 0.06                                 # friction bends the bristles backwards
+
+
+def test_compare_example_measures_the_trade():
+    g = run("compare.py")
+    s = g["summary"]
+    assert s["full"]["max_distance_error"] == 0 and s["full"]["speedup"] == 1
+    aff = s["affinification"]
+    assert aff["status"] == "ok" and aff["dof_ratio"] < 0.9 and 0 < aff["max_distance_error"] < 0.1
+    assert aff["max_step_error"] < aff["max_distance_error"]  # re-starting the reference discounts drift
+    assert g["reference"].frames == 60 and len(g["runs"]["rigidification"].records) == 60

@@ -1,0 +1,456 @@
+"""Command line: ``skfem-affine`` / ``python -m skfem_affine`` (run ``--help`` on any subcommand).
+
+Subcommands: ``demo``, ``run``, ``compare``, ``sweep``, ``scaling``, ``scenes``. A scene is a name
+from :data:`skfem_affine.scenes.SCENES` or the path of a Python file defining ``scene(**kwargs)``
+that returns a Simulation. With ``--json`` exactly one JSON object is printed on stdout (nothing
+else); progress bars appear on a terminal only.
+"""
+import argparse
+import ast
+import inspect
+import json
+import math
+import os
+import sys
+import time
+
+import numpy as np
+
+from . import io, plots, runners, scenes
+from .integrator import SimulationDiverged
+
+SUMMARY_KEYS = ("scene", "method", "frames", "elements", "vertices", "wall_s", "speedup", "dof_ratio",
+                "mean_clusters", "max_distance_error")
+
+
+# ---------------------------------------------------------------- helpers
+def _jsonable(value):
+    if isinstance(value, dict):
+        return {str(k): _jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_jsonable(v) for v in value]
+    if isinstance(value, (np.integer,)):
+        return int(value)
+    if isinstance(value, (float, np.floating)):
+        return float(value) if math.isfinite(value) else None
+    return value
+
+
+def _emit(args, summary):
+    """The one JSON object (``--json``); otherwise nothing (human output is printed as we go)."""
+    if args.json:
+        print(json.dumps(_jsonable(summary)), flush=True)
+
+
+def _say(args, *text):
+    if not args.json:
+        print(*text, flush=True)
+
+
+def _progress(args):
+    return sys.stderr.isatty() and not args.json
+
+
+def _parse_set(items):
+    out = {}
+    for item in items or ():
+        key, sep, value = item.partition("=")
+        if not sep or not key.isidentifier():
+            raise ValueError(f"--set takes KEY=VALUE (a scene keyword), got {item!r}")
+        try:
+            out[key] = ast.literal_eval(value)
+        except (ValueError, SyntaxError):
+            out[key] = value
+    return out
+
+
+def _spec(args):
+    kwargs = _parse_set(getattr(args, "set", None))
+    if getattr(args, "resolution", None) is not None:
+        kwargs["resolution"] = args.resolution
+    spec = runners.SceneSpec.make(args.scene, **kwargs)
+    params = inspect.signature(spec.factory()).parameters
+    open_kwargs = any(p.kind == p.VAR_KEYWORD for p in params.values())
+    if "resolution" in kwargs and "resolution" not in params:
+        raise ValueError(f"scene {args.scene!r} has no resolution parameter")
+    unknown = [k for k in kwargs if k not in params and not open_kwargs]
+    if unknown:
+        raise ValueError(f"scene {args.scene!r} takes no parameter {', '.join(unknown)}")
+    return spec
+
+
+def _folder(args, command, spec):
+    out = os.path.join(args.out, f"{command}_{spec.label}")
+    os.makedirs(out, exist_ok=True)
+    return out
+
+
+def _fmt(value, spec=".2e"):
+    """``format(value, spec)``, with "-" for a missing value, padded to the same width."""
+    width = spec.split(".")[0]
+    if value is None:
+        return format("-", ">" + width)
+    if isinstance(value, float) and not math.isfinite(value):
+        return format("nan", ">" + width)
+    return format(value, spec)
+
+
+def _table(summaries):
+    head = (f"{'method':>16} {'status':>8} {'wall s':>8} {'speedup':>8} {'DOF ratio':>9} {'bodies':>7} "
+            f"{'dist err':>9} {'step err':>9} {'residual':>9} {'energy err':>10}")
+    lines = [head, "-" * len(head)]
+    for s in summaries:
+        lines.append(f"{s['method']:>16} {s['status']:>8} {s['wall_s']:8.2f} {_fmt(s['speedup'], '8.2f')} "
+                     f"{_fmt(s['dof_ratio'], '9.3f')} {s['mean_clusters']:7.1f} "
+                     f"{_fmt(s['max_distance_error'], '9.1e')} "
+                     f"{_fmt(s['max_step_error'], '9.1e')} {_fmt(s['max_residual'], '9.1e')} "
+                     f"{_fmt(s['max_energy_error'], '10.1e')}")
+    return "\n".join(lines)
+
+
+def _frames_table(runs):
+    rows = []
+    for name, run in runs.items():
+        for r in run.records:
+            rows.append({"method": name, **{k: v for k, v in r.items() if not isinstance(v, (list, dict))}})
+    return rows
+
+
+def _summary_json(summary, extra=None):
+    out = {k: summary.get(k) for k in SUMMARY_KEYS}
+    out.update(extra or {})
+    return out
+
+
+# ---------------------------------------------------------------- commands
+def cmd_scenes(args):
+    """List the built-in scenes, their parameters and defaults."""
+    listing = {}
+    for name, factory in scenes.SCENES.items():
+        params = {p.name: (None if p.default is p.empty else repr(p.default))
+                  for p in inspect.signature(factory).parameters.values() if p.kind != p.VAR_KEYWORD}
+        doc = (inspect.getdoc(factory) or "").split("\n")[0]
+        listing[name] = {"doc": doc, "parameters": params}
+        _say(args, f"{name}: {doc}")
+        _say(args, "    " + ", ".join(f"{k}={v}" if v is not None else k for k, v in params.items())
+             + ", **overrides (material, dt, damping, solver, ...)")
+    _emit(args, {"scenes": listing})
+    return 0
+
+
+def cmd_run(args):
+    """One method on one scene, optionally against the full-space reference."""
+    spec = _spec(args)
+    method = runners.get_method(args.method)
+    out = _folder(args, "run", spec)
+    progress = _progress(args)
+    reference = None
+    if args.reference and method.name != "full":
+        runners.warm_up(spec, ("full", method))
+        _say(args, f"reference: full space, {spec.label} ...")
+        reference, _ = runners.reference_run(spec, args.frames, progress)
+    writer = io.SeriesWriter(os.path.join(out, "paraview", method.name)) if not args.no_paraview else None
+    every = max(1, args.every)
+
+    def write(sim, state):
+        if writer is not None and (state.frame % every == 0):
+            writer.write(sim, state)
+
+    frames = reference.frames if reference is not None else args.frames
+    result = runners.run(spec, method, frames, args.tau_a, args.tau_e, reference=reference,
+                         step_error=not args.no_step_error, residual=not args.no_residual,
+                         keep_every=every, keep_frames=[args.frame] if args.frame is not None else (),
+                         progress=progress, on_state=write)
+    s = result.summary
+    if writer is not None and result.records and (len(result.records) % every):
+        writer.write(result.sim, result.sim.state)
+    runners.write_table(result.records, os.path.join(out, f"{method.name}_frames.csv"))
+    picture = plots.clusters_picture([(method.name, result.sim, plots.pick_state(result.states, args.frame))],
+                                     os.path.join(out, f"{method.name}_clusters.png"))
+    gif = plots.animation(method.name, result.sim, result.states, os.path.join(out, f"{method.name}.gif")) \
+        if args.gif else None
+    _say(args, f"{spec.label}, {method.name}: {s['elements']} tets, {s['vertices']} vertices, {s['frames']} frames "
+               f"in {s['wall_s']:.2f} s ({s['frames'] / max(s['wall_s'], 1e-300):.1f} frames/s), status {s['status']}")
+    if reference is not None:
+        _say(args, _table([s]))
+    _say(args, f"wrote {out}/: {method.name}_frames.csv, {os.path.basename(picture)}"
+               + (f", {os.path.basename(gif)}" if gif else "")
+               + (f", {os.path.relpath(writer.pvd, out)} (ParaView)" if writer else ""))
+    _emit(args, _summary_json(s, {"status": s["status"], "out": out}))
+    return 0 if s["status"] == "ok" else 1
+
+
+def compare_outputs(args, spec, runs, out):
+    """Tables, plots, the clusters picture, ParaView series (and GIFs) of a compare run."""
+    summaries = [r.summary for r in runs.values()]
+    runners.write_table(_frames_table(runs), os.path.join(out, "frames.csv"))
+    runners.write_table(summaries, os.path.join(out, "summary.csv"))
+    written = ["frames.csv", "summary.csv"]
+    written += [os.path.basename(p) for p in plots.compare_plots(runs, out, frame=args.frame, stem="compare")]
+    if not args.no_paraview:
+        for name, run in runs.items():
+            io.write_states(os.path.join(out, "paraview", name), run.sim, run.states)
+        written.append("paraview/<method>.pvd")
+    if args.gif:
+        for name, run in runs.items():
+            if args.gif is not True and name != args.gif:
+                continue
+            written.append(os.path.basename(plots.animation(name, run.sim, run.states,
+                                                            os.path.join(out, f"{name}.gif"))))
+    return written
+
+
+def _compare_taus(args):
+    taus = {}
+    for item in args.taus or ():
+        name, sep, values = item.partition("=")
+        try:
+            a, e = (float(v) for v in values.split(","))
+        except ValueError:
+            raise ValueError(f"--taus takes METHOD=TAU_A,TAU_E, got {item!r}") from None
+        taus[runners.get_method(name).name] = (a, e)
+    main = args.methods[1] if len(args.methods) > 1 else args.methods[0]
+    if args.tau_a is not None or args.tau_e is not None:
+        defaults = runners.get_method(main).taus
+        taus[main] = (args.tau_a if args.tau_a is not None else defaults[0],
+                      args.tau_e if args.tau_e is not None else defaults[1])
+    return taus
+
+
+def cmd_compare(args):
+    """Full space, affinification and rigidification on one scene: table, plots, picture, ParaView."""
+    spec = _spec(args)
+    methods = tuple(dict.fromkeys(["full"] + [runners.get_method(m).name for m in args.methods]))
+    args.methods = list(methods)
+    taus = _compare_taus(args)
+    out = _folder(args, "compare", spec)
+    t0 = time.perf_counter()
+    _say(args, f"compare on {spec.label}{dict(spec.kwargs) or ''}: {', '.join(methods)} "
+               f"(the full-space run is the reference)")
+    _, runs = runners.compare(spec, args.frames, methods, taus, step_error=not args.no_step_error,
+                              residual=not args.no_residual, keep_every=max(1, args.every),
+                              keep_frames=[args.frame] if args.frame is not None else (), progress=_progress(args))
+    written = compare_outputs(args, spec, runs, out)
+    summaries = [r.summary for r in runs.values()]
+    first = runs["full"].summary
+    _say(args, f"{first['elements']} tets, {first['vertices']} vertices, {first['frames']} frames, "
+               f"dt = {runs['full'].sim.dt} s")
+    _say(args, _table(summaries))
+    _say(args, "speedup = full wall time / method wall time (same frames, this machine); errors are the largest\n"
+               "over frames: vertex distance / scene size, step = reference re-started each frame, residual =\n"
+               "||A dv - b|| / ||b|| in full space, energy = |strain energy difference| / max reference energy.")
+    _say(args, f"wrote {out}/: {', '.join(written)}  ({time.perf_counter() - t0:.1f} s in all)")
+    main = runs[methods[1]] if len(methods) > 1 else runs["full"]
+    _emit(args, _summary_json(main.summary, {"out": out, "methods": {n: r.summary for n, r in runs.items()}}))
+    return 0 if all(s["status"] == "ok" for s in summaries) else 1
+
+
+def cmd_sweep(args):
+    """A tau_a x tau_e grid on Dask (embedded LocalCluster or --scheduler), heatmaps of every metric."""
+    spec = _spec(args)
+    method = runners.get_method(args.method)
+    if args.grid < 1:
+        raise ValueError(f"--grid must be >= 1, got {args.grid}")
+    out = _folder(args, "sweep", spec)
+    table = args.table or os.path.join(out, f"{method.name}.{args.format}")
+    lo, hi = args.tau_range
+    t0 = time.perf_counter()
+    _say(args, f"sweep on {spec.label}: {method.name}, {args.grid} x {args.grid} cells, tau in [{lo:g}, {hi:g}] 1/s, "
+               f"on {args.scheduler or 'an embedded LocalCluster'}; table {table}")
+    rows = runners.sweep(spec, args.frames, method, args.grid, (lo, hi), table, scheduler=args.scheduler,
+                         workers=args.workers, processes=not args.threads, step_error=not args.no_step_error,
+                         residual=not args.no_residual, retry_failed=args.retry_failed, progress=_progress(args),
+                         paired_timing=args.paired_timing)
+    heatmaps = plots.sweep_heatmaps(rows, os.path.join(out, f"{method.name}_heatmaps.png"),
+                                    title=f"{spec.label}: {method.name} sweep ({len(rows)} cells)")
+    ok = [r for r in rows if r.get("status") == "ok"]
+    best = max(ok, key=lambda r: r.get("speedup") or 0.0) if ok else {}
+    if not args.json:
+        print(f"{'tau_a':>9} {'tau_e':>9} {'status':>8} {'speedup':>8} {'DOF ratio':>9} {'bodies':>7} {'dist err':>9}")
+        for r in rows:
+            print(f"{r['tau_a']:9.3g} {r['tau_e']:9.3g} {r['status']:>8} {_fmt(r.get('speedup'), '8.2f')} "
+                  f"{_fmt(r.get('dof_ratio'), '9.3f')} {_fmt(r.get('mean_clusters'), '7.1f')} "
+                  f"{_fmt(r.get('max_distance_error'), '9.1e')}")
+        failed = len(rows) - len(ok)
+        print(f"{len(rows)} cells, {failed} failed; wrote {table} and {heatmaps} ({time.perf_counter() - t0:.1f} s)")
+    summary = {"scene": spec.label, "method": method.name, "frames": best.get("frames"),
+               "elements": best.get("elements"), "vertices": best.get("vertices"),
+               "wall_s": time.perf_counter() - t0, "speedup": best.get("speedup"), "dof_ratio": best.get("dof_ratio"),
+               "mean_clusters": best.get("mean_clusters"), "max_distance_error": best.get("max_distance_error"),
+               "best_tau_a": best.get("tau_a"), "best_tau_e": best.get("tau_e"), "cells": len(rows),
+               "failed": len(rows) - len(ok), "table": table, "heatmaps": heatmaps, "rows": rows}
+    _emit(args, summary)
+    return 0
+
+
+def cmd_scaling(args):
+    """The scene at increasing resolution: full and reduced time, speedup, error (Table 2)."""
+    spec = _spec(args)
+    method = runners.get_method(args.method)
+    out = _folder(args, "scaling", spec)
+    frames = args.frames if args.frames else [getattr(spec.build(), "frames", 100)]
+    frames = frames[0] if len(frames) == 1 else frames
+    _say(args, f"scaling on {spec.label}: resolutions {args.resolutions}, frames {frames}, {method.name}")
+    rows = runners.scaling(spec, args.resolutions, frames, method, args.tau_a, args.tau_e, progress=_progress(args))
+    table = runners.write_table(rows, os.path.join(out, f"{method.name}.csv"))
+    figure = plots.scaling_plot(rows, os.path.join(out, f"{method.name}_scaling.png"),
+                                title=f"{spec.label}: {method.name} against full space")
+    if not args.json:
+        print(f"{'res':>4} {'elements':>9} {'vertices':>9} {'frames':>6} {'full s':>8} {'reduced s':>9} "
+              f"{'speedup':>8} {'dist err':>9} {'DOF ratio':>9}")
+        for r in rows:
+            print(f"{r['resolution']:4d} {r['elements']:9d} {r['vertices']:9d} {r['frames']:6d} "
+                  f"{r['time_full_s']:8.2f} "
+                  f"{r['time_reduced_s']:9.2f} {_fmt(r['speedup'], '8.2f')} {_fmt(r['max_distance_error'], '9.1e')} "
+                  f"{_fmt(r['dof_ratio'], '9.3f')}")
+        print(f"wrote {table} and {figure}")
+    last = rows[-1]
+    summary = {"scene": spec.label, "method": method.name, "frames": last["frames"], "elements": last["elements"],
+               "vertices": last["vertices"], "wall_s": last["time_reduced_s"], "speedup": last["speedup"],
+               "dof_ratio": last["dof_ratio"], "mean_clusters": last["mean_clusters"],
+               "max_distance_error": last["max_distance_error"], "rows": rows, "table": table, "figure": figure}
+    _emit(args, summary)
+    return 0
+
+
+def cmd_demo(args):
+    """The product in one command: the cantilever three ways, speedup, error and pictures."""
+    args.scene, args.set, args.methods, args.taus = "cantilever", [], list(runners.COMPARED), []
+    args.tau_a, args.tau_e = 0.3, 0.6
+    args.no_step_error, args.no_residual = True, False  # the step error costs a full solve per frame
+    args.no_paraview, args.gif = False, "affinification"
+    _say(args, "demo: a cantilever beam pinned at x = 0 swings down under gravity, simulated in full space, with\n"
+               "affinification (elements with alike deformation rates merge into 12-DOF affine bodies) and with\n"
+               "rigidification (6-DOF rigid bodies); the full-space run is the reference for speed and error.\n"
+               "(`skfem-affine compare --help` for the general command, with the step error and any scene.)")
+    return cmd_compare(args)
+
+
+# ---------------------------------------------------------------- parser
+def _common(p, frames_help="frames to simulate (default: the scene's own)", frames=True):
+    p.add_argument("scene", nargs="?", default="cantilever",
+                   help="a scene name (see `skfem-affine scenes`) or a .py file defining scene(**kwargs) "
+                        "that returns a Simulation and accepts reducer=; default cantilever")
+    p.add_argument("--resolution", type=int, default=None, help="the scene's resolution parameter "
+                   "(cantilever: k cells across, 24 k^3 tets)")
+    if frames:
+        p.add_argument("--frames", type=int, default=None, help=frames_help)
+    p.add_argument("--set", action="append", metavar="KEY=VALUE", default=[],
+                   help="a scene keyword override, e.g. --set dt=0.005 --set solver=superlu "
+                        "(repeatable; values are Python literals, else strings)")
+    p.add_argument("--out", default="out", help="output folder (default ./out); each command writes a subfolder")
+    p.add_argument("--json", action="store_true", help="print exactly one JSON summary object on stdout, nothing else")
+
+
+def _taus(p, what="the method's"):
+    p.add_argument("--tau-a", type=float, default=None, help=f"threshold to become reduced, 1/s ({what} default)")
+    p.add_argument("--tau-e", type=float, default=None, help=f"threshold to stay reduced, 1/s ({what} default)")
+
+
+def _measure(p):
+    p.add_argument("--no-step-error", action="store_true",
+                   help="skip the step distance error (a full-space step per frame; halves the cost)")
+    p.add_argument("--no-residual", action="store_true", help="skip the full-space residual (an assembly per frame)")
+
+
+def _pictures(p, every=10):
+    p.add_argument("--every", type=int, default=every, help=f"keep/write every N-th frame (default {every})")
+    p.add_argument("--frame", type=int, default=None,
+                   help="frame of the clusters picture (default: where the most elements are reduced)")
+    p.add_argument("--gif", action="store_true", help="also write an animated GIF per method")
+    p.add_argument("--no-paraview", action="store_true", help="skip the ParaView (.pvd + .vtu) output")
+
+
+def parser():
+    methods = ", ".join(f"{m.name} (default taus {m.taus[0]}, {m.taus[1]})" if m.taus[0] is not None else m.name
+                        for m in runners.METHODS.values())
+    top = argparse.ArgumentParser(prog="skfem-affine", description="Fast adaptive elastodynamics for scikit-fem: "
+                                  "simulate scenes and measure the speed/accuracy trade of affinification.",
+                                  epilog="Run `skfem-affine COMMAND --help` for each command's options.")
+    sub = top.add_subparsers(dest="command", metavar="COMMAND")
+
+    p = sub.add_parser("demo", help="the cantilever in full space, affinification and rigidification: "
+                                    "speedup, error, plots, a picture and ParaView output",
+                       description=cmd_demo.__doc__)
+    p.add_argument("--resolution", type=int, default=4, help="cells across the beam, 24 k^3 tets (default 4)")
+    p.add_argument("--frames", type=int, default=150, help="frames (default 150, 1.5 s of simulated time)")
+    p.add_argument("--out", default="out", help="output folder (default ./out)")
+    p.add_argument("--json", action="store_true", help="print exactly one JSON summary object on stdout")
+    p.add_argument("--every", type=int, default=5, help="keep/write every N-th frame (default 5)")
+    p.add_argument("--frame", type=int, default=None, help="frame of the clusters picture")
+    p.set_defaults(func=cmd_demo)
+
+    p = sub.add_parser("run", help="one method on one scene", description=cmd_run.__doc__ +
+                       f" Methods: {methods}.")
+    _common(p)
+    p.add_argument("--method", default="affinification", help=f"one of: {', '.join(runners.METHODS)}")
+    _taus(p)
+    p.add_argument("--reference", action="store_true",
+                   help="also run the full-space reference, for speedup and errors")
+    _measure(p)
+    _pictures(p)
+    p.set_defaults(func=cmd_run)
+
+    p = sub.add_parser("compare", help="full vs affinification vs rigidification: table, plots, picture, ParaView",
+                       description=cmd_compare.__doc__ + f" Methods: {methods}.")
+    _common(p)
+    p.add_argument("--methods", nargs="+", default=list(runners.COMPARED[1:]),
+                   help="methods besides full space (default: affinification rigidification)")
+    _taus(p, "for the first method; affinification's")
+    p.add_argument("--taus", action="append", metavar="METHOD=A,E", default=[],
+                   help="thresholds of any method, e.g. --taus rigidification=0.01,0.02 (repeatable)")
+    _measure(p)
+    _pictures(p)
+    p.set_defaults(func=cmd_compare)
+
+    p = sub.add_parser("sweep", help="tau_a x tau_e grid on Dask, heatmaps of every metric (paper Fig. 6)",
+                       description=cmd_sweep.__doc__ + " Finished cells in the table are not recomputed.")
+    _common(p)
+    p.add_argument("--method", default="affinification", help=f"one of: {', '.join(runners.METHODS)}")
+    p.add_argument("--grid", type=int, default=9, help="N for an N x N grid (default 9; the paper uses 41)")
+    p.add_argument("--tau-range", type=float, nargs=2, default=(1e-3, 1.0), metavar=("LO", "HI"),
+                   help="log-spaced thresholds from LO to HI, 1/s (default 1e-3 1)")
+    p.add_argument("--scheduler", default=None, help="address of a running dask scheduler, e.g. tcp://host:8786 "
+                   "(default: an embedded LocalCluster)")
+    p.add_argument("--workers", type=int, default=None, help="LocalCluster worker processes (default: CPU count)")
+    p.add_argument("--threads", action="store_true", help="LocalCluster workers as threads of this process")
+    p.add_argument("--table", default=None, help="results table (.csv or .parquet; default OUT/sweep_SCENE/METHOD.csv)")
+    p.add_argument("--format", choices=("csv", "parquet"), default="csv", help="default table format (csv)")
+    p.add_argument("--retry-failed", action="store_true", help="recompute cells recorded as failed")
+    p.add_argument("--paired-timing", action="store_true",
+                   help="time a full-space twin in lockstep in every cell (speedups robust to shared, busy cores; "
+                        "one more full run per cell)")
+    _measure(p)
+    p.set_defaults(func=cmd_sweep)
+
+    p = sub.add_parser("scaling", help="speedup and error against resolution (paper Table 2)",
+                       description=cmd_scaling.__doc__)
+    _common(p, frames=False)
+    p.add_argument("--resolutions", type=int, nargs="+", default=[4, 6, 8, 10],
+                   help="values of the scene's resolution parameter (default 4 6 8 10)")
+    p.add_argument("--frames", type=int, nargs="+", default=None,
+                   help="frames: one number, or one per resolution (default: the scene's own)")
+    p.add_argument("--method", default="affinification", help=f"one of: {', '.join(runners.METHODS)}")
+    _taus(p)
+    p.set_defaults(func=cmd_scaling)
+
+    p = sub.add_parser("scenes", help="list the built-in scenes and their parameters", description=cmd_scenes.__doc__)
+    p.add_argument("--json", action="store_true", help="print the listing as one JSON object")
+    p.set_defaults(func=cmd_scenes)
+    return top
+
+
+def main(argv=None):
+    argv = list(sys.argv[1:] if argv is None else argv)
+    top = parser()
+    if not argv or argv[0].startswith("-") and argv[0] not in ("-h", "--help"):
+        argv = ["demo"] + argv
+    args = top.parse_args(argv)
+    try:
+        return args.func(args)
+    except (ValueError, TypeError, ImportError) as err:
+        print(f"skfem-affine {args.command}: error: {err}", file=sys.stderr)
+        return 2
+    except SimulationDiverged as err:
+        print(f"skfem-affine {args.command}: {err}", file=sys.stderr)
+        return 1

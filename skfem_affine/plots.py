@@ -1,0 +1,382 @@
+"""Figures of the trade, written as PNG (and GIF) with matplotlib's Agg backend (no display needed).
+
+- :func:`speedup_per_frame`: speedup of each frame and its mean (paper Fig. 1);
+- :func:`dofs_over_time`: elastic and solved DOFs per frame;
+- :func:`phase_breakdown`: stacked wall time per phase (paper Fig. 12);
+- :func:`error_over_time`: distance and step distance error per frame;
+- :func:`clusters_picture`, :func:`animation`: the bodies with clusters coloured, one frame or a GIF;
+- :func:`sweep_heatmaps`: every metric over the tau_a x tau_e grid (paper Fig. 6);
+- :func:`scaling_plot`: speedup and time per frame against the number of elements (paper Table 2).
+"""
+import os
+
+import numpy as np
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.colors import LogNorm, to_rgb
+from matplotlib.figure import Figure
+from matplotlib.patches import Patch
+
+from .integrator import Stats
+
+COLORS = {"full": "#444444", "affinification": "#d95f02", "rigidification": "#1b9e77"}
+ELASTIC = np.array([0.82, 0.82, 0.82])
+
+
+def _color(name, i=0):
+    return COLORS.get(name, f"C{(i + 3) % 10}")
+
+
+def _figure(width, height):
+    fig = Figure(figsize=(width, height), dpi=110)
+    FigureCanvasAgg(fig)
+    return fig
+
+
+def _save(fig, path):
+    os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
+    fig.savefig(path)
+    return path
+
+
+def _finish_over_time(fig, ax, ylabel, title, path):
+    """Label a per-frame plot (time axis in seconds), put the legend on the right, save it."""
+    ax.set_xlabel("simulated time (s)")
+    ax.set_ylabel(ylabel)
+    ax.set_title(title)
+    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0)
+    fig.tight_layout()
+    return _save(fig, path)
+
+
+def _times(run):
+    return np.array([r["time"] for r in run.records])
+
+
+def speedup_per_frame(runs, path, reference="full"):
+    """Per-frame speedup (reference frame wall / method frame wall) with the run's mean (Fig. 1)."""
+    ref = np.array([r["wall"] for r in runs[reference].records])
+    fig = _figure(9.5, 3.6)
+    ax = fig.add_subplot()
+    for i, (name, run) in enumerate(runs.items()):
+        if name == reference or not run.records:
+            continue
+        wall = np.array([r["wall"] for r in run.records])
+        per_frame = ref[:wall.size] / wall
+        t = _times(run)
+        ax.plot(t, per_frame, lw=0.6, color=_color(name, i), alpha=0.35, label=f"{name}, per frame")
+        k = min(9, wall.size)
+        if k > 2:  # the ratio of 9-frame sums: readable at a glance, still a ratio of times
+            window = np.ones(k)
+            smooth = np.convolve(ref[:wall.size], window, "valid") / np.convolve(wall, window, "valid")
+            ax.plot(t[k // 2: k // 2 + smooth.size], smooth, lw=1.6, color=_color(name, i),
+                    label=f"{name}, over {k} frames")
+        mean = run.summary["speedup"]
+        ax.axhline(mean, color=_color(name, i), lw=2, ls="--", label=f"{name}, mean {mean:.2f}x")
+    ax.axhline(1.0, color="k", lw=0.8, ls=":")
+    ax.set_yscale("log")
+    return _finish_over_time(fig, ax, "speedup over full space (x)",
+                             "Speedup per frame (mean = total full time / total time)", path)
+
+
+def dofs_over_time(runs, path):
+    """Elastic DOFs (solid) and all DOFs solved (dashed) per frame."""
+    fig = _figure(9.5, 3.6)
+    ax = fig.add_subplot()
+    for i, (name, run) in enumerate(runs.items()):
+        t = _times(run)
+        ax.plot(t, [r.get("elastic_dofs", r["dofs"]) for r in run.records], color=_color(name, i), lw=1.5,
+                label=f"{name}: elastic DOFs")
+        if name != "full":
+            ax.plot(t, [r["dofs"] for r in run.records], color=_color(name, i), lw=1, ls="--",
+                    label=f"{name}: DOFs solved (elastic + bodies)")
+    ax.set_ylim(bottom=0)
+    return _finish_over_time(fig, ax, "degrees of freedom", "DOFs per frame", path)
+
+
+def phase_breakdown(runs, path):
+    """Stacked wall time per phase and frame, one panel per method (Fig. 12), in milliseconds."""
+    fig = _figure(4.2 * len(runs), 3.8)
+    axes = fig.subplots(1, len(runs), sharey=True, squeeze=False)[0]
+    phases = [p for p in Stats.PHASES if any(p in r for run in runs.values() for r in run.records)]
+    colors = {p: f"C{i}" for i, p in enumerate(phases + ["other"])}
+    for ax, (name, run) in zip(axes, runs.items()):
+        t = _times(run)
+        data = np.array([[r.get(p, 0.0) for p in phases] for r in run.records]).reshape(len(t), len(phases))
+        wall = np.array([r["wall"] for r in run.records])
+        other = np.maximum(wall - data.sum(axis=1), 0.0)
+        stacks = 1e3 * np.column_stack([data, other]).T
+        ax.stackplot(t, stacks, labels=phases + ["other"], colors=[colors[p] for p in phases + ["other"]],
+                     linewidth=0)
+        ax.set_title(f"{name}: {1e3 * wall.mean():.1f} ms/frame")
+        ax.set_xlabel("simulated time (s)")
+    axes[0].set_ylabel("wall time per frame (ms)")
+    handles, labels = axes[-1].get_legend_handles_labels()
+    fig.legend(handles[::-1], labels[::-1], fontsize=8, loc="center right")
+    fig.tight_layout(rect=(0, 0, 1 - 1.3 / fig.get_figwidth(), 1))
+    return _save(fig, path)
+
+
+def error_over_time(runs, path):
+    """Distance error (solid) and step distance error (dashed) per frame, relative to the scene size."""
+    fig = _figure(9.5, 3.6)
+    ax = fig.add_subplot()
+    plotted = False
+    for i, (name, run) in enumerate(runs.items()):
+        if name == "full" or not run.records:
+            continue
+        t = _times(run)
+        for key, ls, what in (("distance_error", "-", "distance"), ("step_error", "--", "step distance")):
+            y = np.array([r.get(key, np.nan) for r in run.records], dtype=float)
+            if np.any(y > 0):
+                ax.plot(t, np.where(y > 0, y, np.nan), ls=ls, color=_color(name, i), lw=1.2, label=f"{name}: {what}")
+                plotted = True
+    if plotted:
+        ax.set_yscale("log")
+        top = ax.get_ylim()[1]
+        ax.set_ylim(bottom=max(ax.get_ylim()[0], top * 1e-6))
+    return _finish_over_time(fig, ax, "max vertex distance / scene size", "Error against the full-space reference",
+                             path)
+
+
+# ---------------------------------------------------------------- pictures of the bodies
+def boundary_faces(t):
+    """Faces on the boundary of a tetrahedral mesh ``t`` (4, m): (k, 3) vertex indices and their element."""
+    t = np.asarray(t)
+    local = np.array([[1, 2, 3], [0, 3, 2], [0, 1, 3], [0, 2, 1]])
+    faces = t[local].transpose(2, 0, 1).reshape(-1, 3)
+    _, inverse, counts = np.unique(np.sort(faces, axis=1), axis=0, return_inverse=True, return_counts=True)
+    once = counts[inverse.ravel()] == 1
+    return faces[once], np.repeat(np.arange(t.shape[1]), 4)[once]
+
+
+def cluster_colors(clusters):
+    """RGB per element: light grey for elastic (-1), a qualitative colour per cluster id."""
+    clusters = np.asarray(clusters)
+    palette = np.array([to_rgb(f"tab:{c}") for c in ("blue", "orange", "green", "red", "purple", "brown", "pink",
+                                                      "olive", "cyan")] +
+                       [to_rgb(c) for c in ("gold", "navy", "teal", "maroon", "lime", "magenta", "darkorange")])
+    rgb = np.tile(ELASTIC, (clusters.size, 1))
+    body = clusters >= 0
+    rgb[body] = palette[(clusters[body] * 7) % len(palette)]
+    return rgb
+
+
+AXES = "xyz"
+
+
+def _draw_bodies(ax, sim, x, clusters, faces, owner, limits):
+    """Orthographic view along the scene's thinnest axis, faces painted far to near, shaded."""
+    from matplotlib.collections import PolyCollection
+    lo, hi = limits
+    depth = int(np.argmin(hi - lo))
+    u, w = [i for i in range(3) if i != depth]
+    toward_viewer = -1.0 if depth == 1 else 1.0  # look from -y (x right, z up), from +z, from +x
+    clusters = np.full(sim.system.m, -1) if clusters is None else np.asarray(clusters)
+    tri = x[faces]
+    normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-300)
+    light = np.zeros(3)
+    light[depth], light[w] = 0.8, 0.6
+    shade = 0.55 + 0.45 * np.abs(normal @ light)
+    order = np.argsort(toward_viewer * tri[:, :, depth].mean(axis=1))  # far first
+    colors = np.clip(cluster_colors(clusters)[owner] * shade[:, None], 0, 1)
+    ax.add_collection(PolyCollection(tri[order][:, :, [u, w]], facecolors=colors[order],
+                                     edgecolors=(0, 0, 0, 0.25), linewidths=0.25))
+    ax.set_xlim(lo[u], hi[u])
+    ax.set_ylim(lo[w], hi[w])
+    ax.set_aspect("equal")
+    ax.set_xlabel(f"{AXES[u]} (m)", fontsize=8)
+    ax.set_ylabel(f"{AXES[w]} (m)", fontsize=8)
+    ax.tick_params(labelsize=7)
+
+
+def _limits(xs):
+    lo = np.min([x.min(axis=0) for x in xs], axis=0)
+    hi = np.max([x.max(axis=0) for x in xs], axis=0)
+    pad = 0.02 * np.max(hi - lo)
+    return lo - pad, hi + pad
+
+
+def _panel_width(limits, height):
+    """Width (inches) of a picture panel of ``height`` that fits the scene's in-view extent."""
+    extent = limits[1] - limits[0]
+    u, w = [i for i in range(3) if i != int(np.argmin(extent))]
+    return float(np.clip(height * extent[u] / max(extent[w], 1e-300), 0.45 * height, 2.2 * height)) + 0.9
+
+
+def _caption(name, sim, state):
+    clusters = state.clusters
+    if clusters is None or not np.any(np.asarray(clusters) >= 0):
+        return f"{name}\nall {sim.system.m} elements elastic"
+    clusters = np.asarray(clusters)
+    n = int(clusters.max()) + 1
+    return (f"{name}\n{n} {'body' if n == 1 else 'bodies'}, "
+            f"{100 * np.mean(clusters >= 0):.0f}% of elements reduced")
+
+
+def clusters_picture(panels, path, title=None):
+    """One PNG, a 3D panel per ``(name, sim, state)``: elastic elements grey, each body its own colour."""
+    faces, owner = boundary_faces(panels[0][1].system.t)
+    limits = _limits([state.x for _, _, state in panels])
+    fig = _figure(max(_panel_width(limits, 3.6) * len(panels), 6.5), 4.6)
+    for i, (name, sim, state) in enumerate(panels):
+        ax = fig.add_subplot(1, len(panels), i + 1)
+        _draw_bodies(ax, sim, state.x, state.clusters, faces, owner, limits)
+        ax.set_title(_caption(name, sim, state), fontsize=9)
+    fig.legend(handles=[Patch(color=ELASTIC, label="elastic element"),
+                        Patch(color="tab:blue", label="one colour per reduced body")],
+               loc="upper right", ncol=2, fontsize=8)
+    if title:
+        fig.suptitle(title, fontsize=10, x=0.02, ha="left")
+    fig.tight_layout(rect=(0, 0, 1, 0.9))
+    return _save(fig, path)
+
+
+def animation(name, sim, states, path, fps=12):
+    """An animated GIF of ``states`` (e.g. ``Run.states``) with clusters coloured."""
+    from PIL import Image
+    if not states:
+        raise ValueError("animation needs at least one state")
+    faces, owner = boundary_faces(sim.system.t)
+    limits = _limits([s.x for s in states])
+    images = []
+    for state in states:
+        fig = _figure(_panel_width(limits, 3.6), 4.2)
+        ax = fig.add_subplot()
+        _draw_bodies(ax, sim, state.x, state.clusters, faces, owner, limits)
+        ax.set_title(f"{_caption(name, sim, state)}, t = {state.time:.2f} s", fontsize=9)
+        fig.tight_layout()
+        fig.canvas.draw()
+        images.append(Image.fromarray(np.asarray(fig.canvas.buffer_rgba())[..., :3]).quantize(colors=128))
+    os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
+    images[0].save(path, save_all=True, append_images=images[1:], duration=int(1000 / fps), loop=0)
+    return path
+
+
+# ---------------------------------------------------------------- sweep and scaling
+SWEEP_METRICS = (("max_distance_error", "max distance error / size", True),
+                 ("max_step_error", "max step distance error / size", True),
+                 ("max_residual", "max residual ||A dv - b|| / ||b||", True),
+                 ("max_energy_error", "max strain-energy difference\n/ max reference strain energy", True),
+                 ("dof_ratio", "DOF ratio (solved / full)", False),
+                 ("mean_clusters", "mean number of bodies", False),
+                 ("speedup", "speedup over full (x)", False),
+                 ("wall_s", "wall time of the run (s)", False))
+
+
+def _edges(values):
+    v = np.log10(values)
+    if v.size == 1:
+        return 10.0 ** np.array([v[0] - 0.5, v[0] + 0.5])
+    mid = 0.5 * (v[1:] + v[:-1])
+    return 10.0 ** np.concatenate([[2 * v[0] - mid[0]], mid, [2 * v[-1] - mid[-1]]])
+
+
+def sweep_heatmaps(rows, path, title=None):
+    """Every metric over the tau_a x tau_e grid (paper Fig. 6); failed cells are crossed out."""
+    ta = np.unique([float(r["tau_a"]) for r in rows])
+    te = np.unique([float(r["tau_e"]) for r in rows])
+    ia = {v: i for i, v in enumerate(ta)}
+    ie = {v: i for i, v in enumerate(te)}
+    metrics = [m for m in SWEEP_METRICS if any(r.get(m[0]) is not None for r in rows)]
+    ncol = 4
+    nrow = -(-len(metrics) // ncol)
+    fig = _figure(4.1 * ncol, 3.5 * nrow)
+    failed = [(float(r["tau_a"]), float(r["tau_e"])) for r in rows if r.get("status") != "ok"]
+    for k, (key, label, log) in enumerate(metrics):
+        ax = fig.add_subplot(nrow, ncol, k + 1)
+        grid = np.full((te.size, ta.size), np.nan)
+        for r in rows:
+            v = r.get(key)
+            if r.get("status") == "ok" and v is not None and np.isfinite(float(v)):
+                grid[ie[float(r["tau_e"])], ia[float(r["tau_a"])]] = float(v)
+        ok = grid[np.isfinite(grid)]
+        norm = None
+        if log and np.any(ok > 0):
+            norm = LogNorm(vmin=ok[ok > 0].min(), vmax=max(ok.max(), ok[ok > 0].min() * 1.0001))
+            grid = np.where(grid > 0, grid, np.nan)
+        ax.set_facecolor("0.9")
+        mesh = ax.pcolormesh(_edges(ta), _edges(te), np.ma.masked_invalid(grid), norm=norm, cmap="viridis")
+        fig.colorbar(mesh, ax=ax).ax.tick_params(labelsize=7, which="both")
+        if failed:
+            ax.plot(*zip(*failed), "x", color="red", ms=7, mew=2, label="diverged / failed")
+        lims = _edges(ta)[[0, -1]]
+        ax.plot(lims, lims, color="w", lw=0.8, ls=":")
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        ax.set_xlabel("tau_a (1/s)", fontsize=8)
+        ax.set_ylabel("tau_e (1/s)", fontsize=8)
+        ax.set_title(label, fontsize=9)
+        ax.tick_params(labelsize=7)
+        if failed and k == 0:
+            ax.legend(fontsize=7, loc="lower right")
+    if title:
+        fig.suptitle(title, fontsize=11)
+    fig.tight_layout()
+    return _save(fig, path)
+
+
+def scaling_plot(rows, path, title=None):
+    """Speedup and wall time per frame against the number of elements (paper Table 2)."""
+    rows = [r for r in rows if r.get("speedup") is not None]
+    m = np.array([r["elements"] for r in rows], dtype=float)
+    frames = np.array([r["frames"] for r in rows], dtype=float)
+    fig = _figure(10, 3.8)
+    ax1, ax2 = fig.subplots(1, 2)
+    ax1.plot(m, [r["speedup"] for r in rows], "o-", color=_color("affinification"))
+    for r in rows:
+        if r.get("max_distance_error") is not None:
+            ax1.annotate(f"err {r['max_distance_error']:.1e}", (r["elements"], r["speedup"]), fontsize=7,
+                         textcoords="offset points", xytext=(4, 6))
+    ax1.axhline(1.0, color="k", lw=0.8, ls=":")
+    ax1.set_xscale("log")
+    ax1.set_xlabel("elements (tetrahedra)")
+    ax1.set_ylabel("speedup over full space (x)")
+    ax1.set_title("Speedup (labels: max distance error / size)", fontsize=9)
+    ax2.plot(m, 1e3 * np.array([r["time_full_s"] for r in rows]) / frames, "o-", color=_color("full"),
+             label="full space")
+    ax2.plot(m, 1e3 * np.array([r["time_reduced_s"] for r in rows]) / frames, "s-",
+             color=_color(rows[0]["method"] if rows else "affinification"),
+             label=rows[0]["method"] if rows else "reduced")
+    ax2.set_xscale("log")
+    ax2.set_yscale("log")
+    ax2.set_xlabel("elements (tetrahedra)")
+    ax2.set_ylabel("wall time per frame (ms)")
+    ax2.set_title("Cost per frame", fontsize=9)
+    ax2.legend(fontsize=8)
+    if title:
+        fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    return _save(fig, path)
+
+
+def compare_plots(runs, out, frame=None, stem="compare"):
+    """All compare figures into ``out``; returns their paths. ``frame`` picks the clusters picture's frame."""
+    paths = [speedup_per_frame(runs, os.path.join(out, f"{stem}_speedup.png")),
+             dofs_over_time(runs, os.path.join(out, f"{stem}_dofs.png")),
+             phase_breakdown(runs, os.path.join(out, f"{stem}_phases.png")),
+             error_over_time(runs, os.path.join(out, f"{stem}_error.png"))]
+    kept = {name: run for name, run in runs.items() if run.states}
+    if frame is None and kept:
+        reduced = [run for name, run in kept.items() if name != "full"] or list(kept.values())
+        frame = pick_state(reduced[0].states).frame
+    panels = [(name, run.sim, pick_state(run.states, frame)) for name, run in kept.items()]
+    if panels:
+        shown = panels[0][2]
+        title = f"Frame {shown.frame} (t = {shown.time:.2f} s): elastic grey, bodies coloured"
+        paths.append(clusters_picture(panels, os.path.join(out, f"{stem}_clusters.png"), title=title))
+    return paths
+
+
+def pick_state(states, frame=None):
+    """The kept state at ``frame`` (or nearest).
+
+    Default: the state that shows most of the method, the largest product of the
+    fraction of reduced elements and the largest displacement from the first state.
+    """
+    if frame is None:
+        moved = [np.abs(s.x - states[0].x).max() for s in states]
+        reduced = [np.mean(np.asarray(s.clusters) >= 0) if s.clusters is not None else 0.0 for s in states]
+        score = np.array(moved) * np.array(reduced)
+        return states[int(np.argmax(score))] if score.max() > 0 else states[int(np.argmax(moved))]
+    return min(states, key=lambda s: abs(s.frame - frame))

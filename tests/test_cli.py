@@ -1,0 +1,120 @@
+"""The command line: every subcommand end to end on a tiny beam, --json output, written files."""
+import json
+import os
+
+import meshio
+import numpy as np
+import pytest
+
+from skfem_affine.cli import SUMMARY_KEYS, main, parser
+
+
+def run_json(capsys, argv):
+    code = main(argv + ["--json"])
+    out = capsys.readouterr().out
+    lines = [line for line in out.splitlines() if line.strip()]
+    assert len(lines) == 1, f"--json must print exactly one line, got: {out!r}"
+    return code, json.loads(lines[0])
+
+
+def test_help_on_every_subcommand(capsys):
+    for command in ("demo", "run", "compare", "sweep", "scaling", "scenes"):
+        with pytest.raises(SystemExit) as exit_:
+            main([command, "--help"])
+        assert exit_.value.code == 0
+        assert "usage: skfem-affine " + command in capsys.readouterr().out
+    commands = parser()._subparsers._group_actions[0].choices
+    assert set(commands) == {"demo", "run", "compare", "sweep", "scaling", "scenes"}
+
+
+def test_scenes_lists_the_scene_registry(capsys):
+    code, listing = run_json(capsys, ["scenes"])
+    assert code == 0 and {"cantilever", "free_body"} <= set(listing["scenes"])
+    assert "resolution" in listing["scenes"]["cantilever"]["parameters"]
+    main(["scenes"])
+    assert "cantilever" in capsys.readouterr().out
+
+
+def test_run_json_with_reference(tmp_path, capsys):
+    code, s = run_json(capsys, ["run", "cantilever", "--resolution", "1", "--frames", "6", "--method",
+                                "affinification", "--tau-a", "0.3", "--tau-e", "0.6", "--reference", "--out",
+                                str(tmp_path), "--every", "3"])
+    assert code == 0 and set(SUMMARY_KEYS) <= set(s)
+    assert s["scene"] == "cantilever" and s["method"] == "affinification" and s["frames"] == 6
+    assert s["elements"] == 24 and s["vertices"] == 20
+    for key in ("wall_s", "speedup", "dof_ratio", "mean_clusters", "max_distance_error"):
+        assert isinstance(s[key], float), key
+    out = tmp_path / "run_cantilever"
+    assert {"affinification_frames.csv", "affinification_clusters.png", "paraview"} <= set(os.listdir(out))
+    assert sorted(os.listdir(out / "paraview")) == ["affinification.pvd", "affinification_00000.vtu",
+                                                    "affinification_00003.vtu", "affinification_00006.vtu"]
+    # without a reference the reference metrics are null, but every key is there
+    code, s = run_json(capsys, ["run", "free_body", "--resolution", "1", "--frames", "3", "--method", "full",
+                                "--out", str(tmp_path), "--no-paraview"])
+    assert code == 0 and set(SUMMARY_KEYS) <= set(s) and s["speedup"] is None and s["max_distance_error"] is None
+
+
+def test_compare_json_and_outputs(tmp_path, capsys):
+    code, s = run_json(capsys, ["compare", "--resolution", "1", "--frames", "12", "--tau-a", "0.3", "--tau-e",
+                                "0.6", "--every", "4", "--gif", "--out", str(tmp_path)])
+    assert code == 0 and set(SUMMARY_KEYS) <= set(s) and s["method"] == "affinification"
+    assert set(s["methods"]) == {"full", "affinification", "rigidification"}
+    assert s["methods"]["full"]["speedup"] == 1.0 and s["max_distance_error"] >= 0
+    out = tmp_path / "compare_cantilever"
+    names = set(os.listdir(out))
+    assert {"frames.csv", "summary.csv", "compare_speedup.png", "compare_dofs.png", "compare_phases.png",
+            "compare_error.png", "compare_clusters.png", "affinification.gif", "full.gif"} <= names
+    # the ParaView series opens with meshio and holds the cell data
+    pv = out / "paraview"
+    assert {"full.pvd", "affinification.pvd", "rigidification.pvd"} <= set(os.listdir(pv))
+    assert "affinification_00012.vtu" in open(pv / "affinification.pvd").read()
+    mesh = meshio.read(pv / "affinification_00012.vtu")
+    cluster = mesh.cell_data["cluster"][0]
+    assert cluster.shape == (24,) and mesh.point_data["velocity"].shape == (20, 3)
+    assert np.array_equal(mesh.cell_data["affine"][0], (cluster >= 0).astype(np.int8))
+    assert np.all(mesh.cell_data["material"][0] == 0)
+
+
+def test_sweep_json(tmp_path, capsys):
+    argv = ["sweep", "--resolution", "1", "--frames", "4", "--grid", "2", "--tau-range", "0.01", "0.3",
+            "--workers", "1", "--threads", "--no-step-error", "--paired-timing", "--out", str(tmp_path)]
+    code, s = run_json(capsys, argv)
+    assert code == 0 and set(SUMMARY_KEYS) <= set(s) and s["cells"] == 4 and s["failed"] == 0
+    assert len(s["rows"]) == 4 and os.path.exists(s["table"]) and os.path.exists(s["heatmaps"])
+    assert s["best_tau_a"] in (0.01, 0.3) and all(r["timing"] == "paired" for r in s["rows"])
+
+
+def test_scaling_json(tmp_path, capsys):
+    code, s = run_json(capsys, ["scaling", "--resolutions", "1", "2", "--frames", "4", "3", "--out", str(tmp_path)])
+    assert code == 0 and set(SUMMARY_KEYS) <= set(s)
+    assert [r["elements"] for r in s["rows"]] == [24, 192] and s["elements"] == 192
+    assert os.path.exists(s["figure"]) and os.path.exists(s["table"])
+
+
+def test_user_scene_file(tmp_path, capsys):
+    f = tmp_path / "drop.py"
+    f.write_text("import skfem_affine as sa\n"
+                 "def scene(reducer=None, **kw):\n"
+                 "    return sa.scenes.free_body(resolution=1, reducer=reducer, **kw)\n")
+    code, s = run_json(capsys, ["run", str(f), "--frames", "3", "--method", "full", "--out", str(tmp_path),
+                                "--no-paraview", "--set", "spin=(0, 0, 1)"])
+    assert code == 0 and s["scene"] == "drop" and s["elements"] == 6 * 1
+
+
+def test_bad_input_is_a_clear_error(tmp_path, capsys):
+    assert main(["run", "nope", "--out", str(tmp_path)]) == 2
+    assert "unknown scene 'nope'" in capsys.readouterr().err
+    assert main(["run", "cantilever", "--set", "oops", "--out", str(tmp_path)]) == 2
+    assert "KEY=VALUE" in capsys.readouterr().err
+    assert main(["compare", "--methods", "nope", "--out", str(tmp_path)]) == 2
+    assert "unknown method" in capsys.readouterr().err
+    assert main(["sweep", "--grid", "0", "--out", str(tmp_path)]) == 2
+    assert "--grid" in capsys.readouterr().err
+
+
+def test_demo(tmp_path, capsys):
+    assert main(["demo", "--resolution", "1", "--frames", "10", "--out", str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    assert "speedup" in out and "affinification" in out and "rigidification" in out
+    names = set(os.listdir(tmp_path / "compare_cantilever"))
+    assert {"compare_clusters.png", "compare_speedup.png", "affinification.gif", "paraview"} <= names

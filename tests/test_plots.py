@@ -1,0 +1,38 @@
+"""Picture helpers: boundary faces, cluster colours, the state a picture shows; PNGs are written."""
+import numpy as np
+
+import skfem_affine as sa
+from skfem_affine import plots
+
+
+def test_boundary_faces():
+    one = np.array([[0], [1], [2], [3]])
+    faces, owner = plots.boundary_faces(one)
+    assert faces.shape == (4, 3) and np.all(owner == 0)
+    two = np.array([[0, 1], [1, 2], [2, 3], [3, 4]])  # share the face (1, 2, 3)
+    faces, owner = plots.boundary_faces(two)
+    assert faces.shape == (6, 3) and sorted(np.bincount(owner)) == [3, 3]
+    assert not any(set(f) == {1, 2, 3} for f in faces)
+    mesh = sa.scenes.beam_mesh(1)   # 4 x 1 x 1 cubes: 2 (4 + 4 + 1) squares of 2 triangles
+    assert plots.boundary_faces(mesh.t)[0].shape[0] == 2 * 2 * (4 + 4 + 1)
+
+
+def test_cluster_colors_and_picked_state():
+    rgb = plots.cluster_colors(np.array([-1, 0, 1, 0]))
+    assert np.allclose(rgb[0], plots.ELASTIC) and np.allclose(rgb[1], rgb[3]) and not np.allclose(rgb[1], rgb[2])
+    x = np.zeros((2, 3))
+    states = [sa.State(x + d, x, frame=i, clusters=np.array(c)) for i, (d, c) in
+              enumerate([(0.0, [0, 0]), (0.1, [0, -1]), (1.0, [0, 0]), (2.0, [-1, -1])])]
+    assert plots.pick_state(states).frame == 2            # moved and reduced
+    assert plots.pick_state(states, frame=1).frame == 1
+
+
+def test_pictures_are_written(tmp_path):
+    sim = sa.scenes.cantilever(resolution=1, reducer=sa.Affinification(tau_a=1.0, tau_e=2.0))
+    states = [sim.state.copy()] + [s for s in sim.run(4)]
+    png = plots.clusters_picture([("affinification", sim, states[-1])], str(tmp_path / "c.png"))
+    gif = plots.animation("affinification", sim, states, str(tmp_path / "a.gif"))
+    from PIL import Image
+    assert Image.open(png).size[0] > 300
+    im = Image.open(gif)
+    assert im.n_frames == len(states)
