@@ -139,3 +139,15 @@ def test_sweep_on_an_existing_scheduler(tmp_path):
         assert cluster.scheduler is not None and len(cluster.scheduler.workers) == 1  # still running: not ours
     assert len(rows) == 1 and rows[0]["status"] == "ok" and rows[0]["tau_a"] == 0.1
     assert runners.read_table(str(tmp_path / "s.parquet"))[0]["frames"] == 4
+
+
+def test_subspace_method_is_measured_against_the_newton_reference():
+    spec = runners.SceneSpec.make("cantilever", resolution=1, integrator="implicit_euler")
+    ref, runs = runners.compare(spec, frames=8, methods=("subspace",), taus={"subspace": (0.0, 0.0)})
+    sub = runs["subspace"].summary
+    # every threshold zero: all nodes enriched, the full-space Newton solution to its tolerance
+    assert sub["status"] == "ok" and sub["frames"] == 8 and sub["max_distance_error"] < 1e-5
+    loose = runners.run(spec, "subspace", 8, 1e-2, 3e-2, reference=ref, step_error=False)
+    assert loose.summary["status"] == "ok" and loose.summary["max_distance_error"] > sub["max_distance_error"]
+    with pytest.raises(ValueError, match="integrator"):  # the subspace reducer refuses the linearized integrator
+        runners.run(TINY, "subspace", 2)
