@@ -220,51 +220,60 @@ def scatter_add(slot, values, nnz):
 
 
 @njit(cache=True)
-def reduced_boundary_blocks(t, elems, he_row, He, vcluster, Gam, pair_eb, pair_bb, body_blocks, eb_blocks, bb_blocks):
-    """Accumulate G_e^T H_e G_e of elements with reduced vertices (paper eq. 10) into dense blocks.
+def reduced_upper(gt_indptr, gt_rows, gt_vals, y_indptr, y_indices, y_data, n_elastic, body_blocks):
+    """Upper triangle of G^T Y + blockdiag(body_blocks) as sorted CSR, Y = A G (paper eq. 10).
 
-    For each element ``elems[i]`` and vertex pair (k, l) with at least one vertex in
-    a reduced body: Gamma_k^T H_e[k, l] Gamma_l, where Gamma = I_3 for an elastic
-    vertex and ``Gam[v]`` (3 x w) for a vertex of a body (affine: [I_3, I_3 (x)
-    r^T], w = 12, eq. 8; rigid: [I_3, -[r]_x], w = 6). Sums go to ``body_blocks``
-    (k, w, w) for pairs in one body, to ``eb_blocks[pair_eb[i, k, l]]`` (3 x w)
-    for an elastic row vertex and a body column, and to
-    ``bb_blocks[pair_bb[i, k, l]]`` (w x w) for two different bodies. The
-    (body row, elastic column) pairs are the transposes of the first kind and are
-    skipped, as are elastic-elastic pairs (taken from the full matrix). The block of
-    element ``elems[i]`` is ``He[he_row[i]]``.
+    ``gt_*`` is G^T (reduced DOFs x free DOFs) and ``y_*`` is Y = A G (free DOFs x
+    reduced DOFs), both CSR. Row R gathers g_iR Y[i, C] for C >= R with a dense
+    accumulator (Gustavson); a body vertex's row of Y is short (12 entries per body it
+    couples to), so the cost is about nnz(G) times a few dozen. ``body_blocks``
+    (n_bodies, w, w) is added to each body's diagonal block (columns
+    ``n_elastic + w b + [0, w)``); pass (0, w, w) for none. Returns (indptr, indices, data),
+    int32 indices sorted in each row.
     """
-    w = Gam.shape[2]
-    X = np.empty((3, 3))
-    XG = np.empty((3, w))
-    for i in range(elems.size):
-        e = elems[i]
-        q = he_row[i]
-        for k in range(4):
-            ik = t[k, e]
-            ck = vcluster[ik]
-            for l in range(4):
-                il = t[l, e]
-                cl = vcluster[il]
-                if cl < 0:
+    n_red = gt_indptr.size - 1
+    w = body_blocks.shape[1]
+    n_blocks = body_blocks.shape[0]
+    bound = n_blocks * w * (w + 1) // 2  # nonzeros at most
+    for p in range(gt_rows.size):
+        bound += y_indptr[gt_rows[p] + 1] - y_indptr[gt_rows[p]]
+    marker = np.full(n_red, -1, dtype=np.int64)
+    acc = np.zeros(n_red)
+    cols = np.empty(n_red, dtype=np.int64)
+    indptr = np.zeros(n_red + 1, dtype=np.int32)
+    indices = np.empty(bound, dtype=np.int32)
+    data = np.empty(bound)
+    nnz = 0
+    for R in range(n_red):
+        k = 0
+        for s in range(gt_indptr[R], gt_indptr[R + 1]):
+            i = gt_rows[s]
+            g = gt_vals[s]
+            for p in range(y_indptr[i], y_indptr[i + 1]):
+                C = y_indices[p]
+                if C < R:
                     continue
-                for a in range(3):
-                    for b in range(3):
-                        X[a, b] = He[q, 3 * k + a, 3 * l + b]
-                for a in range(3):
-                    for j in range(w):
-                        XG[a, j] = X[a, 0] * Gam[il, 0, j] + X[a, 1] * Gam[il, 1, j] + X[a, 2] * Gam[il, 2, j]
-                if ck < 0:
-                    p = pair_eb[i, k, l]
-                    for a in range(3):
-                        for j in range(w):
-                            eb_blocks[p, a, j] += XG[a, j]
+                if marker[C] != R:
+                    marker[C] = R
+                    acc[C] = g * y_data[p]
+                    cols[k] = C
+                    k += 1
                 else:
-                    p = -1 if ck == cl else pair_bb[i, k, l]
-                    for r in range(w):
-                        for j in range(w):
-                            val = Gam[ik, 0, r] * XG[0, j] + Gam[ik, 1, r] * XG[1, j] + Gam[ik, 2, r] * XG[2, j]
-                            if p < 0:
-                                body_blocks[ck, r, j] += val
-                            else:
-                                bb_blocks[p, r, j] += val
+                    acc[C] += g * y_data[p]
+        if R >= n_elastic and n_blocks:
+            b, r = (R - n_elastic) // w, (R - n_elastic) % w
+            for c in range(r, w):
+                C = n_elastic + w * b + c
+                if marker[C] != R:
+                    marker[C] = R
+                    acc[C] = 0.0
+                    cols[k] = C
+                    k += 1
+                acc[C] += body_blocks[b, r, c]
+        row = np.sort(cols[:k])
+        for c in range(k):
+            indices[nnz + c] = row[c]
+            data[nnz + c] = acc[row[c]]
+        nnz += k
+        indptr[R + 1] = nnz
+    return indptr, indices[:nnz].copy(), data[:nnz].copy()

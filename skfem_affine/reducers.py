@@ -14,17 +14,15 @@ One affinification frame (Algorithm 1), with the phase names of ``sim.stats``:
    affine elements), BFS of Algorithm 2 (eq. 5-6), resource limiting (sec. 3.5);
 4. ``map_assembly``: G (eq. 7-8), projection q = (G^T M G)^-1 G^T M v (eq. 9),
    discrepancy d = G q - v (eq. 11);
-5. ``reduced_assembly``: G^T A G and G^T b (eq. 10), assembled per element:
-   an element whose four vertices lie in one affine body contributes exactly
-   V_e C_e to that body's 9 x 9 affine block (B_e G_e = [0 | I_9] there), so
-   only elements on cluster boundaries need the general product;
+5. ``reduced_assembly``: G^T A G and G^T b (eq. 10), the matrix as the sparse
+   product with the assembled A (:func:`reduction.reduced_matrix`), upper
+   triangle only when the solver is a Cholesky that reads one;
 6. ``factorization`` and ``solve``: the reduced system, direct solver;
 7. dv = G dq + d (eq. 12); positions are integrated in full space.
 """
 import time
 
 import numpy as np
-import scipy.sparse as sp
 
 from . import clustering, oracle, reduction
 from .kinematics import deformation_gradient
@@ -48,16 +46,6 @@ class Reducer:
 
     def solve(self, sim, rec):
         raise NotImplementedError
-
-
-class _MatrixFree:
-    """Wraps p -> H p so that ``H @ p`` works where an assembled matrix would."""
-
-    def __init__(self, apply):
-        self.apply = apply
-
-    def __matmul__(self, p):
-        return self.apply(p)
 
 
 def _elements_touching(system, mask):
@@ -102,6 +90,7 @@ class _ClusteringReducer(Reducer):
         self.precond = oracle.Preconditioner(sysm, sim.dt, sim.damping, kind=self.preconditioner_kind)
         self.setup_time = time.perf_counter() - t0
         self.solver = make_solver(self.solver_spec if self.solver_spec is not None else "direct")
+        self.upper = getattr(self.solver, "accepts_upper", False)  # a Cholesky reads one triangle
         self.gravity_dv = np.tile(sim.gravity, sysm.n)[sysm.free] * sim.dt
 
     # -------------------------------------------------------------- frame
@@ -110,10 +99,11 @@ class _ClusteringReducer(Reducer):
         s = sim.state
         free = sysm.free
         t0 = time.perf_counter()
-        # forces and projected dP/dF; element blocks only later, where the reduction needs them
-        data = sysm.evaluate_tangent(s.x, project=sim.project_hessian)
+        # forces, projected dP/dF and the assembled stiffness H: element blocks and their
+        # scatter cost little next to the tangent, and H p by CSR is 50x the matrix-free product
+        data = sysm.evaluate(s.x, project=sim.project_hessian)
         data.f = data.f + sim.f_gravity
-        Hop = _MatrixFree(oracle.stiffness_operator(sysm, data.C))
+        Hop = sysm.pattern.matrix(data.H)
         t1 = time.perf_counter()
         rec["assembly"] = t1 - t0
         # prediction (eq. 13-14): one PCG iteration, gravity split out, A applied matrix-free
@@ -146,14 +136,17 @@ class _ClusteringReducer(Reducer):
             vp = s.v.copy()
             vp.reshape(-1)[free] += d
             bp = sim.rhs(data.f, Hop, vp)
-            Ar = reduction.reduced_matrix(sim, data, vcluster, Gam, n_bodies, elastic_dofs, affine=self.width == 12)
+            Ar = reduction.reduced_matrix(sim, data, vcluster, Gam, n_bodies, elastic_dofs, affine=self.width == 12,
+                                          G=G, upper=self.upper)
             br = G.T @ bp
         else:
-            _, Hdata = sysm.partial_stiffness(data, np.arange(sysm.m))
-            Ar, br = sim.system_matrix(Hdata), b
+            Ar, br = sim.system_matrix(data.H), b
         t5 = time.perf_counter()
         rec["reduced_assembly"] = t5 - t4
-        self.solver.factorize(Ar)
+        if self.upper and n_bodies:
+            self.solver.factorize(Ar, upper=True)
+        else:
+            self.solver.factorize(Ar)
         t6 = time.perf_counter()
         dq = self.solver.solve(br)
         t7 = time.perf_counter()
