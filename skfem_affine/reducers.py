@@ -193,8 +193,11 @@ class Affinification(_ClusteringReducer):
     width = 12
 
     def __init__(self, tau_a=1e-4, tau_e=2e-4, seeding="random", preconditioner="ichol",
-                 min_affine_fraction=0.0, seed=0, solver=None):
+                 min_affine_fraction=0.0, seed=0, solver=None, min_body_elements=2):
         self.tau_a = _check_threshold(tau_a, "tau_a")
+        if int(min_body_elements) < 2:
+            raise ValueError(f"min_body_elements must be >= 2 (singletons are always dissolved), got {min_body_elements}")
+        self.min_body_elements = int(min_body_elements)
         super().__init__(tau_e, preconditioner, min_affine_fraction, seeding, seed, solver)
 
     def __repr__(self):
@@ -217,7 +220,8 @@ class Affinification(_ClusteringReducer):
         forced = clustering.forced_set(Fdot, self.adjacency, self.min_fraction) if self.min_fraction > 0 else None
         labels, seeds = clustering.cluster_deformation_rates(
             Fdot, self.adjacency, sysm.t, sysm.n, self.tau_a, self.tau_e, was_affine=self.was_reduced,
-            excluded=self.excluded, forced=forced, seeds=self._seeds(sysm.m), return_seeds=True)
+            excluded=self.excluded, forced=forced, seeds=self._seeds(sysm.m), return_seeds=True,
+            min_size=self.min_body_elements)
         self.previous_seeds = seeds
         return labels
 
