@@ -277,3 +277,71 @@ def reduced_upper(gt_indptr, gt_rows, gt_vals, y_indptr, y_indices, y_data, n_el
         nnz += k
         indptr[R + 1] = nnz
     return indptr, indices[:nnz].copy(), data[:nnz].copy()
+
+
+@njit(cache=True, parallel=True)
+def neohookean_tangent(F, mu, lam, out):
+    """dP/dF (m, 9, 9) of stable Neo-Hookean: lam g g^T + (lam (J - 1) - mu) d^2J/dF^2 + mu I.
+
+    g = vec(cof F); d^2 J / dF_ij dF_kl = eps_ikp eps_jlq F_pq (one signed entry of F or 0);
+    ``mu``, ``lam`` (m,) per element (lam = lam + mu of [SGK18]). No BLAS call: numpy's batched
+    (m, 9) @ (9, 81) product ran multi-threaded OpenBLAS and cost 4-17 ms at 5k tets.
+    """
+    m = F.shape[0]
+    for e in prange(m):
+        f = F[e]
+        g = np.empty(9)
+        g[0] = f[1, 1] * f[2, 2] - f[1, 2] * f[2, 1]
+        g[1] = f[1, 2] * f[2, 0] - f[1, 0] * f[2, 2]
+        g[2] = f[1, 0] * f[2, 1] - f[1, 1] * f[2, 0]
+        g[3] = f[0, 2] * f[2, 1] - f[0, 1] * f[2, 2]
+        g[4] = f[0, 0] * f[2, 2] - f[0, 2] * f[2, 0]
+        g[5] = f[0, 1] * f[2, 0] - f[0, 0] * f[2, 1]
+        g[6] = f[0, 1] * f[1, 2] - f[0, 2] * f[1, 1]
+        g[7] = f[0, 2] * f[1, 0] - f[0, 0] * f[1, 2]
+        g[8] = f[0, 0] * f[1, 1] - f[0, 1] * f[1, 0]
+        J = f[0, 0] * g[0] + f[0, 1] * g[1] + f[0, 2] * g[2]
+        s = lam[e] * (J - 1.0) - mu[e]
+        for r in range(9):
+            for c in range(9):
+                out[e, r, c] = lam[e] * g[r] * g[c]
+            out[e, r, r] += mu[e]
+        for i in range(3):
+            for k in range(3):
+                if i == k:
+                    continue
+                p = 3 - i - k
+                sik = 1.0 if (k - i) % 3 == 1 else -1.0  # eps_ikp
+                for j in range(3):
+                    for l in range(3):
+                        if j == l:
+                            continue
+                        q = 3 - j - l
+                        sjl = 1.0 if (l - j) % 3 == 1 else -1.0
+                        out[e, 3 * i + j, 3 * k + l] += s * sik * sjl * f[p, q]
+
+
+@njit(cache=True, parallel=True)
+def stvk_tangent(F, mu, lam, out):
+    """dP/dF (m, 9, 9) of StVK: d_ik S_lj + mu (F_il F_kj + (F F^T)_ik d_jl) + lam F_ij F_kl,
+    S = 2 mu E + lam tr(E) I, E = (F^T F - I) / 2; ``mu``, ``lam`` (m,) per element."""
+    m = F.shape[0]
+    for e in prange(m):
+        f = F[e]
+        C = np.empty((3, 3))
+        B = np.empty((3, 3))
+        for a in range(3):
+            for b in range(3):
+                C[a, b] = f[0, a] * f[0, b] + f[1, a] * f[1, b] + f[2, a] * f[2, b]
+                B[a, b] = f[a, 0] * f[b, 0] + f[a, 1] * f[b, 1] + f[a, 2] * f[b, 2]
+        tr = 0.5 * (C[0, 0] + C[1, 1] + C[2, 2] - 3.0)
+        for i in range(3):
+            for j in range(3):
+                for k in range(3):
+                    for l in range(3):
+                        v = mu[e] * f[i, l] * f[k, j] + lam[e] * f[i, j] * f[k, l]
+                        if i == k:
+                            v += mu[e] * (C[l, j] - (1.0 if l == j else 0.0)) + (lam[e] * tr if l == j else 0.0)
+                        if j == l:
+                            v += mu[e] * B[i, k]
+                        out[e, 3 * i + j, 3 * k + l] = v
