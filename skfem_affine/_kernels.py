@@ -345,3 +345,45 @@ def stvk_tangent(F, mu, lam, out):
                         if j == l:
                             v += mu[e] * B[i, k]
                         out[e, 3 * i + j, 3 * k + l] = v
+
+
+@njit(cache=True, parallel=True)
+def corotational_kernel(F, mu, lam, P, C, tangent):
+    """Corotational P (m, 3, 3) and, if ``tangent``, dP/dF (m, 9, 9), from :func:`svd3` (F = U S V^T).
+
+    P = 2 mu (F - R) + lam (tr S - 3) R, R = U V^T; dP/dF = 2 mu (I - dR) + lam R (x) R +
+    lam (tr S - 3) dR with dR/dF_kl = U Omega V^T, Omega_ij = (M_ij - M_ji) / (s_i + s_j),
+    M_ij = U_ki V_lj (the exact derivative of the polar rotation).
+    """
+    m = F.shape[0]
+    for c in prange(_CHUNKS):
+        U, V, A = np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3))
+        R, Om = np.empty((3, 3)), np.empty((3, 3))
+        s = np.empty(3)
+        for e in range(c * m // _CHUNKS, (c + 1) * m // _CHUNKS):
+            svd3(F[e], U, s, V, A)
+            trs = s[0] + s[1] + s[2] - 3.0
+            for a in range(3):
+                for b in range(3):
+                    R[a, b] = U[a, 0] * V[b, 0] + U[a, 1] * V[b, 1] + U[a, 2] * V[b, 2]
+                    P[e, a, b] = 2.0 * mu[e] * (F[e, a, b] - R[a, b]) + lam[e] * trs * R[a, b]
+            if not tangent:
+                continue
+            for k in range(3):
+                for l in range(3):
+                    for i in range(3):
+                        for j in range(3):
+                            den = s[i] + s[j]
+                            if abs(den) < 1e-12:
+                                den = 1e-12 if den >= 0 else -1e-12
+                            Om[i, j] = (U[k, i] * V[l, j] - U[k, j] * V[l, i]) / den
+                    for a in range(3):
+                        for b in range(3):
+                            dR = 0.0
+                            for i in range(3):
+                                for j in range(3):
+                                    dR += U[a, i] * Om[i, j] * V[b, j]
+                            v = (lam[e] * trs - 2.0 * mu[e]) * dR + lam[e] * R[a, b] * R[k, l]
+                            if a == k and b == l:
+                                v += 2.0 * mu[e]
+                            C[e, 3 * a + b, 3 * k + l] = v

@@ -22,7 +22,7 @@ Models (paper sec. 4, [SGK18]):
 """
 import numpy as np
 
-from ._kernels import neohookean_tangent, stvk_tangent
+from ._kernels import corotational_kernel, neohookean_tangent, stvk_tangent
 
 # Levi-Civita symbol, used for the cofactor and the Hessian of det F.
 _EPS = np.zeros((3, 3, 3))
@@ -265,24 +265,19 @@ class Corotational(Material):
         U, s, V = rotation_svd(F)
         return self.mu * np.sum((s - 1.0) ** 2, axis=1) + 0.5 * self.lam * (s.sum(axis=1) - 3.0) ** 2
 
+    def _kernel(self, F, tangent):
+        F = np.ascontiguousarray(F, dtype=float).reshape(-1, 3, 3)
+        m = F.shape[0]
+        P, C = np.empty((m, 3, 3)), np.empty((m, 9, 9) if tangent else (0, 9, 9))
+        corotational_kernel(F, np.ascontiguousarray(np.broadcast_to(self.mu, (m,)), dtype=float),
+                            np.ascontiguousarray(np.broadcast_to(self.lam, (m,)), dtype=float), P, C, tangent)
+        return P, C
+
     def stress(self, F):
-        U, s, V = rotation_svd(F)
-        R = U @ V.transpose(0, 2, 1)
-        return 2.0 * _col(self.mu) * (F - R) + _col(self.lam * (s.sum(axis=1) - 3.0)) * R
+        return self._kernel(F, False)[0].reshape(np.shape(F))
 
     def _stress_derivative(self, F):
-        U, s, V = rotation_svd(F)
-        R = U @ V.transpose(0, 2, 1)
-        den = s[:, :, None] + s[:, None, :]
-        den = np.where(np.abs(den) < 1e-12, np.copysign(1e-12, den), den)
-        M = np.einsum("eki,elj->eklij", U, V)
-        Om = (M - M.transpose(0, 1, 2, 4, 3)) / den[:, None, None]
-        dR = np.einsum("eai,eklij,ebj->eabkl", U, Om, V, optimize=True)
-        mu, lam = _col(self.mu, 4), _col(self.lam, 4)
-        C = 2.0 * mu * (np.einsum("ik,jl->ijkl", _I3, _I3)[None] - dR)
-        C += lam * np.einsum("eij,ekl->eijkl", R, R)
-        C += _col(self.lam * (s.sum(axis=1) - 3.0), 4) * dR
-        return C
+        return self._kernel(F, True)[1].reshape(-1, 3, 3, 3, 3)
 
 
 MATERIALS = {cls.name: cls for cls in (StVK, Corotational, NeoHookean)}
