@@ -89,6 +89,8 @@ def main(argv=None):
     p.add_argument("--taus", nargs="*", default=["1e-4,2e-4", "0.1,0.2"], help="tau_a,tau_e pairs")
     p.add_argument("--tau-r", type=float, nargs="*", default=[1e-3], help="rigidification tau_r (tau_e = 2 tau_r)")
     p.add_argument("--seeding", default="random", choices=["random", "index", "temporal"])
+    p.add_argument("--min-body-elements", type=int, nargs="+", default=[2],
+                   help="affine bodies with fewer elements are dissolved (2: singletons, as the paper)")
     p.add_argument("--solver", default="pardiso" if sa.solvers.has_pardiso() else "superlu")
     p.add_argument("--phases", action="store_true", help="also print ms per frame of each phase")
     p.add_argument("--json", default="benchmarks/results/affinification.json")
@@ -102,8 +104,11 @@ def main(argv=None):
     for scene in scenes:
         label = f"k={scene}" if isinstance(scene, int) else os.path.splitext(os.path.basename(scene))[0]
         for mat in args.materials:
-            names = ["full"] + [f"affine {t}" for t in args.taus] + [f"rigid {t:g}" for t in args.tau_r]
-            reducers = [sa.Affinification(*map(float, t.split(",")), seeding=args.seeding) for t in args.taus]
+            affine = [(t, k) for t in args.taus for k in args.min_body_elements]
+            names = ["full"] + [f"affine {t}" + (f" min{k}" if k != 2 else "") for t, k in affine]
+            names += [f"rigid {t:g}" for t in args.tau_r]
+            reducers = [sa.Affinification(*map(float, t.split(",")), seeding=args.seeding, min_body_elements=k)
+                        for t, k in affine]
             reducers += [sa.Rigidification(tau_r=t, tau_e=2 * t) for t in args.tau_r]
             sim, results = run_interleaved(scene, mat, args.frames, args.solver, reducers)
             full = results[0]

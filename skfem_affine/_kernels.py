@@ -387,3 +387,19 @@ def corotational_kernel(F, mu, lam, P, C, tangent):
                             if a == k and b == l:
                                 v += 2.0 * mu[e]
                             C[e, 3 * a + b, 3 * k + l] = v
+
+
+@njit(cache=True, parallel=True)
+def deformation_gradients(x, t, grads, out):
+    """out[e] = sum_k x[t[k, e]] (x) grad phi_k (eq. 3; velocities give F_dot, eq. 4), (m, 3, 3).
+
+    The compiled twin of :func:`kinematics.deformation_gradient` (numpy's einsum routes the
+    batched product through multi-threaded BLAS: 0.65 against 0.04 ms at 5k tets).
+    """
+    for e in prange(t.shape[1]):
+        for i in range(3):
+            for j in range(3):
+                acc = 0.0
+                for k in range(4):
+                    acc += x[t[k, e], i] * grads[e, k, j]
+                out[e, i, j] = acc

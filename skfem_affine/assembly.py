@@ -18,8 +18,8 @@ import skfem
 from skfem import Basis, BilinearForm, ElementTetP1, ElementVector, asm
 from skfem.helpers import dot
 
-from ._kernels import element_hessians, scatter_add
-from .kinematics import deformation_gradient, deformation_operator, element_dofs
+from ._kernels import deformation_gradients, element_hessians, scatter_add
+from .kinematics import deformation_operator, element_dofs
 
 
 @dataclass
@@ -172,7 +172,10 @@ class ElasticSystem:
 
     # ------------------------------------------------------------------ per frame
     def deformation_gradients(self, x):
-        return deformation_gradient(x, self.t, self.grads)
+        """F (or F_dot from velocities) of every element at x (n, 3), eq. 3-4; (m, 3, 3)."""
+        out = np.empty((self.m, 3, 3))
+        deformation_gradients(np.ascontiguousarray(x, dtype=float), self.t, self.grads, out)
+        return out
 
     def strain_energy(self, x):
         """Total elastic energy sum_e V_e psi(F_e)."""

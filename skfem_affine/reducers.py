@@ -25,7 +25,6 @@ import time
 import numpy as np
 
 from . import clustering, oracle, reduction
-from .kinematics import deformation_gradient
 from .solvers import make_solver
 
 
@@ -213,9 +212,9 @@ class Affinification(_ClusteringReducer):
     def _labels(self, sim, data, v, v_pred):
         """Deformation rates (eq. 4; predicted velocities for previously affine elements) and BFS."""
         sysm = sim.system
-        Fdot = deformation_gradient(v, sysm.t, sysm.grads)
+        Fdot = sysm.deformation_gradients(v)
         if np.any(self.was_reduced):
-            Fdot_pred = deformation_gradient(v_pred, sysm.t, sysm.grads)
+            Fdot_pred = sysm.deformation_gradients(v_pred)
             Fdot[self.was_reduced] = Fdot_pred[self.was_reduced]
         forced = clustering.forced_set(Fdot, self.adjacency, self.min_fraction) if self.min_fraction > 0 else None
         labels, seeds = clustering.cluster_deformation_rates(
@@ -265,8 +264,8 @@ class Rigidification(_ClusteringReducer):
 
     def _strain_rate(self, sim, x, v):
         sysm = sim.system
-        F = deformation_gradient(x + 0.5 * sim.dt * v, sysm.t, sysm.grads)
-        Fdot = deformation_gradient(v, sysm.t, sysm.grads)
+        F = sysm.deformation_gradients(x + 0.5 * sim.dt * v)
+        Fdot = sysm.deformation_gradients(v)
         Edot = np.einsum("eki,ekj->eij", F, Fdot)
         Edot = 0.5 * (Edot + Edot.transpose(0, 2, 1))
         return np.einsum("eij,eij->e", Edot, Edot)
