@@ -25,6 +25,7 @@ import time
 import numpy as np
 
 from . import clustering, oracle, reduction
+from .assembly import serial_blas
 from .solvers import make_solver
 
 
@@ -94,6 +95,10 @@ class _ClusteringReducer(Reducer):
 
     # -------------------------------------------------------------- frame
     def solve(self, sim, rec):
+        with serial_blas():
+            return self._frame(sim, rec)
+
+    def _frame(self, sim, rec):
         sysm, h = sim.system, sim.dt
         s = sim.state
         free = sysm.free
