@@ -81,7 +81,7 @@ def _mask(a, m, default=False):
 
 
 def cluster_deformation_rates(Fdot, adjacency, t, n_vertices, tau_a, tau_e, was_affine=None, excluded=None,
-                              forced=None, seeds=None, return_seeds=False, return_distances=False):
+                              forced=None, seeds=None, return_seeds=False, return_distances=False, min_size=2):
     """Affine clusters by greedy BFS on deformation rates (Algorithm 2).
 
     Parameters
@@ -93,6 +93,7 @@ def cluster_deformation_rates(Fdot, adjacency, t, n_vertices, tau_a, tau_e, was_
     was_affine, excluded, forced : (m,) bool masks (previous frame's affine
         elements; elements that must stay elastic; the resource-limiting set C).
     seeds : element order to start clusters from (default ``arange(m)``).
+    min_size : clusters with fewer elements are dissolved (2: singletons, as the paper).
 
     Returns
     -------
@@ -105,7 +106,7 @@ def cluster_deformation_rates(Fdot, adjacency, t, n_vertices, tau_a, tau_e, was_
     seeds = np.arange(m, dtype=np.int64) if seeds is None else np.asarray(seeds, dtype=np.int64)
     labels, cseeds, dist = _bfs(adjacency[0], adjacency[1], np.ascontiguousarray(t, dtype=np.int64), n_vertices,
                                 F9, float(tau_a), float(tau_e), _mask(was_affine, m), _mask(excluded, m),
-                                _mask(forced, m), seeds, False, np.zeros(m, dtype=np.bool_), 2)
+                                _mask(forced, m), seeds, False, np.zeros(m, dtype=np.bool_), int(min_size))
     out = (labels,)
     if return_seeds:
         out += (cseeds,)

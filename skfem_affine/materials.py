@@ -22,6 +22,8 @@ Models (paper sec. 4, [SGK18]):
 """
 import numpy as np
 
+from ._kernels import corotational_kernel, neohookean_tangent, stvk_tangent
+
 # Levi-Civita symbol, used for the cofactor and the Hessian of det F.
 _EPS = np.zeros((3, 3, 3))
 _EPS[0, 1, 2] = _EPS[1, 2, 0] = _EPS[2, 0, 1] = 1.0
@@ -70,6 +72,16 @@ _DET_HESSIAN = np.einsum("ikp,jlq->ijklpq", _EPS, _EPS).reshape(81, 9)
 def det_hessian(F):
     """d^2(det F)/dF_ij dF_kl = eps_ikp eps_jlq F_pq, (m, 3, 3, 3, 3)."""
     return (F.reshape(-1, 9) @ _DET_HESSIAN.T).reshape(-1, 3, 3, 3, 3)
+
+
+def _compiled(kernel, F, mu, lam):
+    """dP/dF (m, 3, 3, 3, 3) from a compiled per-element kernel of :mod:`_kernels`."""
+    F = np.ascontiguousarray(F, dtype=float).reshape(-1, 3, 3)
+    m = F.shape[0]
+    out = np.empty((m, 9, 9))
+    kernel(F, np.ascontiguousarray(np.broadcast_to(mu, (m,)), dtype=float),
+           np.ascontiguousarray(np.broadcast_to(lam, (m,)), dtype=float), out)
+    return out.reshape(-1, 3, 3, 3, 3)
 
 
 def project_psd(C, F=None):
@@ -199,13 +211,7 @@ class StVK(Material):
 
     def _stress_derivative(self, F):
         # dP_ijkl = d_ik S_lj + mu (F_il F_kj + (F F^T)_ik d_jl) + lam F_ij F_kl
-        S = self._pk2(F)
-        FFt = F @ F.transpose(0, 2, 1)
-        mu, lam = _col(self.mu, 4), _col(self.lam, 4)
-        C = np.einsum("ik,elj->eijkl", _I3, S)
-        C += mu * (np.einsum("eil,ekj->eijkl", F, F) + np.einsum("eik,jl->eijkl", FFt, _I3))
-        C += lam * np.einsum("eij,ekl->eijkl", F, F)
-        return C
+        return _compiled(stvk_tangent, F, self.mu, self.lam)
 
 
 class NeoHookean(Material):
@@ -231,14 +237,7 @@ class NeoHookean(Material):
         return _col(self.mu) * F + _col(self.lam_snh * (J - 1.0) - self.mu) * cofactor(F)
 
     def _stress_derivative(self, F):
-        J = determinant(F)
-        g = cofactor(F)
-        mu, lam = _col(self.mu, 4), _col(self.lam_snh, 4)
-        gf = g.reshape(-1, 9)
-        C = _col(self.lam_snh, 2) * (gf[:, :, None] * gf[:, None, :])
-        C += _col(self.lam_snh * (J - 1.0) - self.mu, 2) * det_hessian(F).reshape(-1, 9, 9)
-        C[:, np.arange(9), np.arange(9)] += _col(self.mu, 1)
-        return C.reshape(-1, 3, 3, 3, 3)
+        return _compiled(neohookean_tangent, F, self.mu, self.lam_snh)
 
 
 def rotation_svd(F):
@@ -266,24 +265,19 @@ class Corotational(Material):
         U, s, V = rotation_svd(F)
         return self.mu * np.sum((s - 1.0) ** 2, axis=1) + 0.5 * self.lam * (s.sum(axis=1) - 3.0) ** 2
 
+    def _kernel(self, F, tangent):
+        F = np.ascontiguousarray(F, dtype=float).reshape(-1, 3, 3)
+        m = F.shape[0]
+        P, C = np.empty((m, 3, 3)), np.empty((m, 9, 9) if tangent else (0, 9, 9))
+        corotational_kernel(F, np.ascontiguousarray(np.broadcast_to(self.mu, (m,)), dtype=float),
+                            np.ascontiguousarray(np.broadcast_to(self.lam, (m,)), dtype=float), P, C, tangent)
+        return P, C
+
     def stress(self, F):
-        U, s, V = rotation_svd(F)
-        R = U @ V.transpose(0, 2, 1)
-        return 2.0 * _col(self.mu) * (F - R) + _col(self.lam * (s.sum(axis=1) - 3.0)) * R
+        return self._kernel(F, False)[0].reshape(np.shape(F))
 
     def _stress_derivative(self, F):
-        U, s, V = rotation_svd(F)
-        R = U @ V.transpose(0, 2, 1)
-        den = s[:, :, None] + s[:, None, :]
-        den = np.where(np.abs(den) < 1e-12, np.copysign(1e-12, den), den)
-        M = np.einsum("eki,elj->eklij", U, V)
-        Om = (M - M.transpose(0, 1, 2, 4, 3)) / den[:, None, None]
-        dR = np.einsum("eai,eklij,ebj->eabkl", U, Om, V, optimize=True)
-        mu, lam = _col(self.mu, 4), _col(self.lam, 4)
-        C = 2.0 * mu * (np.einsum("ik,jl->ijkl", _I3, _I3)[None] - dR)
-        C += lam * np.einsum("eij,ekl->eijkl", R, R)
-        C += _col(self.lam * (s.sum(axis=1) - 3.0), 4) * dR
-        return C
+        return self._kernel(F, True)[1].reshape(-1, 3, 3, 3, 3)
 
 
 MATERIALS = {cls.name: cls for cls in (StVK, Corotational, NeoHookean)}

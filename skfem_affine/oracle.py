@@ -7,9 +7,10 @@ out of the solve (eq. 13),
 .. math:: \Delta\dot x \approx \alpha z + h g, \qquad z = A_p^{-1} b, \qquad
           \alpha = \frac{b \cdot z}{z \cdot A z},
 
-with the product A z matrix-free from the frame's per-element dP/dF
-(:func:`stiffness_operator`) and A_p a Laplacian-like approximation of A built
-once at rest (eq. 14, :class:`Preconditioner`),
+with A z = (1 + h alpha) M z + (h beta + h^2) H z, A itself never formed (the
+reducers pass the frame's stiffness H, which the reduced system needs anyway: a CSR
+product is 50x the matrix-free one, :func:`stiffness_operator`, at 5k tets), and A_p a
+Laplacian-like approximation of A built once at rest (eq. 14, :class:`Preconditioner`),
 
 .. math:: A_p = (1 + h\alpha) M + (h^2 + h\beta) B^T W B, \qquad W = \mathrm{diag}(w_e I_9).
 

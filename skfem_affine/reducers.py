@@ -14,10 +14,9 @@ One affinification frame (Algorithm 1), with the phase names of ``sim.stats``:
    affine elements), BFS of Algorithm 2 (eq. 5-6), resource limiting (sec. 3.5);
 4. ``map_assembly``: G (eq. 7-8), projection q = (G^T M G)^-1 G^T M v (eq. 9),
    discrepancy d = G q - v (eq. 11);
-5. ``reduced_assembly``: G^T A G and G^T b (eq. 10), assembled per element:
-   an element whose four vertices lie in one affine body contributes exactly
-   V_e C_e to that body's 9 x 9 affine block (B_e G_e = [0 | I_9] there), so
-   only elements on cluster boundaries need the general product;
+5. ``reduced_assembly``: G^T A G and G^T b (eq. 10), the matrix as the sparse
+   product with the assembled A (:func:`reduction.reduced_matrix`), upper
+   triangle only when the solver is a Cholesky that reads one;
 6. ``factorization`` and ``solve``: the reduced system, direct solver;
 7. dv = G dq + d (eq. 12); positions are integrated in full space.
 """
@@ -27,7 +26,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from . import clustering, oracle, reduction
-from .kinematics import deformation_gradient
+from .assembly import serial_blas
 from .solvers import make_solver
 
 
@@ -48,16 +47,6 @@ class Reducer:
 
     def solve(self, sim, rec):
         raise NotImplementedError
-
-
-class _MatrixFree:
-    """Wraps p -> H p so that ``H @ p`` works where an assembled matrix would."""
-
-    def __init__(self, apply):
-        self.apply = apply
-
-    def __matmul__(self, p):
-        return self.apply(p)
 
 
 def _elements_touching(system, mask):
@@ -102,18 +91,24 @@ class _ClusteringReducer(Reducer):
         self.precond = oracle.Preconditioner(sysm, sim.dt, sim.damping, kind=self.preconditioner_kind)
         self.setup_time = time.perf_counter() - t0
         self.solver = make_solver(self.solver_spec if self.solver_spec is not None else "direct")
+        self.upper = getattr(self.solver, "accepts_upper", False)  # a Cholesky reads one triangle
         self.gravity_dv = np.tile(sim.gravity, sysm.n)[sysm.free] * sim.dt
 
     # -------------------------------------------------------------- frame
     def solve(self, sim, rec):
+        with serial_blas():
+            return self._frame(sim, rec)
+
+    def _frame(self, sim, rec):
         sysm, h = sim.system, sim.dt
         s = sim.state
         free = sysm.free
         t0 = time.perf_counter()
-        # forces and projected dP/dF; element blocks only later, where the reduction needs them
-        data = sysm.evaluate_tangent(s.x, project=sim.project_hessian)
+        # forces, projected dP/dF and the assembled stiffness H: element blocks and their
+        # scatter cost little next to the tangent, and H p by CSR is 50x the matrix-free product
+        data = sysm.evaluate(s.x, project=sim.project_hessian)
         data.f = data.f + sim.f_gravity
-        Hop = _MatrixFree(oracle.stiffness_operator(sysm, data.C))
+        Hop = sysm.pattern.matrix(data.H)
         t1 = time.perf_counter()
         rec["assembly"] = t1 - t0
         # prediction (eq. 13-14): one PCG iteration, gravity split out, A applied matrix-free
@@ -146,15 +141,17 @@ class _ClusteringReducer(Reducer):
             vp = s.v.copy()
             vp.reshape(-1)[free] += d
             bp = sim.rhs(data.f, Hop, vp)
-            Ar = reduction.reduced_matrix(sim, data, vcluster, Gam, n_bodies, elastic_dofs, affine=self.width == 12)
+            Ar = reduction.reduced_matrix(sim, data, vcluster, Gam, n_bodies, elastic_dofs, affine=self.width == 12,
+                                          G=G, upper=self.upper)
             br = G.T @ bp
         else:
-            _, Hdata = sysm.partial_stiffness(data, np.arange(sysm.m))
-            Ar, br = sim.system_matrix(Hdata), b
+            Ar, br = sim.system_matrix(data.H), b
         t5 = time.perf_counter()
         rec["reduced_assembly"] = t5 - t4
-        self.solver.factorize(Ar)
-        self.Ar = Ar  # with G, for the contact solve's Delassus operator
+        upper = self.upper and n_bodies
+        self.solver.factorize(Ar, upper=True) if upper else self.solver.factorize(Ar)
+        # with G, for the contact solve's Delassus operator, which needs the whole symmetric matrix
+        self.Ar = (Ar + sp.triu(Ar, k=1, format="csr").T).tocsr() if upper and sim.contact is not None else Ar
         t6 = time.perf_counter()
         dq = self.solver.solve(br)
         t7 = time.perf_counter()
@@ -201,8 +198,11 @@ class Affinification(_ClusteringReducer):
     width = 12
 
     def __init__(self, tau_a=1e-4, tau_e=2e-4, seeding="random", preconditioner="ichol",
-                 min_affine_fraction=0.0, seed=0, solver=None):
+                 min_affine_fraction=0.0, seed=0, solver=None, min_body_elements=2):
         self.tau_a = _check_threshold(tau_a, "tau_a")
+        if int(min_body_elements) < 2:
+            raise ValueError(f"min_body_elements must be >= 2 (singletons are always dissolved), got {min_body_elements}")
+        self.min_body_elements = int(min_body_elements)
         super().__init__(tau_e, preconditioner, min_affine_fraction, seeding, seed, solver)
 
     def __repr__(self):
@@ -218,14 +218,15 @@ class Affinification(_ClusteringReducer):
     def _labels(self, sim, data, v, v_pred):
         """Deformation rates (eq. 4; predicted velocities for previously affine elements) and BFS."""
         sysm = sim.system
-        Fdot = deformation_gradient(v, sysm.t, sysm.grads)
+        Fdot = sysm.deformation_gradients(v)
         if np.any(self.was_reduced):
-            Fdot_pred = deformation_gradient(v_pred, sysm.t, sysm.grads)
+            Fdot_pred = sysm.deformation_gradients(v_pred)
             Fdot[self.was_reduced] = Fdot_pred[self.was_reduced]
         forced = clustering.forced_set(Fdot, self.adjacency, self.min_fraction) if self.min_fraction > 0 else None
         labels, seeds = clustering.cluster_deformation_rates(
             Fdot, self.adjacency, sysm.t, sysm.n, self.tau_a, self.tau_e, was_affine=self.was_reduced,
-            excluded=self.excluded, forced=forced, seeds=self._seeds(sysm.m), return_seeds=True)
+            excluded=self.excluded, forced=forced, seeds=self._seeds(sysm.m), return_seeds=True,
+            min_size=self.min_body_elements)
         self.previous_seeds = seeds
         return labels
 
@@ -269,8 +270,8 @@ class Rigidification(_ClusteringReducer):
 
     def _strain_rate(self, sim, x, v):
         sysm = sim.system
-        F = deformation_gradient(x + 0.5 * sim.dt * v, sysm.t, sysm.grads)
-        Fdot = deformation_gradient(v, sysm.t, sysm.grads)
+        F = sysm.deformation_gradients(x + 0.5 * sim.dt * v)
+        Fdot = sysm.deformation_gradients(v)
         Edot = np.einsum("eki,ekj->eij", F, Fdot)
         Edot = 0.5 * (Edot + Edot.transpose(0, 2, 1))
         return np.einsum("eij,eij->e", Edot, Edot)

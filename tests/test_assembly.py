@@ -55,3 +55,11 @@ def test_stiffness_is_the_derivative_of_the_forces():
     # and the forces are minus the gradient of the strain energy
     e_p, e_m = sysm.strain_energy(x + eps * dx), sysm.strain_energy(x - eps * dx)
     assert (e_p - e_m) / (2 * eps) == pytest.approx(-f @ dx.ravel(), rel=1e-6)
+
+
+def test_compiled_deformation_gradients_equal_the_kinematics_einsum():
+    rng = np.random.default_rng(2)
+    sysm = sa.assembly.ElasticSystem([sa.ElasticBody(beam_mesh(2), sa.NeoHookean(E=1e5, nu=0.3))])
+    x = sysm.p0 + 0.1 * rng.normal(size=sysm.p0.shape)
+    ref = sa.kinematics.deformation_gradient(x, sysm.t, sysm.grads)
+    assert np.abs(sysm.deformation_gradients(x) - ref).max() <= 1e-13
