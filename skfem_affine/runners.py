@@ -103,7 +103,12 @@ class SceneSpec:
         return scenes.SCENES[self.name] if self.name in scenes.SCENES else load_scene_file(self.name)
 
     def build(self, reducer=None):
-        sim = self.factory()(reducer=reducer, **dict(self.kwargs))
+        """The scene's Simulation. Built-in scenes solve with the reducers' direct solver unless
+        ``solver`` is given, so that every method is timed with the same solver (the reference too)."""
+        kwargs = dict(self.kwargs)
+        if self.name in scenes.SCENES:
+            kwargs.setdefault("solver", "direct")
+        sim = self.factory()(reducer=reducer, **kwargs)
         if not hasattr(sim, "stats") or not hasattr(sim, "run"):
             raise TypeError(f"scene {self.name!r} returned {type(sim).__name__}, not a Simulation")
         return sim

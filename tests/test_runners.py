@@ -151,3 +151,10 @@ def test_subspace_method_is_measured_against_the_newton_reference():
     assert loose.summary["status"] == "ok" and loose.summary["max_distance_error"] > sub["max_distance_error"]
     with pytest.raises(ValueError, match="integrator"):  # the subspace reducer refuses the linearized integrator
         runners.run(TINY, "subspace", 2)
+
+
+def test_every_method_is_timed_with_the_reducers_solver():
+    # the cantilever's own default is "auto" (AMG-CG on large meshes); compared runs use the reducers' direct solver
+    full, aff = TINY.build(), TINY.build(reducer=sa.Affinification())
+    assert type(full.solver).__name__ == type(aff.reducer.solver).__name__
+    assert type(TINY.with_kwargs(solver="superlu").build().solver).__name__ == "SuperLU"
