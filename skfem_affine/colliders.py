@@ -20,6 +20,8 @@ for any user function ``fn(points) -> (distance, normal)``.
 """
 import numpy as np
 
+from .checks import positive
+
 _TINY = 1e-12
 
 
@@ -41,16 +43,6 @@ def _unit(value, name):
     if norm < _TINY:
         raise ValueError(f"{name} must be a non-zero vector, got {value!r}")
     return a / norm
-
-
-def _positive(value, name):
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise TypeError(f"{name} must be a number, got {value!r}") from None
-    if not np.isfinite(v) or v <= 0:
-        raise ValueError(f"{name} must be finite and > 0, got {value!r}")
-    return v
 
 
 def check_points(points):
@@ -108,7 +100,7 @@ class Sphere(Collider):
 
     def __init__(self, center=(0.0, 0.0, 0.0), radius=1.0):
         self.center = _vector(center, "sphere center")
-        self.radius = _positive(radius, "sphere radius")
+        self.radius = positive(radius, "sphere radius")
 
     def _query(self, p):
         n, r = _normalised(p - self.center)
@@ -162,7 +154,7 @@ class Capsule(Collider):
     def __init__(self, a=(0.0, 0.0, 0.0), b=(1.0, 0.0, 0.0), radius=0.25):
         self.a = _vector(a, "capsule end a")
         self.b = _vector(b, "capsule end b")
-        self.radius = _positive(radius, "capsule radius")
+        self.radius = positive(radius, "capsule radius")
         self._axis = self.b - self.a
         self._len2 = float(self._axis @ self._axis)
         if self._len2 < _TINY:
@@ -189,8 +181,8 @@ class Bowl(Collider):
 
     def __init__(self, center=(0.0, 0.0, 0.0), radius=1.0, thickness=None):
         self.center = _vector(center, "bowl center")
-        self.radius = _positive(radius, "bowl radius")
-        self.thickness = _positive(0.2 * self.radius if thickness is None else thickness, "bowl thickness")
+        self.radius = positive(radius, "bowl radius")
+        self.thickness = positive(0.2 * self.radius if thickness is None else thickness, "bowl thickness")
 
     def _query(self, p):
         q = p - self.center

@@ -38,6 +38,7 @@ from . import newton
 from .colliders import check_colliders
 from .assembly import ElasticSystem
 from .body import ElasticBody
+from .checks import positive
 from .solvers import SolverError, make_solver
 
 
@@ -99,16 +100,6 @@ class Stats(list):
                 "mean_dofs": self.mean("dofs"), **{f"{k}_s": v for k, v in self.phase_totals().items()}}
 
 
-def _check_positive(value, name):
-    try:
-        value = float(value)
-    except (TypeError, ValueError):
-        raise TypeError(f"{name} must be a number, got {type(value).__name__}") from None
-    if not np.isfinite(value) or value <= 0:
-        raise ValueError(f"{name} must be finite and > 0, got {value}")
-    return value
-
-
 class Simulation:
     """Time integration of one or more elastic bodies.
 
@@ -155,7 +146,7 @@ class Simulation:
         bodies = [bodies] if isinstance(bodies, ElasticBody) else list(bodies)
         if not bodies or not all(isinstance(b, ElasticBody) for b in bodies):
             raise TypeError("Simulation needs an ElasticBody or a non-empty list of them")
-        self.dt = _check_positive(dt, "time step dt")
+        self.dt = positive(dt, "time step dt")
         self.gravity = np.asarray(gravity, dtype=float)
         if self.gravity.shape != (3,) or not np.all(np.isfinite(self.gravity)):
             raise ValueError(f"gravity must be a finite 3-vector, got {gravity!r}")
@@ -168,7 +159,7 @@ class Simulation:
         if int(newton_iters) < 1:
             raise ValueError(f"newton_iters must be >= 1, got {newton_iters}")
         self.newton_iters = int(newton_iters)
-        self.newton_tol = _check_positive(newton_tol, "newton_tol")
+        self.newton_tol = positive(newton_tol, "newton_tol")
         self.project_hessian = bool(project_hessian)
         self.system = ElasticSystem(bodies, mass=mass)
         self.bodies = self.system.bodies

@@ -40,7 +40,7 @@ from .newton import vdot
 from ._kernels import element_hessians, scatter_add
 from .assembly import Pattern
 from .bases import SkinningEigenmodes, _Basis
-from .integrator import _check_positive
+from .checks import positive
 from .solvers import SolverError
 
 
@@ -322,9 +322,9 @@ class AdaptiveSubspace:
         if int(subdomains) < 1:
             raise ValueError(f"subdomains must be >= 1, got {subdomains}")
         self.n_subdomains = int(subdomains)
-        self.newton_tol = _check_positive(newton_tol, "newton_tol")
+        self.newton_tol = positive(newton_tol, "newton_tol")
         self.max_newton = int(max_newton)
-        self.pcg_tol = _check_positive(pcg_tol, "pcg_tol")
+        self.pcg_tol = positive(pcg_tol, "pcg_tol")
         self.pcg_maxiter = int(pcg_maxiter)
         self.record_residual = bool(record_residual)
         if hessian_init not in ("rest", "exact"):
