@@ -111,7 +111,7 @@ class _ClusteringReducer(Reducer):
         Hop = sysm.pattern.matrix(data.H)
         t1 = time.perf_counter()
         rec["assembly"] = t1 - t0
-        # prediction (eq. 13-14): one PCG iteration, gravity split out, A applied matrix-free
+        # prediction (eq. 13-14): one PCG iteration, gravity split out, A p = M p + H p (A never formed)
         b = sim.rhs(data.f, Hop, s.v)
         b_ng = b - h * sim.f_gravity[free] + sim.contact_impulse()  # contact impulses as explicit forces (sec. 3.4)
         apply_A = self._operator(sim, Hop)
@@ -164,7 +164,7 @@ class _ClusteringReducer(Reducer):
         return reduction.lift(G, dq, d)  # eq. 12
 
     def _operator(self, sim, Hop):
-        """Matrix-free A p = (1 + h alpha) M p + (h beta + h^2) H p from per-element dP/dF."""
+        """p -> A p = (1 + h alpha) M p + (h beta + h^2) H p from the lumped mass and the assembled H (A never formed)."""
         h, dmp = sim.dt, sim.damping
         mdiag = sim.system.Mff.diagonal()
         cm, ck = 1.0 + h * dmp.alpha, h * dmp.beta + h * h
