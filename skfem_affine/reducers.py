@@ -92,6 +92,9 @@ class _ClusteringReducer(Reducer):
         self.setup_time = time.perf_counter() - t0
         self.solver = make_solver(self.solver_spec if self.solver_spec is not None else "direct")
         self.upper = getattr(self.solver, "accepts_upper", False)  # a Cholesky reads one triangle
+        # a fill-reducing order of the free vertices, inherited by every frame's reduced system
+        self.vertex_rank = reduction.nested_dissection_rank(sysm) if self.upper else None
+        self.mdiag = sysm.Mff.diagonal()
         self.gravity_dv = np.tile(sim.gravity, sysm.n)[sysm.free] * sim.dt
 
     # -------------------------------------------------------------- frame
@@ -128,28 +131,32 @@ class _ClusteringReducer(Reducer):
         rec["clustering"] = t3 - t2
         # map assembly: G, projection (eq. 9), discrepancy (eq. 11)
         Gam = self._map(sim, vcluster, n_bodies)
-        free_vertex = free // 3
-        elastic_dofs = np.flatnonzero(vcluster[free_vertex] < 0)
-        G = self.G = reduction.assemble_G(free, vcluster, Gam, elastic_dofs, n_bodies, self.width)  # also for contact
+        gmap = reduction.mapping(free, vcluster, Gam, n_bodies)
+        G = self.G = gmap.G  # also for contact
         vf = s.v.reshape(-1)[free]
-        q = reduction.project(G, sysm.Mff.diagonal(), vf) if n_bodies else vf  # eq. 9
+        q = gmap.project(self.mdiag, vf) if n_bodies else vf  # eq. 9
         d = reduction.discrepancy(G, q, vf) if n_bodies else np.zeros_like(vf)  # eq. 11
         t4 = time.perf_counter()
         rec["map_assembly"] = t4 - t3
         # reduced system (eq. 10) with the projected velocities
+        order = None
         if n_bodies:
             vp = s.v.copy()
             vp.reshape(-1)[free] += d
             bp = sim.rhs(data.f, Hop, vp)
-            Ar = reduction.reduced_matrix(sim, data, vcluster, Gam, n_bodies, elastic_dofs, affine=self.width == 12,
-                                          G=G, upper=self.upper)
-            br = G.T @ bp
+            Ar = reduction.reduced_matrix(sim, data, gmap, vcluster, affine=self.width == 12, upper=self.upper)
+            br = gmap.Gt @ bp
+            if self.vertex_rank is not None:
+                order = gmap.elimination_order(free, vcluster, self.vertex_rank)
         else:
             Ar, br = sim.system_matrix(data.H), b
         t5 = time.perf_counter()
         rec["reduced_assembly"] = t5 - t4
         upper = self.upper and n_bodies
-        self.solver.factorize(Ar, upper=True) if upper else self.solver.factorize(Ar)
+        if upper:
+            self.solver.factorize(Ar, upper=True, order=order)
+        else:
+            self.solver.factorize(Ar)
         # with G, for the contact solve's Delassus operator, which needs the whole symmetric matrix
         self.Ar = (Ar + sp.triu(Ar, k=1, format="csr").T).tocsr() if upper and sim.contact is not None else Ar
         t6 = time.perf_counter()
@@ -157,7 +164,7 @@ class _ClusteringReducer(Reducer):
         t7 = time.perf_counter()
         rec.update(factorization=t6 - t5, solve=t7 - t6, dofs=Ar.shape[0], solver=self.solver.name,
                    iterations=self.solver.last_iterations, clusters=labels, n_clusters=n_bodies,
-                   elastic_dofs=int(elastic_dofs.size),
+                   elastic_dofs=int(gmap.n_elastic),
                    reduced_fraction=float(np.mean(labels >= 0)) if labels.size else 0.0)
         self.was_reduced = labels >= 0
         self.labels = labels

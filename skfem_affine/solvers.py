@@ -124,14 +124,30 @@ class Pardiso:
         self._source = (A.indptr.copy(), A.indices.copy(), ip, ix, take)
         return ip, ix, A.data[take]
 
-    def factorize(self, A, upper=False):
+    def factorize(self, A, upper=False, order=None):
+        """Cholesky of A (full symmetric CSR, or its upper triangle with ``upper=True``).
+
+        ``order``: the unknowns in elimination order (a fill-reducing permutation the caller
+        already knows, e.g. :meth:`reduction.Mapping.elimination_order`); Pardiso then skips
+        its own ordering. Used when the pattern changes, ignored when it is the last one.
+        """
         indptr, indices, data = self._upper(A, upper or getattr(A, "_upper", False))
         n = indptr.size - 1
         pat = self._pattern
         phase = 22 if pat is not None and _same(pat[0], indptr) and _same(pat[1], indices) else 12
         if phase == 12:
             churn = self._pattern is not None  # a second analysis: the pattern changes
-            self._ps.set_iparm(2, 0 if churn and n < PARDISO_METIS_MIN else 2)
+            if churn:  # release the previous factors first (MKL crashed on a re-analysis with a new order)
+                self._ps.free_memory(everything=True)
+            if order is not None:
+                order = np.ascontiguousarray(order, dtype=np.int32)
+                if order.shape != (n,):
+                    raise ValueError(f"order must list the {n} unknowns once, got shape {order.shape}")
+                self._ps.set_iparm(5, 1)
+                self._ps.perm = order
+            else:
+                self._ps.set_iparm(5, 0)
+                self._ps.set_iparm(2, 0 if churn and n < PARDISO_METIS_MIN else 2)
             self._pattern = (indptr, indices)
         if self._set_threads is not None:
             self._set_threads(1 if n < PARDISO_THREADED_MIN else self._max_threads, _MKL_DOMAIN_PARDISO)

@@ -1,6 +1,7 @@
 """The mapping G (eq. 7-8), projection (eq. 9), discrepancy (eq. 11) and reduced system (eq. 10)."""
 import numpy as np
 import pytest
+import scipy.sparse as sp
 
 import skfem_affine as sa
 from skfem_affine import reduction
@@ -25,18 +26,20 @@ def maps(sim, vcl, kind):
         Gam = reduction.affine_rows(vcl, sysm.p0, sysm.lumped_mass, 2)
     else:
         Gam, _ = reduction.rigid_rows(vcl, sim.state.x, sysm.lumped_mass, 2)
-    el = np.flatnonzero(vcl[sysm.free // 3] < 0)
-    G = reduction.assemble_G(sysm.free, vcl, Gam, el, 2, Gam.shape[2])
-    return Gam, el, G
+    gmap = reduction.mapping(sysm.free, vcl, Gam, 2)
+    assert np.array_equal(gmap.elastic_dofs, np.flatnonzero(vcl[sysm.free // 3] < 0))
+    assert (gmap.Gt != gmap.G.T).nnz == 0
+    return Gam, gmap.elastic_dofs, gmap
 
 
 def test_G_reproduces_affine_fields_exactly(setup):
     sim, s, vcl = setup
     sysm = sim.system
-    _, el, G = maps(sim, vcl, "affine")
+    _, el, gmap = maps(sim, vcl, "affine")
+    G = gmap.G
     L = np.array([[0.3, -0.1, 0.2], [0.05, 0.1, -0.4], [0.2, 0.3, 0.0]])
     v = (sysm.p0 @ L.T + [1.0, -2.0, 0.5]).ravel()[sysm.free]
-    q = reduction.project(G, sysm.Mff.diagonal(), v)
+    q = reduction.project(gmap, sysm.Mff.diagonal(), v)
     assert np.allclose(G @ q, v, atol=1e-12)
     assert np.allclose(reduction.discrepancy(G, q, v), 0, atol=1e-12)
     # the affine coordinates are the field's matrix L (row-major) in each body
@@ -49,9 +52,13 @@ def test_projection_preserves_momentum(setup, kind):
     sim, s, vcl = setup
     sysm = sim.system
     x = sysm.p0 if kind == "affine" else s.x  # affine r_i live in the rest frame
-    _, _, G = maps(sim, vcl, kind)
+    _, _, gmap = maps(sim, vcl, kind)
     v = np.random.default_rng(0).normal(size=sysm.free.size)
-    vp = G @ reduction.project(G, sysm.Mff.diagonal(), v)
+    q = gmap.project(sysm.Mff.diagonal(), v)
+    vp = gmap.G @ q
+    # eq. 9 is the mass-weighted least squares: the normal equations hold
+    G, Md = gmap.G, sp.diags(sysm.Mff.diagonal())
+    assert np.allclose(G.T @ Md @ G @ q, G.T @ Md @ v, rtol=1e-10, atol=1e-10 * np.abs(G.T @ Md @ v).max())
     m = np.repeat(sysm.lumped_mass, 3)[sysm.free]
     full_v = np.zeros(3 * sysm.n)
     full_p = np.zeros(3 * sysm.n)
@@ -69,10 +76,11 @@ def test_projection_preserves_momentum(setup, kind):
 def test_rigid_rows_reproduce_rigid_fields(setup):
     sim, s, vcl = setup
     sysm = sim.system
-    _, el, G = maps(sim, vcl, "rigid")
+    _, el, gmap = maps(sim, vcl, "rigid")
+    G = gmap.G
     w, vc = np.array([0.3, -1.0, 0.5]), np.array([1.0, 0.0, -0.5])
     v = (vc + np.cross(w, s.x)).ravel()[sysm.free]
-    q = reduction.project(G, sysm.Mff.diagonal(), v)
+    q = gmap.project(sysm.Mff.diagonal(), v)
     assert np.allclose(G @ q, v, atol=1e-12)
     assert np.allclose(q[el.size + 3: el.size + 6], w)
 
@@ -85,8 +93,9 @@ def test_reduced_matrix_equals_GtAG(setup, kind, blocks, upper):
     A, b, data = sim.linear_system(s.x, s.v)
     if blocks == "where_needed":  # element blocks assembled only outside affine bodies
         data = sim.system.evaluate_tangent(s.x, project=sim.project_hessian)
-    Gam, el, G = maps(sim, vcl, kind)
-    R = reduction.reduced_matrix(sim, data, vcl, Gam, 2, el, affine=kind == "affine", upper=upper)
+    Gam, el, gmap = maps(sim, vcl, kind)
+    G = gmap.G
+    R = reduction.reduced_matrix(sim, data, gmap, vcl, affine=kind == "affine", upper=upper)
     ref = (G.T @ A @ G).toarray()
     if upper:  # the upper triangle only, sorted rows (what Pardiso reads)
         ref = np.triu(ref)
@@ -101,10 +110,10 @@ def test_no_clusters_is_the_identity(setup):
     vcl = np.full(sysm.n, -1)
     Gam = reduction.affine_rows(vcl, sysm.p0, sysm.lumped_mass, 0)
     el = np.arange(sysm.free.size)
-    G = reduction.assemble_G(sysm.free, vcl, Gam, el, 0, 12)
+    gmap = reduction.mapping(sysm.free, vcl, Gam, 0)
     A, b, data = sim.linear_system(s.x, s.v)
-    assert (G != sp_identity(el.size)).nnz == 0
-    R = reduction.reduced_matrix(sim, data, vcl, Gam, 0, el)
+    assert (gmap.G != sp_identity(el.size)).nnz == 0
+    R = reduction.reduced_matrix(sim, data, gmap, vcl)
     assert abs(R - A).max() == 0
 
 
@@ -117,3 +126,41 @@ def test_vertex_clusters():
     t = np.array([[0, 1, 2, 3], [4, 5, 6, 7], [3, 4, 8, 9]]).T
     vc = reduction.vertex_clusters(np.array([0, 1, -1]), t, 10)
     assert list(vc) == [0, 0, 0, 0, 1, 1, 1, 1, -1, -1]
+
+
+def test_elimination_order_is_a_permutation_that_keeps_bodies_together(setup):
+    sim, s, vcl = setup
+    sysm = sim.system
+    _, el, gmap = maps(sim, vcl, "affine")
+    rank = reduction.nested_dissection_rank(sysm)
+    assert np.array_equal(np.sort(rank[sysm.free[::3] // 3]), np.arange(sysm.free.size // 3))
+    assert np.all(rank[sysm.fixed] == -1)
+    order = gmap.elimination_order(sysm.free, vcl, rank)
+    assert np.array_equal(np.sort(order), np.arange(gmap.shape[1]))
+    pos = np.empty_like(order)
+    pos[order] = np.arange(order.size)
+    for b in range(2):  # a body's 12 DOFs are consecutive, after the elastic DOFs of ranks below its top vertex
+        cols = pos[el.size + 12 * b: el.size + 12 * (b + 1)]
+        assert np.array_equal(cols, np.arange(cols[0], cols[0] + 12))
+        top = rank[vcl == b].max()
+        earlier = rank[sysm.free[el[pos[:el.size] < cols[0]]] // 3]
+        assert earlier.size and earlier.max() <= top
+
+
+def test_pardiso_with_a_given_order_solves_the_reduced_system(setup):
+    pytest.importorskip("pypardiso")
+    from skfem_affine.solvers import Pardiso
+    sim, s, vcl = setup
+    sysm = sim.system
+    A, b, data = sim.linear_system(s.x, s.v)
+    _, el, gmap = maps(sim, vcl, "affine")
+    U = reduction.reduced_matrix(sim, data, gmap, vcl, upper=True)
+    full = (gmap.G.T @ A @ gmap.G).tocsr()
+    rhs = np.random.default_rng(1).normal(size=full.shape[0])
+    order = gmap.elimination_order(sysm.free, vcl, reduction.nested_dissection_rank(sysm))
+    solver = Pardiso()
+    solver.factorize(U, upper=True, order=order)
+    x = solver.solve(rhs)
+    assert np.linalg.norm(full @ x - rhs) <= 1e-10 * np.linalg.norm(rhs)
+    with pytest.raises(ValueError, match="order"):
+        Pardiso().factorize(U, upper=True, order=order[:-1])
