@@ -91,6 +91,19 @@ class Pattern:
     def matrix(self, data):
         return sp.csr_matrix((data, self.indices, self.indptr), shape=self.shape)
 
+    def vertex_graph(self):
+        """CSR ``(indptr, indices)`` of the vertex-level graph (DOFs 3u..3u+2 = vertex u), self-loops included.
+
+        Valid when whole vertices are kept or dropped (fixed vertices), as here; built on first use.
+        """
+        if getattr(self, "_vertex_graph", None) is None:
+            P = self.matrix(np.ones(self.nnz))[::3, ::3].tocsr()
+            P.sort_indices()
+            if 9 * P.nnz != self.nnz:
+                raise ValueError("the pattern is not made of whole 3 x 3 vertex blocks")
+            self._vertex_graph = (P.indptr.astype(np.int64), P.indices.astype(np.int64))
+        return self._vertex_graph
+
     def locate(self, A):
         """Positions in this pattern of the nonzeros of a (restricted) sparse matrix A."""
         A = A.tocoo()

@@ -18,7 +18,6 @@ import scipy.sparse as sp
 
 from numba import njit
 
-from ._kernels import reduced_upper
 
 
 def group_sum(groups, values, n_groups):
@@ -242,56 +241,195 @@ def lift(G, dq, d):
 
 
 @njit(cache=True)
-def _times_mapping(a_ptr, a_ind, a_val, g_ptr, g_ind, g_val, n_cols):
-    """Y = A G as CSR (unsorted rows), dense accumulator per row (Gustavson)."""
-    n = a_ptr.size - 1
-    bound = 0
-    for p in range(a_ind.size):
-        j = a_ind[p]
-        bound += g_ptr[j + 1] - g_ptr[j]
-    marker = np.full(n_cols, -1, dtype=np.int64)
-    acc = np.zeros(n_cols)
-    y_ptr = np.zeros(n + 1, dtype=np.int32)
-    y_ind = np.empty(bound, dtype=np.int32)
-    y_val = np.empty(bound)
-    nnz = 0
-    for i in range(n):
-        start = nnz
-        for p in range(a_ptr[i], a_ptr[i + 1]):
-            j, a = a_ind[p], a_val[p]
-            for q in range(g_ptr[j], g_ptr[j + 1]):
-                C = g_ind[q]
-                if marker[C] != i:
-                    marker[C] = i
-                    acc[C] = a * g_val[q]
-                    y_ind[nnz] = C
-                    nnz += 1
-                else:
-                    acc[C] += a * g_val[q]
-        for c in range(start, nnz):
-            y_val[c] = acc[y_ind[c]]
-        y_ptr[i + 1] = nnz
-    return y_ptr, y_ind, y_val
+def _reduced_layout(vc, n_bodies, w, vptr, vind):
+    """Nodes of the reduced system and the upper-triangle CSR pattern of G^T A G.
+
+    Free vertex u is node ``node[u]``: its own (3 DOFs, columns 3 e .. 3 e + 2 for the e-th
+    elastic vertex) when elastic, else its body's (w DOFs after all elastic ones); node ids
+    follow column order. Nodes couple when two of their vertices do in the vertex graph
+    (vptr, vind). Returns node, start, size, the members of each node (CSR mptr, members),
+    the node graph (upper, diagonal first, then ascending; ``noff`` = offset of each coupled
+    node's columns in a row after the diagonal block) and the scalar CSR (indptr, indices).
+    """
+    nv = vc.size
+    node = np.empty(nv, dtype=np.int64)
+    n_el = 0
+    for u in range(nv):
+        if vc[u] < 0:
+            node[u] = n_el
+            n_el += 1
+    N = n_el + n_bodies
+    start = np.empty(N, dtype=np.int64)
+    size = np.empty(N, dtype=np.int64)
+    for u in range(nv):
+        if vc[u] >= 0:
+            node[u] = n_el + vc[u]
+        else:
+            start[node[u]], size[node[u]] = 3 * node[u], 3
+    for b in range(n_bodies):
+        start[n_el + b], size[n_el + b] = 3 * n_el + w * b, w
+    # members of each node
+    mptr = np.zeros(N + 1, dtype=np.int64)
+    for u in range(nv):
+        mptr[node[u] + 1] += 1
+    for R in range(N):
+        mptr[R + 1] += mptr[R]
+    fill = mptr[:-1].copy()
+    members = np.empty(nv, dtype=np.int64)
+    for u in range(nv):
+        members[fill[node[u]]] = u
+        fill[node[u]] += 1
+    # node graph, upper part
+    nptr = np.zeros(N + 1, dtype=np.int64)
+    nind = np.empty(vind.size + N, dtype=np.int64)
+    marker = np.full(N, -1, dtype=np.int64)
+    k = 0
+    for R in range(N):
+        nind[k] = R
+        k += 1
+        first = k
+        marker[R] = R
+        for p in range(mptr[R], mptr[R + 1]):
+            u = members[p]
+            for q in range(vptr[u], vptr[u + 1]):
+                C = node[vind[q]]
+                if C > R and marker[C] != R:
+                    marker[C] = R
+                    nind[k] = C
+                    k += 1
+        nind[first:k] = np.sort(nind[first:k])
+        nptr[R + 1] = k
+    nind = nind[:k].copy()
+    noff = np.zeros(k, dtype=np.int64)
+    n_red = 3 * n_el + w * n_bodies
+    indptr = np.zeros(n_red + 1, dtype=np.int32)
+    for R in range(N):
+        off = 0
+        for p in range(nptr[R] + 1, nptr[R + 1]):
+            noff[p] = off
+            off += size[nind[p]]
+        for i in range(size[R]):
+            indptr[start[R] + i + 1] = indptr[start[R] + i] + size[R] - i + off
+    indices = np.empty(indptr[n_red], dtype=np.int32)
+    for R in range(N):
+        for i in range(size[R]):
+            c = indptr[start[R] + i]
+            for j in range(i, size[R]):
+                indices[c] = start[R] + j
+                c += 1
+            for p in range(nptr[R] + 1, nptr[R + 1]):
+                C = nind[p]
+                for j in range(size[C]):
+                    indices[c] = start[C] + j
+                    c += 1
+    return node, start, size, mptr, members, nptr, nind, noff, indptr, indices
+
+
+@njit(cache=True, inline="always")
+def _entry(nptr, nind, R, C):
+    """Position of node C in node R's row of the node graph (C >= R): the diagonal first, then bisection."""
+    if C == R:
+        return nptr[R]
+    lo, hi = nptr[R] + 1, nptr[R + 1]
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if nind[mid] < C:
+            lo = mid + 1
+        else:
+            hi = mid
+    return lo
+
+
+@njit(cache=True)
+def _reduced_upper_data(layout, vptr, vind, a_ptr, a_val, g_ptr, g_ind, g_val):
+    """Values of the upper triangle of G^T A G on the pattern of :func:`_reduced_layout` (eq. 10).
+
+    Node by node R, vertex by vertex u of R: Y_u = sum_v A_uv G_v (3 rows, gathered per
+    coupled node C >= R in a dense buffer; A_uv is the 3 x 3 block of the assembled A, G_v
+    the at most four entries per row of G), then the rows of R receive G_u^T Y_u. The rows
+    of one node are contiguous in the result, so the writes stay local. A's rows must hold
+    the 3 x 3 block of each vertex neighbour in vertex-graph order (as the assembly pattern does).
+    """
+    node, start, size, mptr, members, nptr, nind, noff, indptr, indices = layout
+    data = np.zeros(indices.size)
+    N = start.size
+    width = 0
+    for R in range(N):
+        cols = size[R]
+        for p in range(nptr[R] + 1, nptr[R + 1]):
+            cols += size[nind[p]]
+        width = max(width, cols)
+    Y = np.zeros((3, width))
+    touched = np.empty(nind.size, dtype=np.int64)
+    seen = np.full(nind.size, -1, dtype=np.int64)
+    for R in range(N):
+        for mp in range(mptr[R], mptr[R + 1]):
+            u = members[mp]
+            nt = 0
+            for q in range(vptr[u], vptr[u + 1]):
+                v = vind[q]
+                C = node[v]
+                if C < R:
+                    continue
+                pe = _entry(nptr, nind, R, C)
+                if seen[pe] != u:
+                    seen[pe] = u
+                    touched[nt] = pe
+                    nt += 1
+                col0 = 0 if C == R else size[R] + noff[pe]
+                col0 -= start[C]
+                k = q - vptr[u]
+                for a in range(3):
+                    row = a_ptr[3 * u + a] + 3 * k
+                    for b in range(3):
+                        val = a_val[row + b]
+                        if val == 0.0:
+                            continue
+                        for t in range(g_ptr[3 * v + b], g_ptr[3 * v + b + 1]):
+                            Y[a, col0 + g_ind[t]] += val * g_val[t]
+            for a in range(3):
+                for s_ in range(g_ptr[3 * u + a], g_ptr[3 * u + a + 1]):
+                    i = g_ind[s_] - start[R]
+                    gs = g_val[s_]
+                    rp = indptr[start[R] + i]
+                    for c in range(nt):
+                        pe = touched[c]
+                        C = nind[pe]
+                        if C == R:
+                            for j in range(i, size[R]):
+                                data[rp + j - i] += gs * Y[a, j]
+                        else:
+                            o = size[R] + noff[pe]
+                            for j in range(size[C]):
+                                data[rp + o - i + j] += gs * Y[a, o + j]
+            for c in range(nt):  # clear the buffer
+                pe = touched[c]
+                C = nind[pe]
+                o = 0 if C == R else size[R] + noff[pe]
+                for a in range(3):
+                    for j in range(size[C]):
+                        Y[a, o + j] = 0.0
+    return data
 
 
 def reduced_matrix(sim, data, gmap, vcluster, affine=True, upper=False):
-    """G^T A G (CSR) with A = (1 + h alpha) M + (h beta + h^2) H (eq. 10).
+    """G^T A G (CSR) with A = (1 + h alpha) M + (h beta + h^2) H (eq. 10), never forming A G.
 
     Parameters
     ----------
-    data : FrameData of the frame (element blocks ``He``, dP/dF ``C``, ``H`` data). Without
-        blocks (``data.He is None``, from :meth:`ElasticSystem.evaluate_tangent`), blocks are
-        assembled here for the elements that need them: all but those inside one affine body.
+    data : FrameData of the frame (``H`` data on the system's pattern). Without H
+        (``data.He is None``, from :meth:`ElasticSystem.evaluate_tangent`), element blocks are
+        assembled here for the elements that need them (below).
     gmap : the frame's :class:`Mapping` (G and G^T).
     vcluster : (n,) body of each vertex, -1 elastic.
-    affine : use the exact shortcut for elements inside one affine body, whose
-        reduced stiffness is V_e C_e on the body's 9 affine columns.
+    affine : use the exact shortcut for elements inside one affine body (below).
     upper : return only the upper triangle, rows sorted (what a Cholesky solver reads).
 
-    The product is formed in two compiled sparse passes, Y = A G (every nonzero of A
-    meets at most four entries of G; :func:`_times_mapping`) and the upper triangle of
-    G^T Y (:func:`_kernels.reduced_upper`), so the cost is linear in the nonzeros of A.
-    Elements inside one affine body are left out of A and enter as V_e C_e: for them
+    The pattern (:func:`_reduced_layout`) is the vertex graph contracted by the bodies; the
+    values (:func:`_reduced_upper_data`) come vertex by vertex from the 3 x 3 blocks of A
+    through the at most four entries per row of G, in dense per-node buffers: the cost is
+    linear in the nonzeros of A. When the blocks are not at hand, elements inside one affine
+    body are left out of A and add V_e C_e to the body's 9 affine columns instead: for them
     B_e G_e = [0 | I_9] because sum_k r_k (x) grad phi_k = I, so their 12 x 12 triple
     product is never formed.
     """
@@ -299,24 +437,29 @@ def reduced_matrix(sim, data, gmap, vcluster, affine=True, upper=False):
     cm, ck = 1.0 + h * d.alpha, h * d.beta + h * h
     pat = sysm.pattern
     w, n_bodies = gmap.width, gmap.n_bodies
-    blocks = np.zeros((0, w, w))
+    K9 = None
     if data.He is None:
-        vc = vcluster[sysm.t]  # (4, m)
-        interior = (vc[0] >= 0) & np.all(vc == vc[0], axis=0) if (affine and n_bodies) else np.zeros(sysm.m, bool)
-        _, Hdata = sysm.partial_stiffness(data, np.flatnonzero(~interior))
-        if np.any(interior):
-            e_in = np.flatnonzero(interior)
-            K9 = group_sum(vc[0, e_in], sysm.volumes[e_in, None] * data.C[e_in].reshape(-1, 81), n_bodies)
-            blocks = np.zeros((n_bodies, w, w))
-            blocks[:, 3:, 3:] = ck * K9.reshape(-1, 9, 9)
+        vt = vcluster[sysm.t]  # (4, m)
+        inside = (vt[0] >= 0) & np.all(vt == vt[0], axis=0) if (affine and n_bodies) else np.zeros(sysm.m, bool)
+        _, Hdata = sysm.partial_stiffness(data, np.flatnonzero(~inside))
+        if np.any(inside):
+            e_in = np.flatnonzero(inside)
+            K9 = group_sum(vt[0, e_in], sysm.volumes[e_in, None] * data.C[e_in].reshape(-1, 81), n_bodies)
     else:
         Hdata = data.H
     Adata = cm * sysm.mass_data + ck * Hdata
     if not n_bodies and not upper:  # G = I
         return pat.matrix(Adata)
-    G, Gt = gmap.G, gmap.Gt
-    Y = _times_mapping(pat.indptr, pat.indices, Adata, G.indptr, G.indices, G.data, G.shape[1])
-    indptr, indices, vals = reduced_upper(Gt.indptr, Gt.indices, Gt.data, *Y, gmap.n_elastic, blocks)
+    fv = sysm.free[::3] // 3  # free vertex u owns free DOFs 3u, 3u + 1, 3u + 2
+    vptr, vind = pat.vertex_graph()
+    layout = _reduced_layout(np.ascontiguousarray(vcluster[fv], dtype=np.int64), n_bodies, w, vptr, vind)
+    G = gmap.G
+    vals = _reduced_upper_data(layout, vptr, vind, pat.indptr, Adata, G.indptr, G.indices, G.data)
+    indptr, indices = layout[8], layout[9]
+    if K9 is not None:  # V_e C_e of interior elements on each body's 9 affine columns (upper part)
+        r, c = np.triu_indices(9)
+        rows = gmap.n_elastic + w * np.arange(n_bodies)[:, None] + 3 + r  # (n_bodies, 45)
+        vals[indptr[rows] + (c - r)] += ck * K9[:, 9 * r + c]
     U = sp.csr_matrix((vals, indices, indptr), shape=(G.shape[1],) * 2)
     if upper:
         return U

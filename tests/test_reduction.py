@@ -114,7 +114,7 @@ def test_no_clusters_is_the_identity(setup):
     A, b, data = sim.linear_system(s.x, s.v)
     assert (gmap.G != sp_identity(el.size)).nnz == 0
     R = reduction.reduced_matrix(sim, data, gmap, vcl)
-    assert abs(R - A).max() == 0
+    assert abs(R - A).max() <= 1e-13 * abs(A).max()  # same sums, element order
 
 
 def sp_identity(n):
