@@ -219,66 +219,6 @@ def scatter_add(slot, values, nnz):
     return out
 
 
-@njit(cache=True)
-def reduced_upper(gt_indptr, gt_rows, gt_vals, y_indptr, y_indices, y_data, n_elastic, body_blocks):
-    """Upper triangle of G^T Y + blockdiag(body_blocks) as sorted CSR, Y = A G (paper eq. 10).
-
-    ``gt_*`` is G^T (reduced DOFs x free DOFs) and ``y_*`` is Y = A G (free DOFs x
-    reduced DOFs), both CSR. Row R gathers g_iR Y[i, C] for C >= R with a dense
-    accumulator (Gustavson); a body vertex's row of Y is short (12 entries per body it
-    couples to), so the cost is about nnz(G) times a few dozen. ``body_blocks``
-    (n_bodies, w, w) is added to each body's diagonal block (columns
-    ``n_elastic + w b + [0, w)``); pass (0, w, w) for none. Returns (indptr, indices, data),
-    int32 indices sorted in each row.
-    """
-    n_red = gt_indptr.size - 1
-    w = body_blocks.shape[1]
-    n_blocks = body_blocks.shape[0]
-    bound = n_blocks * w * (w + 1) // 2  # nonzeros at most
-    for p in range(gt_rows.size):
-        bound += y_indptr[gt_rows[p] + 1] - y_indptr[gt_rows[p]]
-    marker = np.full(n_red, -1, dtype=np.int64)
-    acc = np.zeros(n_red)
-    cols = np.empty(n_red, dtype=np.int64)
-    indptr = np.zeros(n_red + 1, dtype=np.int32)
-    indices = np.empty(bound, dtype=np.int32)
-    data = np.empty(bound)
-    nnz = 0
-    for R in range(n_red):
-        k = 0
-        for s in range(gt_indptr[R], gt_indptr[R + 1]):
-            i = gt_rows[s]
-            g = gt_vals[s]
-            for p in range(y_indptr[i], y_indptr[i + 1]):
-                C = y_indices[p]
-                if C < R:
-                    continue
-                if marker[C] != R:
-                    marker[C] = R
-                    acc[C] = g * y_data[p]
-                    cols[k] = C
-                    k += 1
-                else:
-                    acc[C] += g * y_data[p]
-        if R >= n_elastic and n_blocks:
-            b, r = (R - n_elastic) // w, (R - n_elastic) % w
-            for c in range(r, w):
-                C = n_elastic + w * b + c
-                if marker[C] != R:
-                    marker[C] = R
-                    acc[C] = 0.0
-                    cols[k] = C
-                    k += 1
-                acc[C] += body_blocks[b, r, c]
-        row = np.sort(cols[:k])
-        for c in range(k):
-            indices[nnz + c] = row[c]
-            data[nnz + c] = acc[row[c]]
-        nnz += k
-        indptr[R + 1] = nnz
-    return indptr, indices[:nnz].copy(), data[:nnz].copy()
-
-
 @njit(cache=True, parallel=True)
 def neohookean_tangent(F, mu, lam, out):
     """dP/dF (m, 9, 9) of stable Neo-Hookean: lam g g^T + (lam (J - 1) - mu) d^2J/dF^2 + mu I.
