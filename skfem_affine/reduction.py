@@ -156,6 +156,7 @@ class Mapping:
         g_ptr, g_ind, g_val, t_ptr, t_ind, t_val, el = _mapping_csr(free, vcluster, np.ascontiguousarray(Gam, float),
                                                                     int(n_bodies))
         self.width, self.n_bodies = Gam.shape[2], int(n_bodies)
+        self.rows = Gam
         self.elastic_dofs, self.n_elastic = el, el.size
         shape = (free.size, el.size + self.width * self.n_bodies)
         self.G = sp.csr_matrix((g_val, g_ind, g_ptr), shape=shape)
@@ -340,27 +341,51 @@ def _entry(nptr, nind, R, C):
     return lo
 
 
+# Gamma_i = sum_s rho_i[s] E_s with rho_i = (1, r_i): the nonzeros (s, row a, column p, value) of the E_s
+_BASIS = {
+    12: [(0, a, a, 1.0) for a in range(3)] + [(q + 1, a, 3 + 3 * a + q, 1.0) for a in range(3) for q in range(3)],
+    6: [(0, a, a, 1.0) for a in range(3)] + [(3, 0, 4, 1.0), (2, 0, 5, -1.0), (3, 1, 3, -1.0), (1, 1, 5, 1.0),
+                                             (2, 2, 3, 1.0), (1, 2, 4, -1.0)],
+}
+
+
+def _offsets_from_rows(Gam):
+    """r_i back from the rows Gamma_i of :func:`affine_rows` (w = 12) or :func:`rigid_rows` (w = 6)."""
+    if Gam.shape[2] == 12:
+        return Gam[:, 0, 3:6]
+    return np.stack([Gam[:, 1, 5], Gam[:, 2, 3], Gam[:, 0, 4]], axis=1)
+
+
 @njit(cache=True)
-def _reduced_upper_data(layout, vptr, vind, a_ptr, a_val, g_ptr, g_ind, g_val):
+def _reduced_upper_data(layout, vptr, vind, a_ptr, h_val, m_val, ck, cm, rho, b_s, b_a, b_p, b_g):
     """Values of the upper triangle of G^T A G on the pattern of :func:`_reduced_layout` (eq. 10).
 
-    Node by node R, vertex by vertex u of R: Y_u = sum_v A_uv G_v (3 rows, gathered per
-    coupled node C >= R in a dense buffer; A_uv is the 3 x 3 block of the assembled A, G_v
-    the at most four entries per row of G), then the rows of R receive G_u^T Y_u. The rows
-    of one node are contiguous in the result, so the writes stay local. A's rows must hold
-    the 3 x 3 block of each vertex neighbour in vertex-graph order (as the assembly pattern does).
+    With Gamma_v = sum_s rho_v[s] E_s (rho_v = (1, r_v); elastic vertices: rho = (1), E_0 = I),
+    the block of nodes (R, C) is sum_{s', s} E_s'^T T_RC[s', s] E_s with
+    T_RC[s', s] = sum_{u in R, v in C} rho_u[s'] rho_v[s] A_uv (A_uv the 3 x 3 blocks of the
+    assembled A = cm M + ck H, from the data ``m_val`` and ``h_val`` on one pattern; T stored as
+    [s', a, b, s]). T is gathered vertex by vertex u in two dense stages, S = sum_v A_uv rho_v[s]
+    per coupled node (36 multiply-adds per neighbour) and T += rho_u (x) S, then expanded once
+    per node pair through the nonzeros (b_s, b_a, b_p, b_g) of the body basis E_s. A's rows
+    must hold the 3 x 3 block of each vertex neighbour in vertex-graph order (as the assembly
+    pattern does).
     """
     node, start, size, mptr, members, nptr, nind, noff, indptr, indices = layout
-    data = np.zeros(indices.size)
     N = start.size
-    width = 0
+    nr = np.empty(N, dtype=np.int64)
     for R in range(N):
-        cols = size[R]
-        for p in range(nptr[R] + 1, nptr[R + 1]):
-            cols += size[nind[p]]
-        width = max(width, cols)
-    Y = np.zeros((3, width))
+        nr[R] = 1 if size[R] == 3 else 4
+    toff = np.zeros(nind.size + 1, dtype=np.int64)
+    for R in range(N):
+        for p in range(nptr[R], nptr[R + 1]):
+            toff[p + 1] = toff[p] + 9 * nr[R] * nr[nind[p]]
+    T = np.zeros(toff[nind.size])
+    deg = 0
+    for u in range(vptr.size - 1):
+        deg = max(deg, vptr[u + 1] - vptr[u])
+    S = np.zeros((deg, 36))
     touched = np.empty(nind.size, dtype=np.int64)
+    slot = np.empty(nind.size, dtype=np.int64)
     seen = np.full(nind.size, -1, dtype=np.int64)
     for R in range(N):
         for mp in range(mptr[R], mptr[R + 1]):
@@ -374,41 +399,55 @@ def _reduced_upper_data(layout, vptr, vind, a_ptr, a_val, g_ptr, g_ind, g_val):
                 pe = _entry(nptr, nind, R, C)
                 if seen[pe] != u:
                     seen[pe] = u
+                    slot[pe] = nt
                     touched[nt] = pe
+                    for x in range(9 * nr[C]):
+                        S[nt, x] = 0.0
                     nt += 1
-                col0 = 0 if C == R else size[R] + noff[pe]
-                col0 -= start[C]
+                c = slot[pe]
                 k = q - vptr[u]
-                for a in range(3):
-                    row = a_ptr[3 * u + a] + 3 * k
-                    for b in range(3):
-                        val = a_val[row + b]
-                        if val == 0.0:
-                            continue
-                        for t in range(g_ptr[3 * v + b], g_ptr[3 * v + b + 1]):
-                            Y[a, col0 + g_ind[t]] += val * g_val[t]
-            for a in range(3):
-                for s_ in range(g_ptr[3 * u + a], g_ptr[3 * u + a + 1]):
-                    i = g_ind[s_] - start[R]
-                    gs = g_val[s_]
-                    rp = indptr[start[R] + i]
-                    for c in range(nt):
-                        pe = touched[c]
-                        C = nind[pe]
-                        if C == R:
-                            for j in range(i, size[R]):
-                                data[rp + j - i] += gs * Y[a, j]
-                        else:
-                            o = size[R] + noff[pe]
-                            for j in range(size[C]):
-                                data[rp + o - i + j] += gs * Y[a, o + j]
-            for c in range(nt):  # clear the buffer
+                if nr[C] == 1:
+                    for a in range(3):
+                        row = a_ptr[3 * u + a] + 3 * k
+                        for b in range(3):
+                            S[c, 3 * a + b] += ck * h_val[row + b] + cm * m_val[row + b]
+                else:
+                    r0, r1, r2 = rho[v, 1], rho[v, 2], rho[v, 3]
+                    for a in range(3):
+                        row = a_ptr[3 * u + a] + 3 * k
+                        for b in range(3):
+                            val = ck * h_val[row + b] + cm * m_val[row + b]
+                            o = 4 * (3 * a + b)
+                            S[c, o] += val
+                            S[c, o + 1] += val * r0
+                            S[c, o + 2] += val * r1
+                            S[c, o + 3] += val * r2
+            for c in range(nt):
                 pe = touched[c]
-                C = nind[pe]
-                o = 0 if C == R else size[R] + noff[pe]
-                for a in range(3):
-                    for j in range(size[C]):
-                        Y[a, o + j] = 0.0
+                n9 = 9 * nr[nind[pe]]
+                for s2 in range(nr[R]):
+                    f = rho[u, s2]
+                    base = toff[pe] + s2 * n9
+                    for x in range(n9):
+                        T[base + x] += f * S[c, x]
+    data = np.zeros(indices.size)
+    nb = b_s.size
+    for R in range(N):
+        tr = 3 if nr[R] == 1 else nb
+        for pe in range(nptr[R], nptr[R + 1]):
+            C = nind[pe]
+            tc = 3 if nr[C] == 1 else nb
+            for i1 in range(tr):
+                s1, a, p1, g1 = (0, i1, i1, 1.0) if nr[R] == 1 else (b_s[i1], b_a[i1], b_p[i1], b_g[i1])
+                row = indptr[start[R] + p1]
+                for i2 in range(tc):
+                    s2, b, p2, g2 = (0, i2, i2, 1.0) if nr[C] == 1 else (b_s[i2], b_a[i2], b_p[i2], b_g[i2])
+                    val = g1 * g2 * T[toff[pe] + 9 * nr[C] * s1 + (3 * a + b) * nr[C] + s2]
+                    if C == R:
+                        if p2 >= p1:
+                            data[row + p2 - p1] += val
+                    else:
+                        data[row + size[R] - p1 + noff[pe] + p2] += val
     return data
 
 
@@ -426,9 +465,9 @@ def reduced_matrix(sim, data, gmap, vcluster, affine=True, upper=False):
     upper : return only the upper triangle, rows sorted (what a Cholesky solver reads).
 
     The pattern (:func:`_reduced_layout`) is the vertex graph contracted by the bodies; the
-    values (:func:`_reduced_upper_data`) come vertex by vertex from the 3 x 3 blocks of A
-    through the at most four entries per row of G, in dense per-node buffers: the cost is
-    linear in the nonzeros of A. When the blocks are not at hand, elements inside one affine
+    values (:func:`_reduced_upper_data`) come vertex by vertex from the 3 x 3 blocks of A,
+    weighted by (1, r_v) in dense per-node-pair buffers and expanded once per pair of nodes:
+    the cost is linear in the nonzeros of A. When the blocks are not at hand, elements inside one affine
     body are left out of A and add V_e C_e to the body's 9 affine columns instead: for them
     B_e G_e = [0 | I_9] because sum_k r_k (x) grad phi_k = I, so their 12 x 12 triple
     product is never formed.
@@ -447,14 +486,17 @@ def reduced_matrix(sim, data, gmap, vcluster, affine=True, upper=False):
             K9 = group_sum(vt[0, e_in], sysm.volumes[e_in, None] * data.C[e_in].reshape(-1, 81), n_bodies)
     else:
         Hdata = data.H
-    Adata = cm * sysm.mass_data + ck * Hdata
     if not n_bodies and not upper:  # G = I
-        return pat.matrix(Adata)
+        return pat.matrix(cm * sysm.mass_data + ck * Hdata)
     fv = sysm.free[::3] // 3  # free vertex u owns free DOFs 3u, 3u + 1, 3u + 2
     vptr, vind = pat.vertex_graph()
     layout = _reduced_layout(np.ascontiguousarray(vcluster[fv], dtype=np.int64), n_bodies, w, vptr, vind)
     G = gmap.G
-    vals = _reduced_upper_data(layout, vptr, vind, pat.indptr, Adata, G.indptr, G.indices, G.data)
+    rho = np.ones((fv.size, 4))
+    rho[:, 1:] = _offsets_from_rows(gmap.rows[fv])
+    b_s, b_a, b_p, b_g = (np.array(c) for c in zip(*_BASIS[w]))
+    vals = _reduced_upper_data(layout, vptr, vind, pat.indptr, Hdata, sysm.mass_data, ck, cm, rho, b_s.astype(np.int64),
+                               b_a.astype(np.int64), b_p.astype(np.int64), b_g.astype(float))
     indptr, indices = layout[8], layout[9]
     if K9 is not None:  # V_e C_e of interior elements on each body's 9 affine columns (upper part)
         r, c = np.triu_indices(9)
