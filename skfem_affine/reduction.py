@@ -29,21 +29,50 @@ def group_sum(groups, values, n_groups):
     return out.reshape((n_groups,) + values.shape[1:])
 
 
+@njit(cache=True)
+def _vertex_clusters(labels, t, out):
+    for e in range(labels.size):
+        if labels[e] >= 0:
+            for k in range(4):
+                out[t[k, e]] = labels[e]
+
+
 def vertex_clusters(labels, t, n_vertices):
     """Body of each vertex (n,), -1 elastic, from per-element labels (vertex-disjoint clusters)."""
     vc = np.full(n_vertices, -1, dtype=np.int64)
-    red = np.flatnonzero(labels >= 0)
-    vc[t[:, red].ravel()] = np.tile(labels[red], 4)
+    _vertex_clusters(np.asarray(labels, dtype=np.int64), np.asarray(t, dtype=np.int64), vc)
     return vc
+
+
+@njit(cache=True)
+def _centres(vcluster, positions, mass, n_bodies):
+    """Mass centre of every body and r_i = x_i - x_c (zero for elastic vertices)."""
+    com = np.zeros((n_bodies, 3))
+    mt = np.zeros(n_bodies)
+    for i in range(vcluster.size):
+        b = vcluster[i]
+        if b >= 0:
+            mt[b] += mass[i]
+            for a in range(3):
+                com[b, a] += mass[i] * positions[i, a]
+    for b in range(n_bodies):
+        for a in range(3):
+            com[b, a] /= mt[b]
+    r = np.zeros((vcluster.size, 3))
+    for i in range(vcluster.size):
+        b = vcluster[i]
+        if b >= 0:
+            for a in range(3):
+                r[i, a] = positions[i, a] - com[b, a]
+    return com, r
 
 
 def centre_offsets(vcluster, positions, mass, n_bodies):
     """Reduced vertices, their bodies, the bodies' centres of mass and the offsets r = x - x_c."""
+    com, r = _centres(np.asarray(vcluster, dtype=np.int64), np.ascontiguousarray(positions, dtype=float),
+                      np.asarray(mass, dtype=float), int(n_bodies))
     red = np.flatnonzero(vcluster >= 0)
-    c = vcluster[red]
-    m = mass[red]
-    com = group_sum(c, m[:, None] * positions[red], n_bodies) / np.bincount(c, weights=m, minlength=n_bodies)[:, None]
-    return red, c, com, positions[red] - com[c]
+    return red, vcluster[red], com, r[red]
 
 
 def affine_rows(vcluster, rest, mass, n_bodies):
@@ -51,9 +80,12 @@ def affine_rows(vcluster, rest, mass, n_bodies):
     Gam = np.zeros((vcluster.size, 3, 12))
     if not n_bodies:
         return Gam
-    red, _, _, r = centre_offsets(vcluster, rest, mass, n_bodies)
-    Gam[red, :, :3] = np.eye(3)
-    Gam[red, :, 3:] = np.einsum("ab,vq->vabq", np.eye(3), r).reshape(-1, 3, 9)
+    _, r = _centres(np.asarray(vcluster, dtype=np.int64), np.ascontiguousarray(rest, dtype=float),
+                    np.asarray(mass, dtype=float), int(n_bodies))
+    red = vcluster >= 0
+    for a in range(3):
+        Gam[red, a, a] = 1.0
+        Gam[:, a, 3 + 3 * a: 6 + 3 * a] = r
     return Gam
 
 
