@@ -227,8 +227,7 @@ class Affinification(_ClusteringReducer):
         sysm = sim.system
         Fdot = sysm.deformation_gradients(v)
         if np.any(self.was_reduced):
-            Fdot_pred = sysm.deformation_gradients(v_pred)
-            Fdot[self.was_reduced] = Fdot_pred[self.was_reduced]
+            np.copyto(Fdot, sysm.deformation_gradients(v_pred), where=self.was_reduced[:, None, None])
         forced = clustering.forced_set(Fdot, self.adjacency, self.min_fraction) if self.min_fraction > 0 else None
         labels, seeds = clustering.cluster_deformation_rates(
             Fdot, self.adjacency, sysm.t, sysm.n, self.tau_a, self.tau_e, was_affine=self.was_reduced,
