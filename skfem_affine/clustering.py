@@ -104,9 +104,8 @@ def cluster_deformation_rates(Fdot, adjacency, t, n_vertices, tau_a, tau_e, was_
     F9 = _check(Fdot, tau_a, tau_e)
     m = F9.shape[0]
     seeds = np.arange(m, dtype=np.int64) if seeds is None else np.asarray(seeds, dtype=np.int64)
-    labels, cseeds, dist = _bfs(adjacency[0], adjacency[1], np.ascontiguousarray(t, dtype=np.int64), n_vertices,
-                                F9, float(tau_a), float(tau_e), _mask(was_affine, m), _mask(excluded, m),
-                                _mask(forced, m), seeds, False, np.zeros(m, dtype=np.bool_), int(min_size))
+    flags = _flags(m, was_affine=was_affine, excluded=excluded, forced=forced)
+    labels, cseeds, dist = _bfs_call(adjacency, t, n_vertices, F9, tau_a, tau_e, flags, seeds, False, min_size)
     out = (labels,)
     if return_seeds:
         out += (cseeds,)
@@ -122,9 +121,8 @@ def cluster_components(eligible, adjacency, t, n_vertices, excluded=None, seeds=
     """
     m = t.shape[1]
     seeds = np.arange(m, dtype=np.int64) if seeds is None else np.asarray(seeds, dtype=np.int64)
-    labels, _, _ = _bfs(adjacency[0], adjacency[1], np.ascontiguousarray(t, dtype=np.int64), n_vertices,
-                        np.zeros((m, 9)), 0.0, 0.0, np.zeros(m, dtype=np.bool_), _mask(excluded, m),
-                        np.zeros(m, dtype=np.bool_), seeds, True, _mask(eligible, m), int(min_size))
+    flags = _flags(m, excluded=excluded, eligible=eligible)
+    labels, _, _ = _bfs_call(adjacency, t, n_vertices, np.zeros((m, 9)), 0.0, 0.0, flags, seeds, True, min_size)
     return labels
 
 
@@ -150,14 +148,30 @@ def forced_set(Fdot, adjacency, fraction):
     return out
 
 
+# per-element flag bits of the BFS (one byte read per neighbour instead of five arrays)
+_VISITED, _QUEUED, _EXCLUDED, _WAS_AFFINE, _FORCED, _ELIGIBLE = 1, 2, 4, 8, 16, 32
+
+
+def _flags(m, was_affine=None, excluded=None, forced=None, eligible=None):
+    f = np.zeros(m, dtype=np.uint8)
+    for mask, bit in ((was_affine, _WAS_AFFINE), (excluded, _EXCLUDED), (forced, _FORCED), (eligible, _ELIGIBLE)):
+        if mask is not None:
+            f |= _mask(mask, m).astype(np.uint8) * np.uint8(bit)
+    return f
+
+
+def _bfs_call(adjacency, t, n_vertices, F9, tau_a, tau_e, flags, seeds, by_eligibility, min_size):
+    tv = np.ascontiguousarray(np.asarray(t).T, dtype=np.int64)  # (m, 4): one cache line per element
+    return _bfs(adjacency[0], adjacency[1], tv, int(n_vertices), F9, float(tau_a), float(tau_e), flags,
+                seeds, by_eligibility, int(min_size))
+
+
 @njit(cache=True)
-def _bfs(indptr, indices, t, n_vertices, F, tau_a, tau_e, was_affine, excluded, forced, seeds,
-         by_eligibility, eligible, min_size):
+def _bfs(indptr, indices, tv, n_vertices, F, tau_a, tau_e, flags, seeds, by_eligibility, min_size):
+    """Algorithm 2 over element-major connectivity ``tv`` (m, 4) and packed ``flags`` (bits above)."""
     m = F.shape[0]
     labels = np.full(m, -1, dtype=np.int64)
     owner = np.full(n_vertices, -1, dtype=np.int64)
-    visited = np.zeros(m, dtype=np.bool_)
-    queued = np.zeros(m, dtype=np.bool_)
     dist = np.full(m, np.nan)
     queue = np.empty(m, dtype=np.int64)
     members = np.empty(m, dtype=np.int64)
@@ -165,22 +179,25 @@ def _bfs(indptr, indices, t, n_vertices, F, tau_a, tau_e, was_affine, excluded, 
     fmin = np.empty(9)
     fmax = np.empty(9)
     centre = np.empty(9)
+    skip = _VISITED | _QUEUED | _EXCLUDED
+    tau_a2, tau_e2 = tau_a * tau_a, tau_e * tau_e
     j = 0
     for s in seeds:
-        if visited[s] or excluded[s] or (by_eligibility and not eligible[s]):
+        fs = flags[s]
+        if fs & (_VISITED | _EXCLUDED) or (by_eligibility and not fs & _ELIGIBLE):
             continue
         head, tail, size = 0, 1, 0
         queue[0] = s
-        queued[s] = True
+        flags[s] |= _QUEUED
         for c in range(9):
             fmin[c] = fmax[c] = centre[c] = F[s, c]
         while head < tail:
             e = queue[head]
             head += 1
-            visited[e] = True
+            flags[e] |= _VISITED
             hinge = False
             for k in range(4):
-                o = owner[t[k, e]]
+                o = owner[tv[e, k]]
                 if o >= 0 and o != j:
                     hinge = True
             if hinge:
@@ -193,35 +210,36 @@ def _bfs(indptr, indices, t, n_vertices, F, tau_a, tau_e, was_affine, excluded, 
                 fmax[c] = max(fmax[c], F[e, c])
                 centre[c] = 0.5 * (fmin[c] + fmax[c])  # eq. 5
             for k in range(4):
-                owner[t[k, e]] = j
+                owner[tv[e, k]] = j
+            e_affine = flags[e] & _WAS_AFFINE
             for p in range(indptr[e], indptr[e + 1]):
                 nb = indices[p]
-                if visited[nb] or queued[nb] or excluded[nb]:
+                fn = flags[nb]
+                if fn & skip:
                     continue
                 if by_eligibility:
-                    ok = eligible[nb]
-                    d = 0.0
+                    ok = (fn & _ELIGIBLE) != 0
+                    d2 = 0.0
                 else:
-                    tau = tau_e if (was_affine[nb] and was_affine[e]) else tau_a
-                    d = 0.0
+                    tau2 = tau_e2 if (fn & _WAS_AFFINE and e_affine) else tau_a2
+                    d2 = 0.0
                     for c in range(9):
-                        d += (centre[c] - F[nb, c]) ** 2
-                    d = np.sqrt(d)  # eq. 6
-                    ok = d < tau or forced[nb]
+                        x = centre[c] - F[nb, c]
+                        d2 += x * x
+                    ok = d2 < tau2 or (fn & _FORCED) != 0  # eq. 6, squared
                 if ok:
-                    queued[nb] = True
-                    dist[nb] = d
+                    flags[nb] |= _QUEUED
+                    dist[nb] = np.sqrt(d2)
                     queue[tail] = nb
                     tail += 1
         for q in range(tail):  # elements rejected later in this BFS may join another cluster
-            queued[queue[q]] = False
+            flags[queue[q]] &= ~np.uint8(_QUEUED)
         if size < min_size:
             for q in range(size):
                 e = members[q]
                 labels[e] = -1
-                dist[e] = np.nan
                 for k in range(4):
-                    owner[t[k, e]] = -1
+                    owner[tv[e, k]] = -1
         elif size > 0:
             cseeds[j] = s
             j += 1
