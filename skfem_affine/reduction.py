@@ -103,6 +103,22 @@ def rigid_rows(vcluster, x, mass, n_bodies):
 
 
 @njit(cache=True)
+def _buckets(keys, n_keys):
+    """Stable counting sort: ``order`` lists the positions of ``keys`` grouped by key, ``ptr`` (n_keys + 1) the groups."""
+    ptr = np.zeros(n_keys + 1, dtype=np.int64)
+    for i in range(keys.size):
+        ptr[keys[i] + 1] += 1
+    for k in range(n_keys):
+        ptr[k + 1] += ptr[k]
+    fill = ptr[:-1].copy()
+    order = np.empty(keys.size, dtype=np.int64)
+    for i in range(keys.size):
+        order[fill[keys[i]]] = i
+        fill[keys[i]] += 1
+    return ptr, order
+
+
+@njit(cache=True)
 def _mapping_csr(free, vcluster, Gam, n_bodies):
     """G and G^T as CSR in one pass (exact zeros of Gamma left out), and the elastic free DOFs."""
     nf, w = free.size, Gam.shape[2]
@@ -122,7 +138,6 @@ def _mapping_csr(free, vcluster, Gam, n_bodies):
     g_ptr = np.zeros(nf + 1, dtype=np.int32)
     g_ind = np.empty(nnz, dtype=np.int32)
     g_val = np.empty(nnz)
-    t_ptr = np.zeros(n_red + 1, dtype=np.int32)
     p = 0
     for k in range(nf):
         if ecol[k] >= 0:
@@ -136,18 +151,13 @@ def _mapping_csr(free, vcluster, Gam, n_bodies):
                     g_ind[p], g_val[p] = base + j, Gam[v, a, j]
                     p += 1
         g_ptr[k + 1] = p
-    for q in range(nnz):
-        t_ptr[g_ind[q] + 1] += 1
-    for c in range(n_red):
-        t_ptr[c + 1] += t_ptr[c]
-    fill = t_ptr[:-1].copy()
-    t_ind = np.empty(nnz, dtype=np.int32)
-    t_val = np.empty(nnz)
+    ptr, order = _buckets(g_ind, n_red)  # G^T: the entries of G by column, rows ascending
+    t_ptr = ptr.astype(np.int32)
+    row = np.empty(nnz, dtype=np.int32)
     for k in range(nf):
-        for q in range(g_ptr[k], g_ptr[k + 1]):
-            c = g_ind[q]
-            t_ind[fill[c]], t_val[fill[c]] = k, g_val[q]
-            fill[c] += 1
+        row[g_ptr[k]:g_ptr[k + 1]] = k
+    t_ind = row[order]
+    t_val = g_val[order]
     elastic = np.empty(ne, dtype=np.int64)
     for k in range(nf):
         if ecol[k] >= 0:
@@ -301,17 +311,7 @@ def _reduced_layout(vc, n_bodies, w, vptr, vind):
             start[node[u]], size[node[u]] = 3 * node[u], 3
     for b in range(n_bodies):
         start[n_el + b], size[n_el + b] = 3 * n_el + w * b, w
-    # members of each node
-    mptr = np.zeros(N + 1, dtype=np.int64)
-    for u in range(nv):
-        mptr[node[u] + 1] += 1
-    for R in range(N):
-        mptr[R + 1] += mptr[R]
-    fill = mptr[:-1].copy()
-    members = np.empty(nv, dtype=np.int64)
-    for u in range(nv):
-        members[fill[node[u]]] = u
-        fill[node[u]] += 1
+    mptr, members = _buckets(node, N)  # the vertices of each node
     # node graph, upper part
     nptr = np.zeros(N + 1, dtype=np.int64)
     nind = np.empty(vind.size + N, dtype=np.int64)
