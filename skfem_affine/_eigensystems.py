@@ -227,6 +227,14 @@ def _block(Ce, vg, g, e, He, X):
                 He[e, col, row] = v
 
 
+@njit(cache=True, inline="always")
+def _element_force(Pe, vg, e, out):
+    """out (4, 3) = -V_e P_e grad phi_k: the element's internal force at its vertices."""
+    for k in range(4):
+        for a in range(3):
+            out[k, a] = -(Pe[a, 0] * vg[e, k, 0] + Pe[a, 1] * vg[e, k, 1] + Pe[a, 2] * vg[e, k, 2])
+
+
 @njit(cache=True, parallel=True)
 def evaluate_elements(F, code, mu, lam, project, P, C, vg, g, He, fe):
     """Per element e: P[e], C[e] = dP/dF (9 x 9, PSD-projected if ``project``), He[e], fe[e].
@@ -277,9 +285,20 @@ def evaluate_elements(F, code, mu, lam, project, P, C, vg, g, He, fe):
             if want_He:
                 _block(Ce, vg, g, e, He, X)
             if want_f:
-                for k in range(4):
-                    for a in range(3):
-                        fe[e, k, a] = -(Pe[a, 0] * vg[e, k, 0] + Pe[a, 1] * vg[e, k, 1] + Pe[a, 2] * vg[e, k, 2])
+                _element_force(Pe, vg, e, fe[e])
+
+
+@njit(cache=True)
+def internal_force(P, vg, t, n):
+    """f (3n,) = -sum_e V_e P_e grad phi from the stresses P (m, 3, 3)."""
+    fe = np.empty((4, 3))
+    f = np.zeros(3 * n)
+    for e in range(P.shape[0]):
+        _element_force(P[e], vg, e, fe)
+        for k in range(4):
+            for a in range(3):
+                f[3 * t[k, e] + a] += fe[k, a]
+    return f
 
 
 @njit(cache=True)
