@@ -20,7 +20,7 @@ def _sym_eig3(A, V):
         for p in range(2):
             for q in range(p + 1, 3):
                 apq = A[p, q]
-                if apq == 0.0:
+                if apq * apq <= 1e-32 * abs(A[p, p] * A[q, q]):  # converged pair (or zero)
                     continue
                 theta = (A[q, q] - A[p, p]) / (2.0 * apq)
                 t = (1.0 if theta >= 0 else -1.0) / (abs(theta) + np.sqrt(theta * theta + 1.0))
