@@ -8,36 +8,64 @@ from numba import njit, prange
 
 
 @njit(cache=True, inline="always")
+def _givens(app, aqq, apq):
+    """Jacobi rotation (c, s, t = s / c) that zeroes apq of a symmetric 2 x 2.
+
+    t = sgn(d) 2 apq / (|d| + sqrt(d^2 + 4 apq^2)), d = aqq - app: the smaller root of
+    t^2 + 2 t theta - 1 = 0, theta = d / (2 apq), with one division (Numerical Recipes' form).
+    """
+    d = aqq - app
+    den = abs(d) + np.sqrt(d * d + 4.0 * apq * apq)
+    if den == 0.0:
+        return 1.0, 0.0, 0.0
+    t = 2.0 * apq / den
+    if d < 0.0:
+        t = -t
+    c = 1.0 / np.sqrt(t * t + 1.0)
+    return c, t * c, t
+
+
+@njit(cache=True, inline="always")
 def _sym_eig3(A, V):
-    """Cyclic Jacobi on a symmetric 3x3 A (overwritten: diagonal -> eigenvalues); V <- eigenvectors."""
-    for i in range(3):
-        for j in range(3):
-            V[i, j] = 1.0 if i == j else 0.0
+    """Cyclic Jacobi on a symmetric 3x3 A (overwritten: diagonal -> eigenvalues); V <- eigenvectors.
+
+    The six distinct entries and V live in scalars (registers); a pair already below rounding
+    (apq^2 <= 1e-32 |app aqq|) is skipped.
+    """
+    a00, a11, a22, a01, a02, a12 = A[0, 0], A[1, 1], A[2, 2], A[0, 1], A[0, 2], A[1, 2]
+    v00, v01, v02, v10, v11, v12, v20, v21, v22 = 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0
     for sweep in range(12):
-        off = A[0, 1] ** 2 + A[0, 2] ** 2 + A[1, 2] ** 2
-        if off <= 1e-30 * (A[0, 0] ** 2 + A[1, 1] ** 2 + A[2, 2] ** 2) or off == 0.0:
+        off = a01 * a01 + a02 * a02 + a12 * a12
+        if off <= 1e-30 * (a00 * a00 + a11 * a11 + a22 * a22) or off == 0.0:
             break
-        for p in range(2):
-            for q in range(p + 1, 3):
-                apq = A[p, q]
-                if apq * apq <= 1e-32 * abs(A[p, p] * A[q, q]):  # converged pair (or zero)
-                    continue
-                theta = (A[q, q] - A[p, p]) / (2.0 * apq)
-                t = (1.0 if theta >= 0 else -1.0) / (abs(theta) + np.sqrt(theta * theta + 1.0))
-                c = 1.0 / np.sqrt(t * t + 1.0)
-                s = t * c
-                for k in range(3):  # A <- J^T A J
-                    akp, akq = A[k, p], A[k, q]
-                    A[k, p] = c * akp - s * akq
-                    A[k, q] = s * akp + c * akq
-                for k in range(3):
-                    apk, aqk = A[p, k], A[q, k]
-                    A[p, k] = c * apk - s * aqk
-                    A[q, k] = s * apk + c * aqk
-                for k in range(3):
-                    vkp, vkq = V[k, p], V[k, q]
-                    V[k, p] = c * vkp - s * vkq
-                    V[k, q] = s * vkp + c * vkq
+        if a01 * a01 > 1e-32 * abs(a00 * a11):  # pair (0, 1), other index 2
+            c, s, t = _givens(a00, a11, a01)
+            a00, a11, a01 = a00 - t * a01, a11 + t * a01, 0.0
+            a02, a12 = c * a02 - s * a12, s * a02 + c * a12
+            v00, v01 = c * v00 - s * v01, s * v00 + c * v01
+            v10, v11 = c * v10 - s * v11, s * v10 + c * v11
+            v20, v21 = c * v20 - s * v21, s * v20 + c * v21
+        if a02 * a02 > 1e-32 * abs(a00 * a22):  # pair (0, 2), other index 1
+            c, s, t = _givens(a00, a22, a02)
+            a00, a22, a02 = a00 - t * a02, a22 + t * a02, 0.0
+            a01, a12 = c * a01 - s * a12, s * a01 + c * a12
+            v00, v02 = c * v00 - s * v02, s * v00 + c * v02
+            v10, v12 = c * v10 - s * v12, s * v10 + c * v12
+            v20, v22 = c * v20 - s * v22, s * v20 + c * v22
+        if a12 * a12 > 1e-32 * abs(a11 * a22):  # pair (1, 2), other index 0
+            c, s, t = _givens(a11, a22, a12)
+            a11, a22, a12 = a11 - t * a12, a22 + t * a12, 0.0
+            a01, a02 = c * a01 - s * a02, s * a01 + c * a02
+            v01, v02 = c * v01 - s * v02, s * v01 + c * v02
+            v11, v12 = c * v11 - s * v12, s * v11 + c * v12
+            v21, v22 = c * v21 - s * v22, s * v21 + c * v22
+    A[0, 0], A[1, 1], A[2, 2] = a00, a11, a22
+    A[0, 1] = A[1, 0] = a01
+    A[0, 2] = A[2, 0] = a02
+    A[1, 2] = A[2, 1] = a12
+    V[0, 0], V[0, 1], V[0, 2] = v00, v01, v02
+    V[1, 0], V[1, 1], V[1, 2] = v10, v11, v12
+    V[2, 0], V[2, 1], V[2, 2] = v20, v21, v22
 
 
 @njit(cache=True, inline="always")
@@ -277,116 +305,6 @@ def reduced_upper(gt_indptr, gt_rows, gt_vals, y_indptr, y_indices, y_data, n_el
         nnz += k
         indptr[R + 1] = nnz
     return indptr, indices[:nnz].copy(), data[:nnz].copy()
-
-
-@njit(cache=True, parallel=True)
-def neohookean_tangent(F, mu, lam, out):
-    """dP/dF (m, 9, 9) of stable Neo-Hookean: lam g g^T + (lam (J - 1) - mu) d^2J/dF^2 + mu I.
-
-    g = vec(cof F); d^2 J / dF_ij dF_kl = eps_ikp eps_jlq F_pq (one signed entry of F or 0);
-    ``mu``, ``lam`` (m,) per element (lam = lam + mu of [SGK18]). No BLAS call: numpy's batched
-    (m, 9) @ (9, 81) product ran multi-threaded OpenBLAS and cost 4-17 ms at 5k tets.
-    """
-    m = F.shape[0]
-    for e in prange(m):
-        f = F[e]
-        g = np.empty(9)
-        g[0] = f[1, 1] * f[2, 2] - f[1, 2] * f[2, 1]
-        g[1] = f[1, 2] * f[2, 0] - f[1, 0] * f[2, 2]
-        g[2] = f[1, 0] * f[2, 1] - f[1, 1] * f[2, 0]
-        g[3] = f[0, 2] * f[2, 1] - f[0, 1] * f[2, 2]
-        g[4] = f[0, 0] * f[2, 2] - f[0, 2] * f[2, 0]
-        g[5] = f[0, 1] * f[2, 0] - f[0, 0] * f[2, 1]
-        g[6] = f[0, 1] * f[1, 2] - f[0, 2] * f[1, 1]
-        g[7] = f[0, 2] * f[1, 0] - f[0, 0] * f[1, 2]
-        g[8] = f[0, 0] * f[1, 1] - f[0, 1] * f[1, 0]
-        J = f[0, 0] * g[0] + f[0, 1] * g[1] + f[0, 2] * g[2]
-        s = lam[e] * (J - 1.0) - mu[e]
-        for r in range(9):
-            for c in range(9):
-                out[e, r, c] = lam[e] * g[r] * g[c]
-            out[e, r, r] += mu[e]
-        for i in range(3):
-            for k in range(3):
-                if i == k:
-                    continue
-                p = 3 - i - k
-                sik = 1.0 if (k - i) % 3 == 1 else -1.0  # eps_ikp
-                for j in range(3):
-                    for l in range(3):
-                        if j == l:
-                            continue
-                        q = 3 - j - l
-                        sjl = 1.0 if (l - j) % 3 == 1 else -1.0
-                        out[e, 3 * i + j, 3 * k + l] += s * sik * sjl * f[p, q]
-
-
-@njit(cache=True, parallel=True)
-def stvk_tangent(F, mu, lam, out):
-    """dP/dF (m, 9, 9) of StVK: d_ik S_lj + mu (F_il F_kj + (F F^T)_ik d_jl) + lam F_ij F_kl,
-    S = 2 mu E + lam tr(E) I, E = (F^T F - I) / 2; ``mu``, ``lam`` (m,) per element."""
-    m = F.shape[0]
-    for e in prange(m):
-        f = F[e]
-        C = np.empty((3, 3))
-        B = np.empty((3, 3))
-        for a in range(3):
-            for b in range(3):
-                C[a, b] = f[0, a] * f[0, b] + f[1, a] * f[1, b] + f[2, a] * f[2, b]
-                B[a, b] = f[a, 0] * f[b, 0] + f[a, 1] * f[b, 1] + f[a, 2] * f[b, 2]
-        tr = 0.5 * (C[0, 0] + C[1, 1] + C[2, 2] - 3.0)
-        for i in range(3):
-            for j in range(3):
-                for k in range(3):
-                    for l in range(3):
-                        v = mu[e] * f[i, l] * f[k, j] + lam[e] * f[i, j] * f[k, l]
-                        if i == k:
-                            v += mu[e] * (C[l, j] - (1.0 if l == j else 0.0)) + (lam[e] * tr if l == j else 0.0)
-                        if j == l:
-                            v += mu[e] * B[i, k]
-                        out[e, 3 * i + j, 3 * k + l] = v
-
-
-@njit(cache=True, parallel=True)
-def corotational_kernel(F, mu, lam, P, C, tangent):
-    """Corotational P (m, 3, 3) and, if ``tangent``, dP/dF (m, 9, 9), from :func:`svd3` (F = U S V^T).
-
-    P = 2 mu (F - R) + lam (tr S - 3) R, R = U V^T; dP/dF = 2 mu (I - dR) + lam R (x) R +
-    lam (tr S - 3) dR with dR/dF_kl = U Omega V^T, Omega_ij = (M_ij - M_ji) / (s_i + s_j),
-    M_ij = U_ki V_lj (the exact derivative of the polar rotation).
-    """
-    m = F.shape[0]
-    for c in prange(_CHUNKS):
-        U, V, A = np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3))
-        R, Om = np.empty((3, 3)), np.empty((3, 3))
-        s = np.empty(3)
-        for e in range(c * m // _CHUNKS, (c + 1) * m // _CHUNKS):
-            svd3(F[e], U, s, V, A)
-            trs = s[0] + s[1] + s[2] - 3.0
-            for a in range(3):
-                for b in range(3):
-                    R[a, b] = U[a, 0] * V[b, 0] + U[a, 1] * V[b, 1] + U[a, 2] * V[b, 2]
-                    P[e, a, b] = 2.0 * mu[e] * (F[e, a, b] - R[a, b]) + lam[e] * trs * R[a, b]
-            if not tangent:
-                continue
-            for k in range(3):
-                for l in range(3):
-                    for i in range(3):
-                        for j in range(3):
-                            den = s[i] + s[j]
-                            if abs(den) < 1e-12:
-                                den = 1e-12 if den >= 0 else -1e-12
-                            Om[i, j] = (U[k, i] * V[l, j] - U[k, j] * V[l, i]) / den
-                    for a in range(3):
-                        for b in range(3):
-                            dR = 0.0
-                            for i in range(3):
-                                for j in range(3):
-                                    dR += U[a, i] * Om[i, j] * V[b, j]
-                            v = (lam[e] * trs - 2.0 * mu[e]) * dR + lam[e] * R[a, b] * R[k, l]
-                            if a == k and b == l:
-                                v += 2.0 * mu[e]
-                            C[e, 3 * a + b, 3 * k + l] = v
 
 
 @njit(cache=True, parallel=True)
