@@ -18,7 +18,7 @@ keep the Rayleigh-quotient projection of :func:`_kernels._project_modes`.
 import numpy as np
 from numba import njit, prange
 
-from ._kernels import _CHUNKS, _mode, _symmetric_projected, _sym_eig3, svd3
+from ._kernels import _CHUNKS, _LANES, _mode, _symmetric_projected, _sym_eig3, svd3_lanes
 
 GENERIC, STVK, COROTATIONAL, NEOHOOKEAN = 0, 1, 2, 3
 
@@ -250,42 +250,51 @@ def evaluate_elements(F, code, mu, lam, project, P, C, vg, g, He, fe):
     want_P, want_C = P.shape[0] > 0, C.shape[0] > 0
     want_He, want_f = He.shape[0] > 0, fe.shape[0] > 0
     for c in prange(_CHUNKS):
-        U, V, A, W, B = np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3))
-        Hs = np.empty((3, 3))
-        s, twist, flip = np.empty(3), np.empty(3), np.empty(3)
+        A, W, B, Hs = np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3))
+        Us, Vs, ss = np.empty((_LANES, 3, 3)), np.empty((_LANES, 3, 3)), np.empty((_LANES, 3))
+        a, v = np.empty((6, _LANES)), np.empty((9, _LANES))
+        twist, flip = np.empty(3), np.empty(3)
         Q, CQ, Ce = np.empty((9, 9)), np.empty((9, 9)), np.empty((9, 9))
         Pe = np.empty((3, 3))
         q = np.empty(9)
         X = np.empty((9, 12))
-        for e in range(c * m // _CHUNKS, (c + 1) * m // _CHUNKS):
-            ce = code[e]
-            if ce == GENERIC:
-                if want_C:
-                    _symmetric_projected(C, e, F, project, U, V, s, A, W, Q, CQ, Ce)
-                if want_P:
-                    for a in range(3):
-                        for b in range(3):
-                            Pe[a, b] = P[e, a, b]
-            else:
-                if ce == COROTATIONAL or (want_C and project):
-                    svd3(F[e], U, s, V, A)
-                    _spectrum(ce, mu[e], lam[e], s, twist, flip, Hs)
-                if ce == NEOHOOKEAN:
-                    _neohookean(F[e], mu[e], lam[e], want_C, Pe, Ce, q)
-                elif ce == STVK:
-                    _stvk(F[e], mu[e], lam[e], want_C, Pe, Ce, A, B)
+        start, stop = c * m // _CHUNKS, (c + 1) * m // _CHUNKS
+        for e0 in range(start, stop, _LANES):
+            need_svd = False
+            for e in range(e0, min(e0 + _LANES, stop)):
+                if code[e] == COROTATIONAL or (want_C and project and code[e] != GENERIC):
+                    need_svd = True
+            if need_svd:
+                svd3_lanes(F, e0, stop, Us, ss, Vs, a, v, A, W)
+            for e in range(e0, min(e0 + _LANES, stop)):
+                U, V, s = Us[e - e0], Vs[e - e0], ss[e - e0]
+                ce = code[e]
+                if ce == GENERIC:
+                    if want_C:
+                        _symmetric_projected(C, e, F, project, U, V, s, A, W, Q, CQ, Ce)
+                    if want_P:
+                        for i in range(3):
+                            for j in range(3):
+                                Pe[i, j] = P[e, i, j]
                 else:
-                    _corotational(F[e], mu[e], lam[e], want_C, project, U, s, V, twist, Pe, Ce, q)
-                if want_C:
-                    if project:
-                        _clamp_modes(Ce, U, V, twist, flip, Hs, W, Q, q)
-                    C[e] = Ce
-                if want_P:
-                    P[e] = Pe
-            if want_He:
-                _block(Ce, vg, g, e, He, X)
-            if want_f:
-                _element_force(Pe, vg, e, fe[e])
+                    if ce == COROTATIONAL or (want_C and project):
+                        _spectrum(ce, mu[e], lam[e], s, twist, flip, Hs)
+                    if ce == NEOHOOKEAN:
+                        _neohookean(F[e], mu[e], lam[e], want_C, Pe, Ce, q)
+                    elif ce == STVK:
+                        _stvk(F[e], mu[e], lam[e], want_C, Pe, Ce, A, B)
+                    else:
+                        _corotational(F[e], mu[e], lam[e], want_C, project, U, s, V, twist, Pe, Ce, q)
+                    if want_C:
+                        if project:
+                            _clamp_modes(Ce, U, V, twist, flip, Hs, W, Q, q)
+                        C[e] = Ce
+                    if want_P:
+                        P[e] = Pe
+                if want_He:
+                    _block(Ce, vg, g, e, He, X)
+                if want_f:
+                    _element_force(Pe, vg, e, fe[e])
 
 
 @njit(cache=True)
