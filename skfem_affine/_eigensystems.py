@@ -235,7 +235,7 @@ def _element_force(Pe, vg, e, out):
             out[k, a] = -(Pe[a, 0] * vg[e, k, 0] + Pe[a, 1] * vg[e, k, 1] + Pe[a, 2] * vg[e, k, 2])
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, parallel=True, fastmath={"contract"})
 def evaluate_elements(F, code, mu, lam, project, P, C, vg, g, He, fe):
     """Per element e: P[e], C[e] = dP/dF (9 x 9, PSD-projected if ``project``), He[e], fe[e].
 
