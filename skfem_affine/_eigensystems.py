@@ -18,7 +18,7 @@ keep the Rayleigh-quotient projection of :func:`_kernels._project_modes`.
 import numpy as np
 from numba import njit, prange
 
-from ._kernels import _CHUNKS, _LANES, _mode, _symmetric_projected, _sym_eig3, svd3_lanes
+from ._kernels import _CHUNKS, _LANES, _mode, _symmetric_projected, _sym_eig3, element_block, svd3_lanes
 
 GENERIC, STVK, COROTATIONAL, NEOHOOKEAN = 0, 1, 2, 3
 
@@ -211,23 +211,6 @@ def _corotational(f, mu, lam, want_C, project, U, s, V, twist, Pe, Ce, q):
 
 
 @njit(cache=True, inline="always")
-def _block(Ce, vg, g, e, He, X):
-    """He[e] = V_e G_e^T Ce G_e, node-major: He[3k+a, 3l+b] = sum_jq vg_kj Ce[3a+j, 3b+q] g_lq."""
-    for r in range(9):
-        for l in range(4):
-            for b in range(3):
-                X[r, 3 * l + b] = (Ce[r, 3 * b] * g[e, l, 0] + Ce[r, 3 * b + 1] * g[e, l, 1]
-                                   + Ce[r, 3 * b + 2] * g[e, l, 2])
-    for k in range(4):
-        for a in range(3):
-            row = 3 * k + a
-            for col in range(row, 12):
-                v = vg[e, k, 0] * X[3 * a, col] + vg[e, k, 1] * X[3 * a + 1, col] + vg[e, k, 2] * X[3 * a + 2, col]
-                He[e, row, col] = v
-                He[e, col, row] = v
-
-
-@njit(cache=True, inline="always")
 def _element_force(Pe, vg, e, out):
     """out (4, 3) = -V_e P_e grad phi_k: the element's internal force at its vertices."""
     for k in range(4):
@@ -292,7 +275,7 @@ def evaluate_elements(F, code, mu, lam, project, P, C, vg, g, He, fe):
                     if want_P:
                         P[e] = Pe
                 if want_He:
-                    _block(Ce, vg, g, e, He, X)
+                    element_block(Ce, vg, g, e, He, X)
                 if want_f:
                     _element_force(Pe, vg, e, fe[e])
 

@@ -26,11 +26,32 @@ def _givens(app, aqq, apq):
 
 
 @njit(cache=True, inline="always")
+def _turn(c, s, x, y):
+    """(x, y) rotated by the Givens rotation (c, s): (c x - s y, s x + c y)."""
+    return c * x - s * y, s * x + c * y
+
+
+@njit(cache=True, inline="always")
+def _jacobi_pair(app, aqq, apq, arp, arq, v0p, v0q, v1p, v1q, v2p, v2q):
+    """One Jacobi rotation zeroing apq (r the third index, rows 0-2 of V's columns p, q).
+
+    Skipped when the pair is already below rounding (apq^2 <= 1e-32 |app aqq|).
+    """
+    if apq * apq <= 1e-32 * abs(app * aqq):
+        return app, aqq, apq, arp, arq, v0p, v0q, v1p, v1q, v2p, v2q
+    c, s, t = _givens(app, aqq, apq)
+    arp, arq = _turn(c, s, arp, arq)
+    v0p, v0q = _turn(c, s, v0p, v0q)
+    v1p, v1q = _turn(c, s, v1p, v1q)
+    v2p, v2q = _turn(c, s, v2p, v2q)
+    return app - t * apq, aqq + t * apq, 0.0, arp, arq, v0p, v0q, v1p, v1q, v2p, v2q
+
+
+@njit(cache=True, inline="always")
 def _sym_eig3(A, V):
     """Cyclic Jacobi on a symmetric 3x3 A (overwritten: diagonal -> eigenvalues); V <- eigenvectors.
 
-    The six distinct entries and V live in scalars (registers); a pair already below rounding
-    (apq^2 <= 1e-32 |app aqq|) is skipped.
+    The six distinct entries and V live in scalars (registers), see :func:`_jacobi_pair`.
     """
     a00, a11, a22, a01, a02, a12 = A[0, 0], A[1, 1], A[2, 2], A[0, 1], A[0, 2], A[1, 2]
     v00, v01, v02, v10, v11, v12, v20, v21, v22 = 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0
@@ -38,27 +59,12 @@ def _sym_eig3(A, V):
         off = a01 * a01 + a02 * a02 + a12 * a12
         if off <= 1e-30 * (a00 * a00 + a11 * a11 + a22 * a22) or off == 0.0:
             break
-        if a01 * a01 > 1e-32 * abs(a00 * a11):  # pair (0, 1), other index 2
-            c, s, t = _givens(a00, a11, a01)
-            a00, a11, a01 = a00 - t * a01, a11 + t * a01, 0.0
-            a02, a12 = c * a02 - s * a12, s * a02 + c * a12
-            v00, v01 = c * v00 - s * v01, s * v00 + c * v01
-            v10, v11 = c * v10 - s * v11, s * v10 + c * v11
-            v20, v21 = c * v20 - s * v21, s * v20 + c * v21
-        if a02 * a02 > 1e-32 * abs(a00 * a22):  # pair (0, 2), other index 1
-            c, s, t = _givens(a00, a22, a02)
-            a00, a22, a02 = a00 - t * a02, a22 + t * a02, 0.0
-            a01, a12 = c * a01 - s * a12, s * a01 + c * a12
-            v00, v02 = c * v00 - s * v02, s * v00 + c * v02
-            v10, v12 = c * v10 - s * v12, s * v10 + c * v12
-            v20, v22 = c * v20 - s * v22, s * v20 + c * v22
-        if a12 * a12 > 1e-32 * abs(a11 * a22):  # pair (1, 2), other index 0
-            c, s, t = _givens(a11, a22, a12)
-            a11, a22, a12 = a11 - t * a12, a22 + t * a12, 0.0
-            a01, a02 = c * a01 - s * a02, s * a01 + c * a02
-            v01, v02 = c * v01 - s * v02, s * v01 + c * v02
-            v11, v12 = c * v11 - s * v12, s * v11 + c * v12
-            v21, v22 = c * v21 - s * v22, s * v21 + c * v22
+        a00, a11, a01, a02, a12, v00, v01, v10, v11, v20, v21 = _jacobi_pair(  # pair (0, 1), third 2
+            a00, a11, a01, a02, a12, v00, v01, v10, v11, v20, v21)
+        a00, a22, a02, a01, a12, v00, v02, v10, v12, v20, v22 = _jacobi_pair(  # pair (0, 2), third 1
+            a00, a22, a02, a01, a12, v00, v02, v10, v12, v20, v22)
+        a11, a22, a12, a01, a02, v01, v02, v11, v12, v21, v22 = _jacobi_pair(  # pair (1, 2), third 0
+            a11, a22, a12, a01, a02, v01, v02, v11, v12, v21, v22)
     A[0, 0], A[1, 1], A[2, 2] = a00, a11, a22
     A[0, 1] = A[1, 0] = a01
     A[0, 2] = A[2, 0] = a02
@@ -110,14 +116,10 @@ def _rotate_lanes(a, v, P, Q, PQ, RP, RQ, p, q):
         a[P, b] = app - t * apq
         a[Q, b] = aqq + t * apq
         a[PQ, b] = 0.0
-        a[RP, b] = c * arp - sn * arq
-        a[RQ, b] = sn * arp + c * arq
-        v0, v1 = v[p, b], v[q, b]
-        v[p, b], v[q, b] = c * v0 - sn * v1, sn * v0 + c * v1
-        v0, v1 = v[3 + p, b], v[3 + q, b]
-        v[3 + p, b], v[3 + q, b] = c * v0 - sn * v1, sn * v0 + c * v1
-        v0, v1 = v[6 + p, b], v[6 + q, b]
-        v[6 + p, b], v[6 + q, b] = c * v0 - sn * v1, sn * v0 + c * v1
+        a[RP, b], a[RQ, b] = _turn(c, sn, arp, arq)
+        v[p, b], v[q, b] = _turn(c, sn, v[p, b], v[q, b])
+        v[3 + p, b], v[3 + q, b] = _turn(c, sn, v[3 + p, b], v[3 + q, b])
+        v[6 + p, b], v[6 + q, b] = _turn(c, sn, v[6 + p, b], v[6 + q, b])
 
 
 @njit(cache=True, inline="always")
@@ -285,6 +287,24 @@ def _symmetric_projected(C, e, F, project, U, V, s, A, W, Q, CQ, Ce):
     C[e] = Ce
 
 
+@njit(cache=True, inline="always")
+def element_block(Ce, vg, g, e, He, X):
+    """He[e] = V_e G_e^T Ce G_e for a symmetric Ce, node-major:
+    He[3k+a, 3l+b] = sum_jq vg_kj Ce[3a+j, 3b+q] g_lq (upper triangle computed, mirrored)."""
+    for r in range(9):  # X[3a+j, 3l+b] = sum_q Ce[3a+j, 3b+q] g[l, q]
+        for l in range(4):
+            for b in range(3):
+                X[r, 3 * l + b] = (Ce[r, 3 * b] * g[e, l, 0] + Ce[r, 3 * b + 1] * g[e, l, 1]
+                                   + Ce[r, 3 * b + 2] * g[e, l, 2])
+    for k in range(4):
+        for a in range(3):
+            row = 3 * k + a
+            for col in range(row, 12):
+                v = vg[e, k, 0] * X[3 * a, col] + vg[e, k, 1] * X[3 * a + 1, col] + vg[e, k, 2] * X[3 * a + 2, col]
+                He[e, row, col] = v
+                He[e, col, row] = v
+
+
 @njit(cache=True, parallel=True)
 def element_hessians(C, F, vg, g, project, He, blocks=True):
     """He[e] = V_e G_e^T C_e G_e (12 x 12, node-major), C_e optionally projected to PSD.
@@ -303,16 +323,7 @@ def element_hessians(C, F, vg, g, project, He, blocks=True):
             _symmetric_projected(C, e, F, project, U, V, s, A, W, Q, CQ, Ce)
             if not blocks:
                 continue
-            for r in range(9):  # X[3a+j, 3l+b] = sum_q C[3a+j, 3b+q] g[l, q]
-                for l in range(4):
-                    for b in range(3):
-                        X[r, 3 * l + b] = (Ce[r, 3 * b] * g[e, l, 0] + Ce[r, 3 * b + 1] * g[e, l, 1]
-                                           + Ce[r, 3 * b + 2] * g[e, l, 2])
-            for k in range(4):
-                for a in range(3):
-                    for col in range(12):
-                        He[e, 3 * k + a, col] = (vg[e, k, 0] * X[3 * a, col] + vg[e, k, 1] * X[3 * a + 1, col]
-                                                 + vg[e, k, 2] * X[3 * a + 2, col])
+            element_block(Ce, vg, g, e, He, X)
 
 
 @njit(cache=True)
