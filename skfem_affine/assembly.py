@@ -278,6 +278,25 @@ class ElasticSystem:
         P, C, _, f = self._elements(F, project=project, blocks=False)
         return FrameData(F=F, P=P, C=C, He=None, f=f, H=None)
 
+    def element_blocks(self, F, elems, project=True):
+        """Element blocks V G^T C G (k, 12, 12) of ``elems`` only, dP/dF evaluated (and projected) only there."""
+        elems = np.asarray(elems)
+        C = np.empty((elems.size, 9, 9))
+        for mat, idx in self._generic:
+            mask = np.isin(elems, idx)
+            if not np.any(mask):
+                continue
+            sel = elems[mask]
+            if np.ndim(mat.E):  # per-element parameters of a merged material group
+                pos = np.searchsorted(idx, sel)
+                mat = type(mat)(E=mat.E[pos], nu=mat.nu[pos])
+            C[mask] = mat.stress_derivative(F[sel], project=False).reshape(-1, 9, 9)
+        He = np.empty((elems.size, 12, 12))
+        evaluate_elements(np.ascontiguousarray(F[elems]), self._code[elems], self._mu[elems], self._lam[elems],
+                          project, np.empty((0, 3, 3)), C, np.ascontiguousarray(self._vg[elems]),
+                          np.ascontiguousarray(self.grads[elems]), He, np.empty((0, 4, 3)))
+        return He
+
     def partial_stiffness(self, data, elems):
         """Element blocks of ``elems`` only, and their sum on :attr:`pattern` (the others left out).
 

@@ -134,3 +134,17 @@ def test_mixed_materials_evaluate_equals_per_material_reference():
     f_only, none = sysm.forces_and_stiffness(x, tangent=False)
     assert none is None and np.abs(f_only - f).max() <= 1e-12 * np.abs(f).max()
     assert np.abs(sysm._internal_force(P) - f).max() <= 1e-12 * np.abs(f).max()
+
+
+def test_element_blocks_of_a_subset_equal_the_full_evaluation():
+    mesh = beam_mesh(2)
+    m = mesh.t.shape[1]
+    kinds = [sa.StVK(E=2e5, nu=0.3), sa.NeoHookean(E=5e4, nu=0.35), CustomNeoHookean(E=3e5, nu=0.2),
+             CustomNeoHookean(E=1e5, nu=0.3)]
+    body = sa.ElasticBody(mesh, [kinds[e % 4] for e in range(m)])
+    sysm = sa.assembly.ElasticSystem([body])
+    x = sysm.p0 + 0.15 * np.random.default_rng(6).normal(size=sysm.p0.shape)
+    d = sysm.evaluate(x)
+    elems = np.random.default_rng(7).choice(m, size=m // 3, replace=False)
+    He = sysm.element_blocks(d.F, elems)
+    assert np.abs(He - d.He[elems]).max() <= 1e-12 * np.abs(d.He).max()
