@@ -123,12 +123,13 @@ def _rotate_lanes(a, v, P, Q, PQ, RP, RQ, p, q):
 
 
 @njit(cache=True, inline="always")
-def svd3_lanes(F, e0, stop, U, s, V, a, v, A, W):
+def svd3_lanes(F, e0, stop, U, s, V, a, v, A, W, sweeps=4):
     """:func:`svd3` of F[e0 : min(e0 + _LANES, stop)] into U[b], s[b], V[b], b = e - e0.
 
-    Four Jacobi sweeps run on all lanes at once, so the rotations of different elements
-    overlap (the scalar sweep is latency-bound: 0.47 against 0.68 ms at 5.5k tets); a lane
-    not yet converged finishes with :func:`_sym_eig3` on V^T A V. ``a`` (6, lanes),
+    ``sweeps`` (4) Jacobi sweeps run on all lanes at once, so the rotations of different
+    elements overlap (the scalar sweep is latency-bound: 0.47 against 0.68 ms at 5.5k tets;
+    4 sweeps converged every random F we tried); a lane not yet converged finishes with
+    :func:`_sym_eig3` on V^T A V. ``a`` (6, lanes),
     ``v`` (9, lanes), ``A``, ``W`` (3, 3) are scratch. Unused lanes repeat the last element.
     """
     for b in range(_LANES):
@@ -141,7 +142,7 @@ def svd3_lanes(F, e0, stop, U, s, V, a, v, A, W):
         a[5, b] = f[0, 1] * f[0, 2] + f[1, 1] * f[1, 2] + f[2, 1] * f[2, 2]
         for r in range(9):
             v[r, b] = 1.0 if r % 4 == 0 else 0.0
-    for sweep in range(4):
+    for sweep in range(sweeps):
         _rotate_lanes(a, v, 0, 1, 3, 4, 5, 0, 1)  # pair (0, 1), third index 2
         _rotate_lanes(a, v, 0, 2, 4, 3, 5, 0, 2)  # pair (0, 2), third index 1
         _rotate_lanes(a, v, 1, 2, 5, 3, 4, 1, 2)  # pair (1, 2), third index 0

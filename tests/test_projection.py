@@ -148,3 +148,23 @@ def test_element_blocks_of_a_subset_equal_the_full_evaluation():
     elems = np.random.default_rng(7).choice(m, size=m // 3, replace=False)
     He = sysm.element_blocks(d.F, elems)
     assert np.abs(He - d.He[elems]).max() <= 1e-12 * np.abs(d.He).max()
+
+
+@pytest.mark.parametrize("sweeps", [0, 1, 2, 4])
+def test_svd_of_interleaved_lanes(sweeps):
+    """svd3_lanes: F = U diag(s) V^T with proper rotations, s descending, s[2] carrying det F's sign;
+    few ``sweeps`` force the scalar finish of unconverged lanes, 13 elements a partial last block."""
+    from skfem_affine._kernels import _LANES, svd3_lanes
+    F = np.concatenate([deformations("random", 4), deformations("inverted", 2), deformations("repeated")])
+    lanes = lambda: np.empty((_LANES, 3, 3))  # noqa: E731
+    for e0 in range(0, len(F), _LANES):
+        U, V, s = lanes(), lanes(), np.empty((_LANES, 3))
+        svd3_lanes(F, e0, len(F), U, s, V, np.empty((6, _LANES)), np.empty((9, _LANES)),
+                   np.empty((3, 3)), np.empty((3, 3)), sweeps)
+        for b in range(min(_LANES, len(F) - e0)):
+            f = F[e0 + b]
+            assert np.allclose(U[b] @ np.diag(s[b]) @ V[b].T, f, rtol=0, atol=1e-12 * np.abs(f).max())
+            for R in (U[b], V[b]):
+                assert np.allclose(R.T @ R, np.eye(3), atol=1e-12) and np.isclose(np.linalg.det(R), 1.0)
+            assert s[b, 0] >= s[b, 1] >= abs(s[b, 2]) - 1e-12
+            assert np.isclose(np.prod(s[b]), np.linalg.det(f), rtol=1e-10, atol=1e-12)  # s[2] carries det's sign
