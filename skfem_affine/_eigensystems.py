@@ -283,14 +283,10 @@ def evaluate_elements(F, code, mu, lam, project, P, C, vg, g, He, fe):
 @njit(cache=True)
 def internal_force(P, vg, t, n):
     """f (3n,) = -sum_e V_e P_e grad phi from the stresses P (m, 3, 3)."""
-    fe = np.empty((4, 3))
-    f = np.zeros(3 * n)
+    fe = np.empty((P.shape[0], 4, 3))
     for e in range(P.shape[0]):
-        _element_force(P[e], vg, e, fe)
-        for k in range(4):
-            for a in range(3):
-                f[3 * t[k, e] + a] += fe[k, a]
-    return f
+        _element_force(P[e], vg, e, fe[e])
+    return scatter_forces(t, fe, n)
 
 
 @njit(cache=True)
