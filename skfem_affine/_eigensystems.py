@@ -77,37 +77,50 @@ def _positive_definite3(A):
 
 @njit(cache=True, inline="always")
 def _subtract(Ce, lam, q):
-    """Ce -= lam q q^T."""
+    """Upper triangle of Ce -= lam q q^T (:func:`_mirror` completes it)."""
     for a in range(9):
         w = lam * q[a]
-        for b in range(9):
+        for b in range(a, 9):
             Ce[a, b] -= w * q[b]
+
+
+@njit(cache=True, inline="always")
+def _mirror(Ce):
+    """Lower triangle of Ce <- its upper triangle."""
+    for a in range(1, 9):
+        for b in range(a):
+            Ce[a, b] = Ce[b, a]
 
 
 @njit(cache=True, inline="always")
 def _clamp_modes(Ce, U, V, twist, flip, Hs, W, Q, q):
     """Remove the negative modes of Ce (analytic spectrum, modes from U, V) in place."""
+    changed = False
     for k in range(3):
         if twist[k] < 0.0:
             _mode(3 + k, U, V, q)
             _subtract(Ce, twist[k], q)
+            changed = True
         if flip[k] < 0.0:
             _mode(6 + k, U, V, q)
             _subtract(Ce, flip[k], q)
-    if _positive_definite3(Hs):
-        return
-    _sym_eig3(Hs, W)
-    built = False
-    for k in range(3):
-        lam = Hs[k, k]
-        if lam < 0.0:
-            if not built:
-                for a in range(3):
-                    _mode(a, U, V, Q[a])
-                built = True
-            for a in range(9):
-                q[a] = W[0, k] * Q[0, a] + W[1, k] * Q[1, a] + W[2, k] * Q[2, a]
-            _subtract(Ce, lam, q)
+            changed = True
+    if not _positive_definite3(Hs):
+        _sym_eig3(Hs, W)
+        built = False
+        for k in range(3):
+            lam = Hs[k, k]
+            if lam < 0.0:
+                if not built:
+                    for a in range(3):
+                        _mode(a, U, V, Q[a])
+                    built = True
+                for a in range(9):
+                    q[a] = W[0, k] * Q[0, a] + W[1, k] * Q[1, a] + W[2, k] * Q[2, a]
+                _subtract(Ce, lam, q)
+                changed = True
+    if changed:
+        _mirror(Ce)
 
 
 @njit(cache=True, inline="always")
@@ -208,6 +221,7 @@ def _corotational(f, mu, lam, want_C, project, U, s, V, twist, Pe, Ce, q):
             twist[k] = 0.0
         _mode(3 + k, U, V, q)
         _subtract(Ce, 2.0 * mu - twist[k], q)
+    _mirror(Ce)
 
 
 @njit(cache=True, inline="always")
