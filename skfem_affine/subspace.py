@@ -37,7 +37,7 @@ import scipy.sparse as sp
 
 from . import newton, subspace_oracle as so
 from .newton import vdot
-from ._kernels import element_hessians, scatter_add
+from ._kernels import scatter_add
 from .assembly import Pattern
 from .bases import SkinningEigenmodes, _Basis
 from .checks import positive
@@ -150,25 +150,6 @@ def forces(system, x):
     F = system.deformation_gradients(x)
     P, _ = system.stresses(F, tangent=False)
     return F, P, system._internal_force(P)
-
-
-def element_blocks(system, F, elems, project=True):
-    """Element stiffness blocks V G^T C G (k, 12, 12) of ``elems`` only, dP/dF evaluated only there."""
-    C = np.empty((elems.size, 3, 3, 3, 3))
-    for mat, idx in system.groups:
-        mask = np.isin(elems, idx)
-        if not np.any(mask):
-            continue
-        sel = elems[mask]
-        if np.ndim(mat.E):  # per-element parameters of a merged material group
-            pos = np.searchsorted(idx, sel)
-            mat = type(mat)(E=mat.E[pos], nu=mat.nu[pos])
-        C[mask] = mat.stress_derivative(F[sel], project=False)
-    He = np.empty((elems.size, 12, 12))
-    vg = system.volumes[elems, None, None] * system.grads[elems]
-    element_hessians(np.ascontiguousarray(C.reshape(-1, 9, 9)), np.ascontiguousarray(F[elems]),
-                     np.ascontiguousarray(vg), np.ascontiguousarray(system.grads[elems]), project, He)
-    return He
 
 
 class _BlockDiagonal:
@@ -559,7 +540,7 @@ class AdaptiveSubspace:
         """Fill element blocks He of ``elems`` at the current iterate (computed once per iterate)."""
         need = elems[~he_valid[elems]]
         if need.size:
-            He[need] = element_blocks(self.system, F, need, self.sim.project_hessian)
+            He[need] = self.system.element_blocks(F, need, self.sim.project_hessian)
             he_valid[need] = True
 
     def _partial_data(self, He, elems):
