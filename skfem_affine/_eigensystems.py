@@ -15,15 +15,18 @@ lambda_k q_k q_k^T for the negative modes only, so a PSD element costs one SVD a
 9 x 9 work. Materials without a closed form (``code`` 0, any user :class:`Material`)
 keep the Rayleigh-quotient projection of :func:`_kernels._project_modes`.
 """
+from concurrent.futures import ThreadPoolExecutor
+
+import numba
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
 from ._kernels import _CHUNKS, _LANES, _mode, _symmetric_projected, _sym_eig3, element_block, svd3_lanes
 
 GENERIC, STVK, COROTATIONAL, NEOHOOKEAN = 0, 1, 2, 3
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _spectrum(code, mu, lam, s, twist, flip, Hs):
     """Twist and flip eigenvalues of pair k (the pair without index k) and the scaling Hessian Hs.
 
@@ -66,7 +69,7 @@ def _spectrum(code, mu, lam, s, twist, flip, Hs):
         Hs[1, 2] = Hs[2, 1] = lam * c1 * c2 + sJ * s[0]
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _positive_definite3(A):
     """Sylvester's criterion for a symmetric 3 x 3."""
     m2 = A[0, 0] * A[1, 1] - A[0, 1] * A[0, 1]
@@ -75,7 +78,7 @@ def _positive_definite3(A):
     return A[0, 0] > 0.0 and m2 > 0.0 and det > 0.0
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _subtract(Ce, lam, q):
     """Upper triangle of Ce -= lam q q^T (:func:`_mirror` completes it)."""
     for a in range(9):
@@ -84,7 +87,7 @@ def _subtract(Ce, lam, q):
             Ce[a, b] -= w * q[b]
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _mirror(Ce):
     """Lower triangle of Ce <- its upper triangle."""
     for a in range(1, 9):
@@ -92,7 +95,7 @@ def _mirror(Ce):
             Ce[a, b] = Ce[b, a]
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _clamp_modes(Ce, U, V, twist, flip, Hs, W, Q, q):
     """Remove the negative modes of Ce (analytic spectrum, modes from U, V) in place."""
     changed = False
@@ -123,7 +126,7 @@ def _clamp_modes(Ce, U, V, twist, flip, Hs, W, Q, q):
         _mirror(Ce)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _cofactor(f, g):
     """g = vec(cof f) = d det f / d f, row-major."""
     g[0] = f[1, 1] * f[2, 2] - f[1, 2] * f[2, 1]
@@ -137,7 +140,7 @@ def _cofactor(f, g):
     g[8] = f[0, 0] * f[1, 1] - f[0, 1] * f[1, 0]
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _neohookean(f, mu, lam, want_C, Pe, Ce, g):
     """P = mu F + (lam' (J - 1) - mu) cof F and dP/dF = lam' g g^T + (lam' (J - 1) - mu) d^2J/dF^2 + mu I.
 
@@ -170,7 +173,7 @@ def _neohookean(f, mu, lam, want_C, Pe, Ce, g):
                     Ce[3 * i + j, 3 * k + l] += sJ * sik * sjl * f[p, q]
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _stvk(f, mu, lam, want_C, Pe, Ce, Cg, B):
     """P = F S, S = 2 mu E + lam tr(E) I; dP_ijkl = d_ik S_lj + mu (F_il F_kj + (F F^T)_ik d_jl) + lam F_ij F_kl."""
     for a in range(3):
@@ -198,7 +201,7 @@ def _stvk(f, mu, lam, want_C, Pe, Ce, Cg, B):
                     Ce[3 * i + j, 3 * k + l] = v
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _corotational(f, mu, lam, want_C, project, U, s, V, twist, Pe, Ce, q):
     """P = 2 mu (F - R) + lam (tr S - 3) R, R = U V^T, and from the modes
     dP/dF = 2 mu I + lam r r^T + sum_twists (twist_k - 2 mu) q_k q_k^T, r = vec R
@@ -224,7 +227,7 @@ def _corotational(f, mu, lam, want_C, project, U, s, V, twist, Pe, Ce, q):
     _mirror(Ce)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _element_force(Pe, vg, e, out):
     """out (4, 3) = -V_e P_e grad phi_k: the element's internal force at its vertices."""
     for k in range(4):
@@ -232,7 +235,6 @@ def _element_force(Pe, vg, e, out):
             out[k, a] = -(Pe[a, 0] * vg[e, k, 0] + Pe[a, 1] * vg[e, k, 1] + Pe[a, 2] * vg[e, k, 2])
 
 
-@njit(cache=True, parallel=True, fastmath={"contract"})
 def evaluate_elements(F, code, mu, lam, project, P, C, vg, g, He, fe):
     """Per element e: P[e], C[e] = dP/dF (9 x 9, PSD-projected if ``project``), He[e], fe[e].
 
@@ -243,10 +245,44 @@ def evaluate_elements(F, code, mu, lam, project, P, C, vg, g, He, fe):
     g = grad phi (m, 4, 3) are needed for He and fe. For GENERIC elements the caller fills
     P[e] and C[e] (unprojected) first; C[e] is symmetrised and projected by Rayleigh quotients.
     """
+    args = (F, code, mu, lam, project, P, C, vg, g, He, fe)
+    pool = _pool()
+    if pool is None:
+        _evaluate_chunks(0, _CHUNKS, *args)
+        return
+    n = pool._max_workers + 1  # the calling thread takes the first share
+    bounds = [_CHUNKS * i // n for i in range(n + 1)]
+    jobs = [pool.submit(_evaluate_chunks, bounds[i], bounds[i + 1], *args) for i in range(1, n)]
+    _evaluate_chunks(bounds[0], bounds[1], *args)
+    for job in jobs:
+        job.result()
+
+
+_POOL = [None]
+
+
+def _pool():
+    """Helper threads for :func:`evaluate_elements` (the compiled chunks release the GIL): one per
+    numba thread beyond the calling one.
+
+    Plain threads instead of numba's ``parallel=True``: a parfor around this body cost 17 s
+    of compilation on a clean cache, for the same speed.
+    """
+    n = numba.get_num_threads() - 1
+    if n < 1:
+        return None
+    if _POOL[0] is None or _POOL[0]._max_workers != n:
+        _POOL[0] = ThreadPoolExecutor(max_workers=n, thread_name_prefix="skfem-affine")
+    return _POOL[0]
+
+
+@njit(cache=True, nogil=True, fastmath={"contract"})
+def _evaluate_chunks(c0, c1, F, code, mu, lam, project, P, C, vg, g, He, fe):
+    """The elements of work units c0 .. c1 - 1 (of ``_CHUNKS``) of :func:`evaluate_elements`."""
     m = F.shape[0]
     want_P, want_C = P.shape[0] > 0, C.shape[0] > 0
     want_He, want_f = He.shape[0] > 0, fe.shape[0] > 0
-    for c in prange(_CHUNKS):
+    for c in range(c0, c1):
         A, W, B, Hs = np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3))
         Us, Vs, ss = np.empty((_LANES, 3, 3)), np.empty((_LANES, 3, 3)), np.empty((_LANES, 3))
         a, v = np.empty((6, _LANES)), np.empty((9, _LANES))
