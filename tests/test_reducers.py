@@ -115,3 +115,24 @@ def test_min_body_elements_dissolves_small_bodies():
         smallest[k] = min(c.min() for c in sizes)
         assert smallest[k] >= k
     assert smallest[2] < 6  # the default keeps bodies of fewer than 6 elements in this scene
+
+
+def test_rigidification_metric_is_the_squared_strain_rate_at_the_midpoint():
+    """||sym(F^T F_dot)||^2 with F at x + h v / 2 (Mercier-Aubin et al. 2022), against numpy."""
+    sim = sa.scenes.cantilever(resolution=2, reducer=sa.Rigidification(1e-2, 2e-2))
+    for _ in range(3):
+        sim.step()
+    sysm = sim.system
+    x = sim.state.x
+    v = np.random.default_rng(0).normal(size=x.shape)
+    F = sysm.deformation_gradients(x + 0.5 * sim.dt * v)
+    E = np.einsum("eki,ekj->eij", F, sysm.deformation_gradients(v))
+    E = 0.5 * (E + E.transpose(0, 2, 1))
+    ref = np.einsum("eij,eij->e", E, E)
+    assert np.allclose(sim.reducer._strain_rate(sim, x, v), ref, rtol=1e-12, atol=0)
+    # a rigid rotation rate about the current shape has no strain rate
+    W = np.array([[0.0, -0.5, -0.2], [0.5, 0.0, -0.3], [0.2, 0.3, 0.0]])  # [w]x
+    mid = np.linalg.solve(np.eye(3) - 0.5 * sim.dt * W, x.T).T  # y = x + h/2 W y
+    spin = mid @ W.T  # v = w x y, so that F_dot = [w]x F at the midpoint y
+    assert np.allclose(mid, x + 0.5 * sim.dt * spin)
+    assert np.all(sim.reducer._strain_rate(sim, x, spin) < 1e-24)
