@@ -14,9 +14,10 @@ One affinification frame (Algorithm 1), with the phase names of ``sim.stats``:
    affine elements), BFS of Algorithm 2 (eq. 5-6), resource limiting (sec. 3.5);
 4. ``map_assembly``: G (eq. 7-8), projection q = (G^T M G)^-1 G^T M v (eq. 9),
    discrepancy d = G q - v (eq. 11);
-5. ``reduced_assembly``: G^T A G and G^T b (eq. 10), the matrix as the sparse
-   product with the assembled A (:func:`reduction.reduced_matrix`), upper
-   triangle only when the solver is a Cholesky that reads one;
+5. ``reduced_assembly``: G^T A G and G^T b (eq. 10), the matrix gathered from the
+   assembled A's vertex blocks (:func:`reduction.reduced_matrix`), upper triangle
+   only when the solver is a Cholesky that reads one, and its elimination order
+   inherited from the mesh (:meth:`reduction.Mapping.elimination_order`);
 6. ``factorization`` and ``solve``: the reduced system, direct solver;
 7. dv = G dq + d (eq. 12); positions are integrated in full space.
 """
@@ -146,7 +147,7 @@ class _ClusteringReducer(Reducer):
             vp.reshape(-1)[free] += d
             bp = sim.rhs(data.f, Hop, vp)
             Ar = reduction.reduced_matrix(sim, data, gmap, vcluster, affine=self.width == 12, upper=self.upper)
-            br = gmap.Gt @ bp
+            br = gmap.G.T @ bp
             if self.vertex_rank is not None:
                 order = gmap.elimination_order(free, vcluster, self.vertex_rank)
         else:

@@ -120,7 +120,7 @@ def _buckets(keys, n_keys):
 
 @njit(cache=True)
 def _mapping_csr(free, vcluster, Gam, n_bodies):
-    """G and G^T as CSR in one pass (exact zeros of Gamma left out), and the elastic free DOFs."""
+    """G as CSR in one pass (exact zeros of Gamma left out), and the elastic free DOFs."""
     nf, w = free.size, Gam.shape[2]
     ecol = np.full(nf, -1, dtype=np.int64)
     ne = nnz = 0
@@ -151,18 +151,11 @@ def _mapping_csr(free, vcluster, Gam, n_bodies):
                     g_ind[p], g_val[p] = base + j, Gam[v, a, j]
                     p += 1
         g_ptr[k + 1] = p
-    ptr, order = _buckets(g_ind, n_red)  # G^T: the entries of G by column, rows ascending
-    t_ptr = ptr.astype(np.int32)
-    row = np.empty(nnz, dtype=np.int32)
-    for k in range(nf):
-        row[g_ptr[k]:g_ptr[k + 1]] = k
-    t_ind = row[order]
-    t_val = g_val[order]
     elastic = np.empty(ne, dtype=np.int64)
     for k in range(nf):
         if ecol[k] >= 0:
             elastic[ecol[k]] = k
-    return g_ptr, g_ind, g_val, t_ptr, t_ind, t_val, elastic
+    return g_ptr, g_ind, g_val, elastic
 
 
 @njit(cache=True)
@@ -185,24 +178,23 @@ def _body_normal_equations(g_ptr, g_ind, g_val, mdiag, v, n_elastic, w, n_bodies
 
 
 class Mapping:
-    """The mapping G (free DOFs x reduced DOFs, eq. 7) of one frame, with G^T.
+    """The mapping G (free DOFs x reduced DOFs, eq. 7) of one frame.
 
     Elastic free DOFs keep an identity column each, in their order (``elastic_dofs``);
-    body b owns the ``width`` columns ``n_elastic + width b + [0, width)``. Both G and
-    G^T are built by one compiled pass over the free DOFs (:func:`mapping`).
+    body b owns the ``width`` columns ``n_elastic + width b + [0, width)``. G is built by one
+    compiled pass over the free DOFs (:func:`mapping`); products with G^T use ``G.T`` (scipy's
+    transposed view, no copy).
     """
 
     def __init__(self, free, vcluster, Gam, n_bodies):
         free = np.asarray(free, dtype=np.int64)
         vcluster = np.asarray(vcluster, dtype=np.int64)
-        g_ptr, g_ind, g_val, t_ptr, t_ind, t_val, el = _mapping_csr(free, vcluster, np.ascontiguousarray(Gam, float),
-                                                                    int(n_bodies))
+        g_ptr, g_ind, g_val, el = _mapping_csr(free, vcluster, np.ascontiguousarray(Gam, float), int(n_bodies))
         self.width, self.n_bodies = Gam.shape[2], int(n_bodies)
         self.rows = Gam
         self.elastic_dofs, self.n_elastic = el, el.size
         shape = (free.size, el.size + self.width * self.n_bodies)
         self.G = sp.csr_matrix((g_val, g_ind, g_ptr), shape=shape)
-        self.Gt = sp.csr_matrix((t_val, t_ind, t_ptr), shape=shape[::-1])
 
     @property
     def shape(self):
@@ -491,7 +483,7 @@ def reduced_matrix(sim, data, gmap, vcluster, affine=True, upper=False):
     data : FrameData of the frame (``H`` data on the system's pattern). Without H
         (``data.He is None``, from :meth:`ElasticSystem.evaluate_tangent`), element blocks are
         assembled here for the elements that need them (below).
-    gmap : the frame's :class:`Mapping` (G and G^T).
+    gmap : the frame's :class:`Mapping` (G).
     vcluster : (n,) body of each vertex, -1 elastic.
     affine : use the exact shortcut for elements inside one affine body (below).
     upper : return only the upper triangle, rows sorted (what a Cholesky solver reads).
