@@ -43,7 +43,7 @@ def element_adjacency(t):
     o = np.lexsort((cols, rows))
     rows, cols = rows[o], cols[o]
     indptr = np.concatenate([[0], np.cumsum(np.bincount(rows, minlength=m))]).astype(np.int64)
-    return indptr, cols.astype(np.int64)
+    return indptr, cols.astype(np.int32)
 
 
 def seed_order(m, strategy, rng=None, previous_seeds=None):
@@ -105,7 +105,8 @@ def cluster_deformation_rates(Fdot, adjacency, t, n_vertices, tau_a, tau_e, was_
     m = F9.shape[0]
     seeds = np.arange(m, dtype=np.int64) if seeds is None else np.asarray(seeds, dtype=np.int64)
     flags = _flags(m, was_affine=was_affine, excluded=excluded, forced=forced)
-    labels, cseeds, dist = _bfs_call(adjacency, t, n_vertices, F9, tau_a, tau_e, flags, seeds, False, min_size)
+    labels, cseeds, dist = _bfs_call(adjacency, t, n_vertices, F9, tau_a, tau_e, flags, seeds, False, min_size,
+                                     return_distances)
     out = (labels,)
     if return_seeds:
         out += (cseeds,)
@@ -160,21 +161,24 @@ def _flags(m, was_affine=None, excluded=None, forced=None, eligible=None):
     return f
 
 
-def _bfs_call(adjacency, t, n_vertices, F9, tau_a, tau_e, flags, seeds, by_eligibility, min_size):
-    tv = np.ascontiguousarray(np.asarray(t).T, dtype=np.int64)  # (m, 4): one cache line per element
-    return _bfs(adjacency[0], adjacency[1], tv, int(n_vertices), F9, float(tau_a), float(tau_e), flags,
-                seeds, by_eligibility, int(min_size))
+def _bfs_call(adjacency, t, n_vertices, F9, tau_a, tau_e, flags, seeds, by_eligibility, min_size, distances=False):
+    """Run :func:`_bfs` with compact arrays: in a frame its data arrive from memory cold (the
+    element evaluation streamed tens of MB through the caches), so bytes, not operations, cost."""
+    tv = np.ascontiguousarray(np.asarray(t).T, dtype=np.int32)  # (m, 4): 16 bytes per element
+    labels, cseeds, dist = _bfs(adjacency[0], adjacency[1].astype(np.int32, copy=False), tv, int(n_vertices), F9,
+                                float(tau_a), float(tau_e), flags, seeds, by_eligibility, int(min_size), bool(distances))
+    return labels.astype(np.int64), cseeds, dist
 
 
 @njit(cache=True)
-def _bfs(indptr, indices, tv, n_vertices, F, tau_a, tau_e, flags, seeds, by_eligibility, min_size):
+def _bfs(indptr, indices, tv, n_vertices, F, tau_a, tau_e, flags, seeds, by_eligibility, min_size, distances):
     """Algorithm 2 over element-major connectivity ``tv`` (m, 4) and packed ``flags`` (bits above)."""
     m = F.shape[0]
-    labels = np.full(m, -1, dtype=np.int64)
-    owner = np.full(n_vertices, -1, dtype=np.int64)
-    dist = np.full(m, np.nan)
-    queue = np.empty(m, dtype=np.int64)
-    members = np.empty(m, dtype=np.int64)
+    labels = np.full(m, -1, dtype=np.int32)
+    owner = np.full(n_vertices, -1, dtype=np.int32)
+    dist = np.full(m if distances else 0, np.nan)
+    queue = np.empty(m, dtype=np.int32)
+    members = np.empty(m, dtype=np.int32)
     cseeds = np.empty(m, dtype=np.int64)
     fmin = np.empty(9)
     fmax = np.empty(9)
@@ -229,7 +233,8 @@ def _bfs(indptr, indices, tv, n_vertices, F, tau_a, tau_e, flags, seeds, by_elig
                     ok = d2 < tau2 or (fn & _FORCED) != 0  # eq. 6, squared
                 if ok:
                     flags[nb] |= _QUEUED
-                    dist[nb] = np.sqrt(d2)
+                    if distances:
+                        dist[nb] = np.sqrt(d2)
                     queue[tail] = nb
                     tail += 1
         for q in range(tail):  # elements rejected later in this BFS may join another cluster
@@ -243,7 +248,8 @@ def _bfs(indptr, indices, tv, n_vertices, F, tau_a, tau_e, flags, seeds, by_elig
         elif size > 0:
             cseeds[j] = s
             j += 1
-    for e in range(m):
-        if labels[e] < 0:
-            dist[e] = np.nan
+    if distances:
+        for e in range(m):
+            if labels[e] < 0:
+                dist[e] = np.nan
     return labels, cseeds[:j].copy(), dist

@@ -381,13 +381,15 @@ def _offsets_from_rows(Gam):
 
 
 @njit(cache=True)
-def _reduced_upper_data(layout, vptr, vind, a_ptr, h_val, m_val, ck, cm, rho, b_s, b_a, b_p, b_g):
+def _reduced_upper_data(layout, vptr, vind, a_ptr, h_val, m_val, lumped, ck, cm, rho, b_s, b_a, b_p, b_g):
     """Values of the upper triangle of G^T A G on the pattern of :func:`_reduced_layout` (eq. 10).
 
     With Gamma_v = sum_s rho_v[s] E_s (rho_v = (1, r_v); elastic vertices: rho = (1), E_0 = I),
     the block of nodes (R, C) is sum_{s', s} E_s'^T T_RC[s', s] E_s with
     T_RC[s', s] = sum_{u in R, v in C} rho_u[s'] rho_v[s] A_uv (A_uv the 3 x 3 blocks of the
-    assembled A = cm M + ck H, from the data ``m_val`` and ``h_val`` on one pattern; T stored as
+    assembled A = cm M + ck H: ``h_val`` on the pattern, ``m_val`` the mass on the pattern too or,
+    if ``lumped``, its diagonal per free DOF, which spares reading a second array of the pattern's
+    size (the data arrive cold from memory in a frame); T stored as
     [s', a, b, s]). T is gathered vertex by vertex u in two dense stages, S = sum_v A_uv rho_v[s]
     per coupled node (36 multiply-adds per neighbour) and T += rho_u (x) S, then expanded once
     per node pair through the nonzeros (b_s, b_a, b_p, b_g) of the body basis E_s. A's rows
@@ -430,17 +432,18 @@ def _reduced_upper_data(layout, vptr, vind, a_ptr, h_val, m_val, ck, cm, rho, b_
                     nt += 1
                 c = slot[pe]
                 k = q - vptr[u]
-                if nr[C] == 1:
-                    for a in range(3):
-                        row = a_ptr[3 * u + a] + 3 * k
-                        for b in range(3):
-                            S[c, 3 * a + b] += ck * h_val[row + b] + cm * m_val[row + b]
-                else:
-                    r0, r1, r2 = rho[v, 1], rho[v, 2], rho[v, 3]
-                    for a in range(3):
-                        row = a_ptr[3 * u + a] + 3 * k
-                        for b in range(3):
-                            val = ck * h_val[row + b] + cm * m_val[row + b]
+                r0, r1, r2 = rho[v, 1], rho[v, 2], rho[v, 3]
+                for a in range(3):
+                    row = a_ptr[3 * u + a] + 3 * k
+                    for b in range(3):
+                        val = ck * h_val[row + b]
+                        if not lumped:
+                            val += cm * m_val[row + b]
+                        elif v == u and a == b:
+                            val += cm * m_val[3 * u + a]
+                        if nr[C] == 1:
+                            S[c, 3 * a + b] += val
+                        else:
                             o = 4 * (3 * a + b)
                             S[c, o] += val
                             S[c, o + 1] += val * r0
@@ -519,7 +522,9 @@ def reduced_matrix(sim, data, gmap, vcluster, affine=True, upper=False):
     rho = np.ones((fv.size, 4))
     rho[:, 1:] = _offsets_from_rows(gmap.rows[fv])
     b_s, b_a, b_p, b_g = (np.array(c) for c in zip(*_BASIS[w]))
-    vals = _reduced_upper_data(layout, vptr, vind, pat.indptr, Hdata, sysm.mass_data, ck, cm, rho, b_s.astype(np.int64),
+    lumped = sysm.mass_kind == "lumped"
+    mass = sysm.Mff.diagonal() if lumped else sysm.mass_data
+    vals = _reduced_upper_data(layout, vptr, vind, pat.indptr, Hdata, mass, lumped, ck, cm, rho, b_s.astype(np.int64),
                                b_a.astype(np.int64), b_p.astype(np.int64), b_g.astype(float))
     indptr, indices = layout[8], layout[9]
     if K9 is not None:  # V_e C_e of interior elements on each body's 9 affine columns (upper part)

@@ -163,3 +163,20 @@ def test_pardiso_with_a_given_order_solves_the_reduced_system(setup):
     assert np.linalg.norm(full @ x - rhs) <= 1e-10 * np.linalg.norm(rhs)
     with pytest.raises(ValueError, match="order"):
         Pardiso().factorize(U, upper=True, order=order[:-1])
+
+
+@pytest.mark.parametrize("kind", ["affine", "rigid"])
+def test_reduced_matrix_with_consistent_mass_equals_GtAG(kind):
+    sim = sa.scenes.cantilever(resolution=2, mass="consistent", damping=sa.Rayleigh(0.1, 0.01))
+    for s in sim.run(3):
+        pass
+    X = sim.system.p0
+    vcl = np.full(sim.system.n, -1)
+    vcl[(X[:, 0] > 1.2) & (X[:, 0] < 2.3)] = 0
+    vcl[X[:, 0] > 2.9] = 1
+    A, b, data = sim.linear_system(s.x, s.v)
+    _, _, gmap = maps(sim, vcl, kind)
+    R = reduction.reduced_matrix(sim, data, gmap, vcl, affine=kind == "affine")
+    ref = (gmap.G.T @ A @ gmap.G).toarray()
+    assert abs(sim.system.Mff - sp.diags(sim.system.Mff.diagonal())).max() > 0  # really not lumped
+    assert np.abs(R.toarray() - ref).max() <= 1e-12 * np.abs(ref).max()
