@@ -175,9 +175,8 @@ class _ClusteringReducer(Reducer):
     def _operator(self, sim, Hop):
         """p -> A p = (1 + h alpha) M p + (h beta + h^2) H p from the lumped mass and the assembled H (A never formed)."""
         h, dmp = sim.dt, sim.damping
-        mdiag = sim.system.Mff.diagonal()
         cm, ck = 1.0 + h * dmp.alpha, h * dmp.beta + h * h
-        return lambda p: cm * mdiag * p + ck * (Hop @ p)
+        return lambda p: cm * self.mdiag * p + ck * (Hop @ p)
 
     def _seeds(self, m):
         return clustering.seed_order(m, self.seeding, rng=self.rng, previous_seeds=self.previous_seeds)

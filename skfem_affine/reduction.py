@@ -260,11 +260,6 @@ def mapping(free, vcluster, Gam, n_bodies):
     return Mapping(free, vcluster, Gam, n_bodies)
 
 
-def project(Gmap, mdiag, v):
-    """q = (G^T M G)^-1 G^T M v (eq. 9); see :meth:`Mapping.project`."""
-    return Gmap.project(mdiag, v)
-
-
 def discrepancy(G, q, v):
     """d = G q - v (eq. 11)."""
     return G @ q - v
