@@ -15,6 +15,7 @@ lambda_k q_k q_k^T for the negative modes only, so a PSD element costs one SVD a
 9 x 9 work. Materials without a closed form (``code`` 0, any user :class:`Material`)
 keep the Rayleigh-quotient projection of :func:`_kernels._project_modes`.
 """
+import os
 from concurrent.futures import ThreadPoolExecutor
 
 import numba
@@ -271,9 +272,11 @@ def _pool():
     n = numba.get_num_threads() - 1
     if n < 1:
         return None
-    if _POOL[0] is None or _POOL[0]._max_workers != n:
-        _POOL[0] = ThreadPoolExecutor(max_workers=n, thread_name_prefix="skfem-affine")
-    return _POOL[0]
+    pool, pid = _POOL[0] or (None, None)
+    if pool is None or pool._max_workers != n or pid != os.getpid():  # a forked child has no workers
+        pool = ThreadPoolExecutor(max_workers=n, thread_name_prefix="skfem-affine")
+        _POOL[0] = (pool, os.getpid())
+    return pool
 
 
 @njit(cache=True, nogil=True, fastmath={"contract"})

@@ -1,4 +1,7 @@
 """Analytic eigensystems (Smith, de Goes & Kim 2019) and the fused element pass against numpy."""
+import os
+import time
+
 import numpy as np
 import pytest
 
@@ -168,3 +171,28 @@ def test_svd_of_interleaved_lanes(sweeps):
                 assert np.allclose(R.T @ R, np.eye(3), atol=1e-12) and np.isclose(np.linalg.det(R), 1.0)
             assert s[b, 0] >= s[b, 1] >= abs(s[b, 2]) - 1e-12
             assert np.isclose(np.prod(s[b]), np.linalg.det(f), rtol=1e-10, atol=1e-12)  # s[2] carries det's sign
+
+
+@pytest.mark.skipif(not hasattr(os, "fork"), reason="needs os.fork")
+def test_element_pass_works_in_a_forked_child():
+    """The element pass's helper threads do not survive a fork: the child must make its own."""
+    sim = sa.scenes.cantilever(resolution=2)
+    sim.step()  # the parent's helper threads exist now
+    pid = os.fork()
+    if pid == 0:  # child: a hang here would stall the test, an exception gives exit code 1
+        try:
+            sim.step()
+            os._exit(0 if np.all(np.isfinite(sim.state.x)) else 1)
+        except BaseException:
+            os._exit(1)
+    deadline = time.time() + 60
+    while time.time() < deadline:
+        done, status = os.waitpid(pid, os.WNOHANG)
+        if done:
+            break
+        time.sleep(0.05)
+    else:
+        os.kill(pid, 9)
+        os.waitpid(pid, 0)
+        pytest.fail("the forked child hung in the element pass")
+    assert os.waitstatus_to_exitcode(status) == 0
