@@ -15,9 +15,7 @@ after the reduced solve G^T A G dq = G^T b (eq. 10): dv = G dq + d (eq. 12).
 """
 import numpy as np
 import scipy.sparse as sp
-
 from numba import njit
-
 
 
 def group_sum(groups, values, n_groups):
@@ -212,7 +210,6 @@ class Mapping:
             q[self.n_elastic:] = np.linalg.solve(MG, rhs[..., None])[..., 0].ravel()
         return q
 
-
     def elimination_order(self, free, vcluster, vertex_rank):
         """A fill-reducing order of the reduced DOFs inherited from the full mesh's order.
 
@@ -220,10 +217,10 @@ class Mapping:
         the free vertices, :func:`nested_dissection_rank`); a body's DOFs come right after its
         latest vertex, as if the body were part of the separator that vertex belongs to. Our
         choice (the paper is silent): it spares the direct solver its ordering step, which on
-        reduced systems whose clusters change every frame cost more than the factorisation
-        (beam1264, 1.1k reduced unknowns: analysis + factorisation 8.0 ms with minimum degree,
-        3.5 ms with this order, numeric factorisation 1.6 ms with either). Returns the reduced
-        DOFs in elimination order (int32).
+        reduced systems whose clusters change every frame costs as much as the factorisation
+        (beam1264, 1.1k reduced unknowns: analysis + factorisation 4.2 ms with Pardiso's minimum
+        degree, 3.2 ms with this order, numeric factorisation 1.6-1.7 ms with either). Returns
+        the reduced DOFs in elimination order (int32).
         """
         ne, w = self.n_elastic, self.width
         key = np.empty(self.shape[1])
@@ -239,11 +236,11 @@ class Mapping:
 
 def nested_dissection_rank(system):
     """Position of every vertex in a nested-dissection order (METIS) of the free vertices' graph; -1 if fixed."""
-    pat = system.pattern
-    P = sp.csr_matrix((np.ones(pat.nnz), pat.indices, pat.indptr), shape=pat.shape)[::3, ::3].tocsr()
-    P.setdiag(0)
+    vptr, vind = system.pattern.vertex_graph()
+    nv = vptr.size - 1
+    P = sp.csr_matrix((np.ones(vind.size), vind, vptr), shape=(nv, nv))
+    P.setdiag(0)  # METIS takes no self-loops
     P.eliminate_zeros()
-    nv = P.shape[0]
     try:
         import pymetis
         _, iperm = pymetis.nested_dissection(adjacency=pymetis.CSRAdjacency(P.indptr, P.indices))
@@ -360,12 +357,15 @@ def _entry(nptr, nind, R, C):
     return lo
 
 
-# Gamma_i = sum_s rho_i[s] E_s with rho_i = (1, r_i): the nonzeros (s, row a, column p, value) of the E_s
-_BASIS = {
-    12: [(0, a, a, 1.0) for a in range(3)] + [(q + 1, a, 3 + 3 * a + q, 1.0) for a in range(3) for q in range(3)],
-    6: [(0, a, a, 1.0) for a in range(3)] + [(3, 0, 4, 1.0), (2, 0, 5, -1.0), (3, 1, 3, -1.0), (1, 1, 5, 1.0),
-                                             (2, 2, 3, 1.0), (1, 2, 4, -1.0)],
-}
+# Gamma_i = sum_s rho_i[s] E_s with rho_i = (1, r_i): the nonzeros (s, row a, column p, value) of the E_s,
+# as the arrays (s, a, p) int64 and values float64 that :func:`_reduced_upper_data` takes
+_BASIS = {w: (np.array([e[:3] for e in entries], dtype=np.int64).T, np.array([e[3] for e in entries]))
+          for w, entries in {
+              12: [(0, a, a, 1.0) for a in range(3)] + [(q + 1, a, 3 + 3 * a + q, 1.0)
+                                                        for a in range(3) for q in range(3)],
+              6: [(0, a, a, 1.0) for a in range(3)] + [(3, 0, 4, 1.0), (2, 0, 5, -1.0), (3, 1, 3, -1.0),
+                                                       (1, 1, 5, 1.0), (2, 2, 3, 1.0), (1, 2, 4, -1.0)],
+          }.items()}
 
 
 def _offsets_from_rows(Gam):
@@ -489,8 +489,8 @@ def reduced_matrix(sim, data, gmap, vcluster, affine=True, upper=False):
     The pattern (:func:`_reduced_layout`) is the vertex graph contracted by the bodies; the
     values (:func:`_reduced_upper_data`) come vertex by vertex from the 3 x 3 blocks of A,
     weighted by (1, r_v) in dense per-node-pair buffers and expanded once per pair of nodes:
-    the cost is linear in the nonzeros of A. When the blocks are not at hand, elements inside one affine
-    body are left out of A and add V_e C_e to the body's 9 affine columns instead: for them
+    the cost is linear in the nonzeros of A. When the blocks are not at hand, elements inside
+    one affine body are left out of A and add V_e C_e to the body's 9 affine columns instead: for them
     B_e G_e = [0 | I_9] because sum_k r_k (x) grad phi_k = I, so their 12 x 12 triple
     product is never formed.
     """
@@ -516,11 +516,10 @@ def reduced_matrix(sim, data, gmap, vcluster, affine=True, upper=False):
     G = gmap.G
     rho = np.ones((fv.size, 4))
     rho[:, 1:] = _offsets_from_rows(gmap.rows[fv])
-    b_s, b_a, b_p, b_g = (np.array(c) for c in zip(*_BASIS[w]))
+    (b_s, b_a, b_p), b_g = _BASIS[w]
     lumped = sysm.mass_kind == "lumped"
     mass = sysm.Mff.diagonal() if lumped else sysm.mass_data
-    vals = _reduced_upper_data(layout, vptr, vind, pat.indptr, Hdata, mass, lumped, ck, cm, rho, b_s.astype(np.int64),
-                               b_a.astype(np.int64), b_p.astype(np.int64), b_g.astype(float))
+    vals = _reduced_upper_data(layout, vptr, vind, pat.indptr, Hdata, mass, lumped, ck, cm, rho, b_s, b_a, b_p, b_g)
     indptr, indices = layout[8], layout[9]
     if K9 is not None:  # V_e C_e of interior elements on each body's 9 affine columns (upper part)
         r, c = np.triu_indices(9)

@@ -144,8 +144,10 @@ class Pardiso:
                 self._ps.free_memory(everything=True)
             if order is not None:
                 order = np.ascontiguousarray(order, dtype=np.int32)
-                if order.shape != (n,):
-                    raise ValueError(f"order must list the {n} unknowns once, got shape {order.shape}")
+                if order.shape != (n,) or (n and (order.min() < 0 or order.max() >= n)) or \
+                        not np.all(np.bincount(order, minlength=n) == 1):
+                    raise ValueError(f"order must list each of the {n} unknowns exactly once "
+                                     f"(got {order.size} entries)")
                 self._ps.set_iparm(5, 1)
                 self._ps.perm = order
             else:

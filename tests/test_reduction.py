@@ -163,6 +163,8 @@ def test_pardiso_with_a_given_order_solves_the_reduced_system(setup):
     assert np.linalg.norm(full @ x - rhs) <= 1e-10 * np.linalg.norm(rhs)
     with pytest.raises(ValueError, match="order"):
         Pardiso().factorize(U, upper=True, order=order[:-1])
+    with pytest.raises(ValueError, match="exactly once"):  # right length, one unknown twice
+        Pardiso().factorize(U, upper=True, order=np.concatenate([order[:-1], order[:1]]))
 
 
 @pytest.mark.parametrize("kind", ["affine", "rigid"])
