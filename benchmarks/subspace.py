@@ -27,7 +27,7 @@ import time
 import numpy as np
 
 import skfem_affine as sa
-from skfem_affine import subspace
+from skfem_affine.reducers.subspace import reducer as subspace
 
 
 def scene(k, kind="cantilever", **kw):

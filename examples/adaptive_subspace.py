@@ -1,7 +1,7 @@
 r"""Adaptive subspace: modes where they suffice, nodes where they do not.
 
 The cantilever of ``cantilever.py`` is simulated with the incremental-potential Newton
-integrator (implicit Euler, :mod:`skfem_affine.newton`)
+integrator (implicit Euler, :mod:`skfem_affine.integrators.newton`)
 
 1. in full space (the reference), and
 2. with :class:`skfem_affine.AdaptiveSubspace` (Trusty et al., sec. 3): each Newton iterate

@@ -5,12 +5,12 @@ rates (1/s): tau_a, below which elastic elements merge into affine bodies, and
 tau_e, below which affine elements stay affine. This tutorial measures that
 trade on the cantilever the way the paper's evaluation does (sec. 4.1):
 
-1. a *scene* is named by :class:`~skfem_affine.runners.SceneSpec` (a name in
+1. a *scene* is named by :class:`~skfem_affine.lab.runners.SceneSpec` (a name in
    ``sa.scenes.SCENES`` with keyword overrides, or a user's ``.py`` file);
-2. :func:`~skfem_affine.runners.compare` runs the full-space reference first
+2. :func:`~skfem_affine.lab.runners.compare` runs the full-space reference first
    and then each *method* (a name and a reducer factory,
    ``runners.METHODS``) from the same initial state;
-3. every frame is measured (:mod:`skfem_affine.metrics`): the largest vertex
+3. every frame is measured (:mod:`skfem_affine.lab.metrics`): the largest vertex
    distance to the reference over the scene size, the same after re-starting
    the reference from the reduced state (step error, which discounts phase
    drift), the full-space residual :math:`\|A\Delta v - b\|/\|b\|` of eq. 1-2,
@@ -24,14 +24,14 @@ run from the shell, with plots, a picture of the clusters and ParaView output::
 
     skfem-affine compare cantilever --resolution 2 --frames 60 --tau-a 0.3 --tau-e 0.6
 """
-from skfem_affine import runners
+from skfem_affine.lab import runners
 
 spec = runners.SceneSpec.make("cantilever", resolution=2)           # 192 tets
 reference, runs = runners.compare(spec, frames=60, taus={"affinification": (0.3, 0.6)}, keep_every=10)
 summary = {name: run.summary for name, run in runs.items()}
 
 if __name__ == "__main__":
-    from skfem_affine import plots
+    from skfem_affine.lab import plots
 
     print(f"{'method':>15} {'speedup':>8} {'DOF ratio':>9} {'bodies':>7} {'max error':>9} {'step error':>10}")
     for name, s in summary.items():

@@ -6,23 +6,28 @@
 >>> state = sim.step()
 >>> state.frame, state.x.shape
 (1, (27, 3))
+
+The package is laid out by idea: the elastic core (:mod:`materials`, :mod:`kinematics`,
+:mod:`body`, :mod:`assembly`, :mod:`solvers`), :mod:`integrators`, :mod:`reducers`
+(``affine/`` and ``subspace/``), :mod:`contact`, and the measuring tools in :mod:`lab`.
 """
-from . import (assembly, bases, clustering, colliders, contact, io, kinematics, materials, metrics, newton, oracle,
-               reduction, runners, scenes, solvers)
-from .bases import AffineModes, LinearModes, SkinningEigenmodes
-from .body import ElasticBody
-from .colliders import Bowl, Box, Capsule, Plane, SDFCollider, Sphere
-from .contact import PGS
-from .integrator import Rayleigh, Simulation, SimulationDiverged, State, Stats
-from .materials import Corotational, Material, NeoHookean, StVK
-from .reducers import Affinification, Rigidification
-from .subspace import AdaptiveSubspace
+from skfem_affine import assembly, kinematics, materials, solvers
+from skfem_affine.body import ElasticBody
+from skfem_affine.contact import colliders
+from skfem_affine.contact.colliders import Bowl, Box, Capsule, Plane, SDFCollider, Sphere
+from skfem_affine.contact.pgs import PGS
+from skfem_affine.materials import Corotational, Material, NeoHookean, StVK
+from skfem_affine.reducers.affine.reducers import Affinification, Rigidification
+from skfem_affine.reducers.subspace import bases
+from skfem_affine.reducers.subspace.bases import AffineModes, LinearModes, SkinningEigenmodes
+from skfem_affine.reducers.subspace.reducer import AdaptiveSubspace
+from skfem_affine.simulation import Rayleigh, Simulation, SimulationDiverged, State, Stats
+from skfem_affine.lab import io, metrics, runners, scenes
 
 __version__ = "0.1.0"
 
 __all__ = ["ElasticBody", "Simulation", "SimulationDiverged", "State", "Stats", "Rayleigh",
            "Material", "StVK", "Corotational", "NeoHookean", "Affinification", "Rigidification",
-           "AdaptiveSubspace", "AffineModes", "LinearModes", "SkinningEigenmodes", "bases", "newton",
-           "Plane", "Sphere", "Box", "Capsule", "Bowl", "SDFCollider", "PGS", "colliders", "contact",
-           "assembly", "clustering", "io", "kinematics", "materials", "metrics", "oracle", "reduction", "runners",
-           "scenes", "solvers"]
+           "AdaptiveSubspace", "AffineModes", "LinearModes", "SkinningEigenmodes", "bases",
+           "Plane", "Sphere", "Box", "Capsule", "Bowl", "SDFCollider", "PGS", "colliders",
+           "assembly", "io", "kinematics", "materials", "metrics", "runners", "scenes", "solvers"]

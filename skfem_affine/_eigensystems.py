@@ -22,7 +22,7 @@ import numba
 import numpy as np
 from numba import njit
 
-from ._kernels import _CHUNKS, _LANES, _mode, _symmetric_projected, _sym_eig3, element_block, svd3_lanes
+from skfem_affine._kernels import _CHUNKS, _LANES, _mode, _symmetric_projected, _sym_eig3, element_block, svd3_lanes
 
 GENERIC, STVK, COROTATIONAL, NEOHOOKEAN = 0, 1, 2, 3
 

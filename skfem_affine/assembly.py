@@ -20,9 +20,9 @@ import skfem
 from skfem import Basis, BilinearForm, ElementTetP1, ElementVector, asm
 from skfem.helpers import dot
 
-from ._eigensystems import evaluate_elements, internal_force, scatter_forces
-from ._kernels import deformation_gradients, element_hessians, scatter_add
-from .kinematics import deformation_operator, element_dofs
+from skfem_affine._eigensystems import evaluate_elements, internal_force, scatter_forces
+from skfem_affine._kernels import deformation_gradients, element_hessians, scatter_add
+from skfem_affine.kinematics import deformation_operator, element_dofs
 
 
 _OPENBLAS = None

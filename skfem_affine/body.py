@@ -6,8 +6,8 @@ early with a message that names the problem (and the element or vertex).
 import numpy as np
 import skfem
 
-from .kinematics import shape_gradients, signed_volumes
-from .materials import Material
+from skfem_affine.kinematics import shape_gradients, signed_volumes
+from skfem_affine.materials import Material
 
 
 class ElasticBody:

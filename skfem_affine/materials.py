@@ -22,7 +22,7 @@ Models (paper sec. 4, [SGK18]):
 """
 import numpy as np
 
-from ._eigensystems import COROTATIONAL, GENERIC, NEOHOOKEAN, STVK, evaluate_elements
+from skfem_affine._eigensystems import COROTATIONAL, GENERIC, NEOHOOKEAN, STVK, evaluate_elements
 
 # Levi-Civita symbol, used for the cofactor and the Hessian of det F.
 _EPS = np.zeros((3, 3, 3))
@@ -92,7 +92,7 @@ def project_psd(C, F=None):
         C = 0.5 * (C + C.transpose(0, 2, 1))
         w, Q = np.linalg.eigh(C)
         return np.einsum("eik,ek,ejk->eij", Q, np.maximum(w, 0.0), Q, optimize=True).reshape(shape)
-    from ._kernels import element_hessians
+    from skfem_affine._kernels import element_hessians
     out = np.ascontiguousarray(C, dtype=float).copy()
     F = np.ascontiguousarray(F, dtype=float)
     none = np.empty((0, 4, 3))

@@ -4,7 +4,7 @@ import pytest
 
 import skfem_affine as sa
 from skfem_affine.materials import project_psd
-from skfem_affine.scenes import beam_mesh
+from skfem_affine.lab.scenes import beam_mesh
 
 
 @pytest.mark.parametrize("cls", [sa.StVK, sa.Corotational, sa.NeoHookean])

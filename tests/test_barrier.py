@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 import skfem_affine as sa
-from skfem_affine import barrier
+from skfem_affine.contact import barrier
 
 
 class Plane:

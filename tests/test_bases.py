@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 import skfem_affine as sa
-from skfem_affine import bases
+from skfem_affine.reducers.subspace import bases
 
 
 def cube(**kw):

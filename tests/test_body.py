@@ -6,7 +6,7 @@ from skfem import Basis, ElementTetP1, ElementVector
 
 import skfem_affine as sa
 from skfem_affine.kinematics import deformation_gradient, deformation_operator, shape_gradients, signed_volumes
-from skfem_affine.scenes import beam_mesh
+from skfem_affine.lab.scenes import beam_mesh
 
 MAT = sa.NeoHookean(E=1e5, nu=0.3)
 

@@ -6,7 +6,7 @@ import meshio
 import numpy as np
 import pytest
 
-from skfem_affine.cli import SUMMARY_KEYS, main, parser
+from skfem_affine.lab.cli import SUMMARY_KEYS, main, parser
 
 
 def run_json(capsys, argv):

@@ -2,9 +2,9 @@
 import numpy as np
 import pytest
 
-from skfem_affine import clustering
+from skfem_affine.reducers.affine import clustering
 from skfem_affine.kinematics import deformation_gradient, shape_gradients
-from skfem_affine.scenes import beam_mesh
+from skfem_affine.lab.scenes import beam_mesh
 
 
 @pytest.fixture(scope="module")

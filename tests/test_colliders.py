@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 import skfem_affine as sa
-from skfem_affine.colliders import Collider
+from skfem_affine.contact.colliders import Collider
 
 
 def _rotation(axis, angle):

@@ -5,8 +5,8 @@ import scipy.sparse as sp
 import skfem
 
 import skfem_affine as sa
-from skfem_affine import contact
-from skfem_affine.scenes import box_mesh
+from skfem_affine.contact import pgs as contact
+from skfem_affine.lab.scenes import box_mesh
 
 G_ACC = 9.81
 

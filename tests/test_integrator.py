@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 import skfem_affine as sa
-from skfem_affine.scenes import beam_mesh
+from skfem_affine.lab.scenes import beam_mesh
 
 
 def momenta(sim, s):

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 import skfem_affine as sa
-from skfem_affine import metrics
+from skfem_affine.lab import metrics
 
 
 def test_distance_error_is_the_largest_vertex_distance_over_size():

@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 import skfem_affine as sa
-from skfem_affine import newton
+from skfem_affine.integrators import newton
 
 
 def beam(**kw):

@@ -5,7 +5,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 import skfem_affine as sa
-from skfem_affine import oracle
+from skfem_affine.reducers.affine import oracle
 
 
 @pytest.fixture(scope="module")

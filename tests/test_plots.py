@@ -2,7 +2,7 @@
 import numpy as np
 
 import skfem_affine as sa
-from skfem_affine import plots
+from skfem_affine.lab import plots
 
 
 def test_boundary_faces():

@@ -8,7 +8,7 @@ import pytest
 import skfem_affine as sa
 from skfem_affine._eigensystems import COROTATIONAL, NEOHOOKEAN, STVK, _spectrum
 from skfem_affine.materials import project_psd, rotation_svd
-from skfem_affine.scenes import beam_mesh
+from skfem_affine.lab.scenes import beam_mesh
 
 CODES = {sa.StVK: STVK, sa.Corotational: COROTATIONAL, sa.NeoHookean: NEOHOOKEAN}
 rng = np.random.default_rng(3)

@@ -4,7 +4,7 @@ import pytest
 import scipy.sparse as sp
 
 import skfem_affine as sa
-from skfem_affine import reduction
+from skfem_affine.reducers.affine import mapping as reduction
 
 
 @pytest.fixture(scope="module")

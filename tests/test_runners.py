@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 import skfem_affine as sa
-from skfem_affine import runners
+from skfem_affine.lab import runners
 
 TINY = runners.SceneSpec.make("cantilever", resolution=1)
 

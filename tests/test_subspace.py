@@ -5,7 +5,8 @@ import scipy.linalg as sla
 import scipy.sparse as sp
 
 import skfem_affine as sa
-from skfem_affine import subspace, subspace_oracle as so
+from skfem_affine.reducers.subspace import reducer as subspace
+from skfem_affine.reducers.subspace import oracle as so
 
 
 def reducer(**kw):

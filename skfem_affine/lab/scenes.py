@@ -12,11 +12,11 @@ Contact scenes (paper sec. 4): :func:`drop`, :func:`stacked_beams`, :func:`pills
 import numpy as np
 import skfem
 
-from .body import ElasticBody
-from .colliders import Bowl, Plane
-from .contact import PGS
-from .integrator import Simulation
-from .materials import NeoHookean
+from skfem_affine.body import ElasticBody
+from skfem_affine.contact.colliders import Bowl, Plane
+from skfem_affine.contact.pgs import PGS
+from skfem_affine.simulation import Simulation
+from skfem_affine.materials import NeoHookean
 
 SIM_KEYS = ("dt", "gravity", "damping", "reducer", "solver", "newton_iters", "newton_tol", "integrator",
             "project_hessian", "mass", "colliders", "contact")

@@ -48,9 +48,9 @@ from scipy.linalg import cho_solve, cholesky, solve_triangular
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from .assembly import serial_blas  # small dense blocks: 0.3 ms against 33 ms with spinning BLAS threads
-from .colliders import check_colliders
-from .reduction import group_sum
+from skfem_affine.assembly import serial_blas  # small dense blocks: 0.3 ms against 33 ms with spinning BLAS threads
+from skfem_affine.contact.colliders import check_colliders
+from skfem_affine.reducers.affine.mapping import group_sum
 
 # Blocks (bodies) of the Delassus operator: up to BLOCK_DENSE_MAX unknowns a dense Cholesky
 # factor L gives W_b = X^T X, X = L^-1 J_b^T (one triangular solve; 2.5x faster than sparse
@@ -296,7 +296,7 @@ class Resolvent:
         return Y
 
     def _block_solver(self, idx):
-        from .solvers import SuperLU, direct_solver
+        from skfem_affine.solvers import SuperLU, direct_solver
         key = (idx.size, int(idx[0]))  # components keep their unknowns while the pattern is fixed
         if key not in self.cache:
             self.cache[key] = SuperLU() if idx.size < BLOCK_DIRECT_MIN else direct_solver()

@@ -26,10 +26,14 @@ import time
 import numpy as np
 import scipy.sparse as sp
 
-from . import clustering, oracle, reduction
-from ._kernels import strain_rate_norms
-from .assembly import serial_blas
-from .solvers import make_solver
+from skfem_affine.reducers.affine import clustering
+
+from skfem_affine.reducers.affine import oracle
+
+from skfem_affine.reducers.affine import mapping as reduction
+from skfem_affine._kernels import strain_rate_norms
+from skfem_affine.assembly import serial_blas
+from skfem_affine.solvers import make_solver
 
 
 def _check_threshold(value, name):

@@ -35,13 +35,15 @@ import numpy as np
 import scipy.linalg as sla
 import scipy.sparse as sp
 
-from . import newton, subspace_oracle as so
-from .newton import vdot
-from ._kernels import scatter_add
-from .assembly import Pattern
-from .bases import SkinningEigenmodes, _Basis
-from .checks import positive
-from .solvers import SolverError
+from skfem_affine.integrators import newton
+
+from skfem_affine.reducers.subspace import oracle as so
+from skfem_affine.integrators.newton import vdot
+from skfem_affine._kernels import scatter_add
+from skfem_affine.assembly import Pattern
+from skfem_affine.reducers.subspace.bases import SkinningEigenmodes, _Basis
+from skfem_affine.checks import positive
+from skfem_affine.solvers import SolverError
 
 
 def _threshold(value, name):

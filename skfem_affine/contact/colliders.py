@@ -20,7 +20,7 @@ for any user function ``fn(points) -> (distance, normal)``.
 """
 import numpy as np
 
-from .checks import positive
+from skfem_affine.checks import positive
 
 _TINY = 1e-12
 

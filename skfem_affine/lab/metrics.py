@@ -23,7 +23,7 @@ is tested against a hand-computed case in ``tests/test_metrics.py``.
 """
 import numpy as np
 
-from .integrator import State, Stats
+from skfem_affine.simulation import State, Stats
 
 
 def distance_error(x, x_ref, size):

@@ -31,7 +31,7 @@ import time
 
 import numpy as np
 
-from .barrier import contact_of
+from skfem_affine.contact.barrier import contact_of
 
 SCHEMES = ("implicit_euler", "bdf2")
 

@@ -19,10 +19,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import metrics, scenes
-from .integrator import SimulationDiverged
-from .reducers import Affinification, Rigidification
-from .subspace import AdaptiveSubspace
+from skfem_affine.lab import metrics
+
+from skfem_affine.lab import scenes
+from skfem_affine.simulation import SimulationDiverged
+from skfem_affine.reducers.affine.reducers import Affinification, Rigidification
+from skfem_affine.reducers.subspace.reducer import AdaptiveSubspace
 
 
 # ---------------------------------------------------------------- methods

@@ -33,13 +33,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import contact as _contact
-from . import newton
-from .colliders import check_colliders
-from .assembly import ElasticSystem
-from .body import ElasticBody
-from .checks import positive
-from .solvers import SolverError, make_solver
+from skfem_affine.contact import pgs as _contact
+from skfem_affine.integrators import newton
+from skfem_affine.contact.colliders import check_colliders
+from skfem_affine.assembly import ElasticSystem
+from skfem_affine.body import ElasticBody
+from skfem_affine.checks import positive
+from skfem_affine.solvers import SolverError, make_solver
 
 
 class SimulationDiverged(RuntimeError):

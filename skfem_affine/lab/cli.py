@@ -16,8 +16,14 @@ import time
 
 import numpy as np
 
-from . import io, plots, runners, scenes
-from .integrator import SimulationDiverged
+from skfem_affine.lab import io
+
+from skfem_affine.lab import plots
+
+from skfem_affine.lab import runners
+
+from skfem_affine.lab import scenes
+from skfem_affine.simulation import SimulationDiverged
 
 SUMMARY_KEYS = ("scene", "method", "frames", "elements", "vertices", "wall_s", "speedup", "dof_ratio",
                 "mean_clusters", "max_distance_error")

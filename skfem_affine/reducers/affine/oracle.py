@@ -26,7 +26,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import reverse_cuthill_mckee
 
-from .kinematics import deformation_gradient
+from skfem_affine.kinematics import deformation_gradient
 
 KINDS = ("ichol", "amg")
 

@@ -16,7 +16,7 @@ from matplotlib.colors import LogNorm, to_rgb
 from matplotlib.figure import Figure
 from matplotlib.patches import Patch
 
-from .integrator import Stats
+from skfem_affine.simulation import Stats
 
 COLORS = {"full": "#444444", "affinification": "#d95f02", "rigidification": "#1b9e77"}
 ELASTIC = np.array([0.82, 0.82, 0.82])
