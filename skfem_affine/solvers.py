@@ -21,6 +21,8 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from skfem_affine import threads
+
 AMG_MIN_DOFS = 5000
 PARDISO_THREADED_MIN = 10000
 PARDISO_METIS_MIN = 5000
@@ -85,21 +87,8 @@ class Pardiso:
     accepts_upper = True
 
     def __init__(self):
-        import ctypes
-        import os
-        import pypardiso
-        self._ps = pypardiso.PyPardisoSolver(mtype=2)
-        lib = self._ps.libmkl
-        # pypardiso searches site-packages for MKL on every instance (0.5 s); remember where it is
-        os.environ.setdefault("PYPARDISO_MKL_RT", lib._name)
-        self._ps.set_iparm(1, 1)  # user-set iparm
-        self._ps.set_iparm(35, 1)  # zero-based indices: no shifted copies of the pattern per call
-        self._set_threads = getattr(lib, "MKL_Domain_Set_Num_Threads", None)
-        get = getattr(lib, "MKL_Domain_Get_Max_Threads", None)
-        if self._set_threads is not None:
-            self._set_threads.restype = ctypes.c_int
-            get.restype = ctypes.c_int
-        self._max_threads = int(get(_MKL_DOMAIN_PARDISO)) if get is not None else 1
+        self._lib = _PardisoLibrary()
+        self._threads = 1         # MKL threads for the current pattern's factorisation and solves
         self._pattern = None      # (indptr, indices) of the last analysed upper triangle
         self._source = None       # (indptr, indices, upper positions) of the last full input
         self.last_iterations = 1
@@ -141,37 +130,88 @@ class Pardiso:
         if phase == 12:
             churn = self._pattern is not None  # a second analysis: the pattern changes
             if churn:  # release the previous factors first (MKL crashed on a re-analysis with a new order)
-                self._ps.free_memory(everything=True)
+                self._lib.release()
             if order is not None:
                 order = np.ascontiguousarray(order, dtype=np.int32)
                 if order.shape != (n,) or (n and (order.min() < 0 or order.max() >= n)) or \
                         not np.all(np.bincount(order, minlength=n) == 1):
                     raise ValueError(f"order must list each of the {n} unknowns exactly once "
                                      f"(got {order.size} entries)")
-                self._ps.set_iparm(5, 1)
-                self._ps.perm = order
+                self._lib.use_order(order)
             else:
-                self._ps.set_iparm(5, 0)
-                self._ps.set_iparm(2, 0 if churn and n < PARDISO_METIS_MIN else 2)
+                self._lib.use_ordering("md" if churn and n < PARDISO_METIS_MIN else "metis")
             self._pattern = (indptr, indices)
-        if self._set_threads is not None:
-            self._set_threads(1 if n < PARDISO_THREADED_MIN else self._max_threads, _MKL_DOMAIN_PARDISO)
+        self._threads = 1 if n < PARDISO_THREADED_MIN else self._lib.max_threads
         self._arrays = (np.ascontiguousarray(data, dtype=float), indptr, indices, n)
         try:
-            self._call(phase, np.zeros((n, 1)))
+            with threads.mkl_threads(self._threads):
+                self._lib.call(phase, self._arrays, np.zeros((n, 1)))
         except Exception as err:
             self._pattern = None
             raise SolverError(f"Pardiso factorization failed ({err}); is the system positive definite?") from err
 
-    def _call(self, phase, b):
+    def __del__(self):
+        try:
+            if self._pattern is not None:
+                self._lib.release()
+        except Exception:
+            pass
+
+    def solve(self, b):
+        b = np.asarray(b, dtype=float)
+        with threads.mkl_threads(self._threads):
+            x = self._lib.call(33, self._arrays, np.asfortranarray(b.reshape(b.shape[0], -1)))
+        return np.ascontiguousarray(x).reshape(b.shape)
+
+
+class _PardisoLibrary:
+    """The one adapter to MKL Pardiso through pypardiso's private parts (ctypes, ``_mkl_pardiso``, iparm).
+
+    pypardiso solves full systems with its own checks and copies; the solver above needs the
+    raw phases (analysis 12, numeric factorisation 22, solve 33) on an upper triangle with
+    zero-based indices, its own ordering and one factor kept across calls, so it talks to
+    ``pardiso`` directly. Everything that depends on pypardiso's internals is here. Thread
+    counts are set by the caller (:func:`skfem_affine.threads.mkl_threads`).
+    """
+
+    MTYPE = 2  # real symmetric positive definite
+
+    def __init__(self):
+        import os
+
+        import pypardiso
+        self._ps = pypardiso.PyPardisoSolver(mtype=self.MTYPE)
+        # pypardiso searches site-packages for MKL on every instance unless PYPARDISO_MKL_RT (its
+        # documented override) names the library: set it once MKL is found, so later solvers skip it
+        os.environ.setdefault("PYPARDISO_MKL_RT", self._ps.libmkl._name)
+        self._ps.set_iparm(1, 1)   # user-set iparm
+        self._ps.set_iparm(35, 1)  # zero-based indices: no shifted copies of the pattern per call
+        self.max_threads = threads.mkl_max_threads() or 1  # MKL's count before any limit: every core
+
+    def use_order(self, order):
+        """Eliminate in the given order (int32 permutation) at the next analysis."""
+        self._ps.set_iparm(5, 1)
+        self._ps.perm = order
+
+    def use_ordering(self, kind):
+        """Pardiso's own ordering at the next analysis: ``"metis"`` (nested dissection) or ``"md"``."""
+        self._ps.set_iparm(5, 0)
+        self._ps.set_iparm(2, {"md": 0, "metis": 2}[kind])
+
+    def release(self):
+        """Free the factors and the analysis."""
+        self._ps.free_memory(everything=True)
+
+    def call(self, phase, arrays, b):
+        """One ``pardiso`` call on the upper triangle ``arrays = (data, indptr, indices, n)``; returns x."""
         import ctypes
         ps = self._ps
-        data, indptr, indices, n = self._arrays
+        data, indptr, indices, n = arrays
         x = np.zeros_like(b)
         error = ctypes.c_int32(0)
         i32, f64 = ctypes.POINTER(ctypes.c_int32), ctypes.POINTER(ctypes.c_double)
         ps._mkl_pardiso(ps.pt.ctypes.data_as(ctypes.POINTER(ps._pt_type[0])), ctypes.byref(ctypes.c_int32(1)),
-                        ctypes.byref(ctypes.c_int32(1)), ctypes.byref(ctypes.c_int32(2)),
+                        ctypes.byref(ctypes.c_int32(1)), ctypes.byref(ctypes.c_int32(self.MTYPE)),
                         ctypes.byref(ctypes.c_int32(phase)), ctypes.byref(ctypes.c_int32(n)),
                         data.ctypes.data_as(f64), indptr.ctypes.data_as(i32), indices.ctypes.data_as(i32),
                         ps.perm.ctypes.data_as(i32), ctypes.byref(ctypes.c_int32(b.shape[1])),
@@ -180,21 +220,6 @@ class Pardiso:
         if error.value != 0:
             raise SolverError(f"Pardiso error {error.value}")
         return x
-
-    def __del__(self):
-        try:
-            if self._pattern is not None:
-                self._ps.free_memory(everything=True)
-        except Exception:
-            pass
-
-    def solve(self, b):
-        b = np.asarray(b, dtype=float)
-        x = self._call(33, np.asfortranarray(b.reshape(b.shape[0], -1)))
-        return np.ascontiguousarray(x).reshape(b.shape)
-
-
-_MKL_DOMAIN_PARDISO = 4  # mkl_service.h
 
 
 def _same(a, b):
