@@ -6,16 +6,13 @@
 ``"superlu"`` (scipy, always available), ``"amg"`` (pyamg smoothed
 aggregation preconditioned CG, hierarchy reused across frames), or ``"auto"``.
 
-Measured on A = M + h^2 K of the cantilever, 2 cores (``benchmarks/full_space.py``):
-Pardiso's Cholesky is 7x faster than SuperLU at 24k tets and 22x at 98k; AMG-CG
-to 1e-8 with a reused hierarchy beats both from about 3k DOFs on for soft
-materials (7 iterations at E = 1e5), but needs 50 iterations at E = 1e9 and 140
-at E = 1e9, nu = 0.49, h = 0.05, where it is 4-7x slower than Pardiso. ``auto``
-therefore starts with AMG-CG above :data:`AMG_MIN_DOFS` unknowns and a direct
-solver (Pardiso if installed, else SuperLU) below, and falls back to the direct
+Pardiso's Cholesky is much faster than SuperLU from a few thousand unknowns on; AMG-CG with
+a reused hierarchy beats both on soft materials but needs many iterations on stiff or nearly
+incompressible ones. ``auto`` therefore starts with AMG-CG above :data:`AMG_MIN_DOFS` unknowns
+and a direct solver (Pardiso if installed, else SuperLU) below, and falls back to the direct
 solver for good when a freshly built hierarchy still needs more than
-:data:`AMG_MAX_ITERATIONS` CG iterations. Reduced systems always use a direct
-solver (their affine blocks do not suit AMG).
+:data:`AMG_MAX_ITERATIONS` CG iterations. Reduced systems always use a direct solver (their
+affine blocks do not suit AMG). Measurements: ``docs/solvers.md``.
 """
 import numpy as np
 import scipy.sparse as sp
@@ -42,7 +39,7 @@ class SolverError(RuntimeError):
 
 
 class SuperLU:
-    """scipy SuperLU in symmetric mode with MMD(A^T + A) ordering (2-3x its default)."""
+    """scipy SuperLU in symmetric mode with MMD(A^T + A) ordering (faster than its default here)."""
 
     name = "superlu"
     iterative = False
@@ -66,20 +63,20 @@ class Pardiso:
 
     The symbolic analysis (ordering) is redone only when the pattern changes
     (compared with ``np.array_equal``, not hashed). The ordering is METIS nested
-    dissection for a first analysis (a pattern that is then reused: on the paper's
-    5.5k-tet beam, 3.7k unknowns, its numeric factorisation is 20 % cheaper than with
-    minimum degree) and minimum degree below :data:`PARDISO_METIS_MIN` unknowns once
-    the pattern has changed on consecutive calls (a reduced system whose clusters change
-    every frame): there the analysis is paid every frame, and minimum degree's costs
-    half of METIS's (3.8 against 7.3 ms, 940 unknowns; 25 against 39 ms, 2.6k unknowns). The positions of the upper triangle in
-    a full symmetric CSR input are cached with its pattern, so a full-space frame
-    costs one gather instead of ``triu`` and a sort. ``factorize`` also accepts an
-    upper triangle directly (``upper=True``), as :func:`reduction.reduced_matrix` builds.
+    dissection for a first analysis (a pattern that is then reused, so a cheaper
+    numeric factorisation pays) and minimum degree below :data:`PARDISO_METIS_MIN`
+    unknowns once the pattern has changed on consecutive calls (a reduced system whose
+    clusters change every frame): there the analysis is paid every frame, and minimum
+    degree's is the cheaper one. The positions of the upper triangle in a full
+    symmetric CSR input are cached with its pattern, so a full-space frame costs one
+    gather instead of ``triu`` and a sort. ``factorize`` also accepts an upper triangle
+    directly (``upper=True``), as :func:`reduction.reduced_matrix` builds.
 
-    Systems below :data:`PARDISO_THREADED_MIN` unknowns are factorised on one
-    thread: on 2 cores, 2 MKL threads made the 3.5k-unknown cantilever matrix
-    2x slower (factorisation 17 ms against 8 ms, solve 1.3 against 0.35 ms),
-    and only helped from about 15k unknowns on an idle machine.
+    Systems below :data:`PARDISO_THREADED_MIN` unknowns are factorised and solved on one
+    MKL thread (more threads were slower there on 2 cores), larger ones on MKL's default
+    count, through :func:`skfem_affine.threads.mkl_threads` around each call (restored
+    afterwards). All calls into pypardiso's private parts go through one adapter,
+    :class:`_PardisoLibrary`. Measurements: ``docs/solvers.md``.
     """
 
     name = "pardiso"
@@ -119,9 +116,6 @@ class Pardiso:
         ``order``: the unknowns in elimination order (a fill-reducing permutation the caller
         already knows, e.g. :meth:`reduction.Mapping.elimination_order`); Pardiso then skips
         its own ordering. Used for a new pattern, ignored when the pattern is the last one.
-        Measured on reduced systems whose pattern changes every frame (``factorization`` ms per
-        frame, with this order / with Pardiso's METIS): 1.7k unknowns 4.0 / 7.7 (MD: 4.1); 10k
-        unknowns on our cantilever 152 / 141; 14k unknowns on the paper's beam 129 / 166.
         """
         indptr, indices, data = self._upper(A, upper or getattr(A, "_upper", False))
         n = indptr.size - 1
