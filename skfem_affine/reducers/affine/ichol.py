@@ -236,7 +236,7 @@ def incomplete_cholesky(A, fill=0, drop=0.0, shifts=SHIFTS):
     T = sp.csc_matrix(sp.tril(sp.diags(s) @ A @ sp.diags(s)), dtype=float)  # unit diagonal
     T.sort_indices()
     ic0 = fill is None
-    f = 0 if ic0 else int(fill)
+    f = 0 if ic0 else min(int(fill), n)  # a column cannot hold more than n entries
     failed = []
     for shift in shifts:
         Lp, Li, Lx, col = _factor(T.indptr.astype(np.int64), T.indices.astype(np.int64), T.data,
