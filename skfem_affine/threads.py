@@ -31,7 +31,7 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numba
 
-_STATE = {"threads": None, "pool": None, "pid": None, "openblas": None, "mkl": None}
+_STATE = {"threads": None, "pool": None, "workers": 0, "pid": None, "openblas": None, "mkl": None}
 _LOCK = threading.Lock()
 
 
@@ -63,10 +63,10 @@ def pool():
     if n < 1:
         return None
     with _LOCK:
-        executor, pid = _STATE["pool"], _STATE["pid"]
-        if executor is None or executor._max_workers != n or pid != os.getpid():
+        executor = _STATE["pool"]
+        if executor is None or _STATE["workers"] != n or _STATE["pid"] != os.getpid():
             executor = ThreadPoolExecutor(max_workers=n, thread_name_prefix="skfem-affine")
-            _STATE["pool"], _STATE["pid"] = executor, os.getpid()
+            _STATE["pool"], _STATE["workers"], _STATE["pid"] = executor, n, os.getpid()
         return executor
 
 
@@ -91,7 +91,7 @@ def run_chunks(kernel, chunks, *args):
     if executor is None:
         kernel(0, chunks, *args)
         return
-    n = executor._max_workers + 1
+    n = _STATE["workers"] + 1
     bounds = [chunks * i // n for i in range(n + 1)]
     jobs = [executor.submit(kernel, bounds[i], bounds[i + 1], *args) for i in range(1, n)]
     try:

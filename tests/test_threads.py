@@ -96,7 +96,7 @@ def test_pool_is_made_lazily_per_process_and_again_in_a_forked_child(n_threads):
     assert parent is threads.pool()  # one pool per process
     assert parent._max_workers == 1
     n_threads(3)
-    assert threads.pool()._max_workers == 2  # a new count, a new pool
+    assert threads.pool() is not parent and threads.pool()._max_workers == 2  # a new count, a new pool
     if not hasattr(os, "fork"):
         return
     parent = threads.pool()
