@@ -21,7 +21,7 @@ import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 import skfem_affine as sa  # noqa: E402
-from skfem_affine.assembly import serial_blas  # noqa: E402
+from skfem_affine.threads import serial_blas  # noqa: E402
 
 MATERIALS = {"neohookean": sa.NeoHookean, "corotational": sa.Corotational, "stvk": sa.StVK}
 

@@ -15,14 +15,11 @@ lambda_k q_k q_k^T for the negative modes only, so a PSD element costs one SVD a
 9 x 9 work. Materials without a closed form (``code`` 0, any user :class:`Material`)
 keep the Rayleigh-quotient projection of :func:`_kernels._project_modes`.
 """
-import os
-from concurrent.futures import ThreadPoolExecutor
-
-import numba
 import numpy as np
 from numba import njit
 
 from skfem_affine._kernels import _CHUNKS, _LANES, _mode, _symmetric_projected, _sym_eig3, element_block, svd3_lanes
+from skfem_affine.threads import run_chunks
 
 GENERIC, STVK, COROTATIONAL, NEOHOOKEAN = 0, 1, 2, 3
 
@@ -246,37 +243,7 @@ def evaluate_elements(F, code, mu, lam, project, P, C, vg, g, He, fe):
     g = grad phi (m, 4, 3) are needed for He and fe. For GENERIC elements the caller fills
     P[e] and C[e] (unprojected) first; C[e] is symmetrised and projected by Rayleigh quotients.
     """
-    args = (F, code, mu, lam, project, P, C, vg, g, He, fe)
-    pool = _pool()
-    if pool is None:
-        _evaluate_chunks(0, _CHUNKS, *args)
-        return
-    n = pool._max_workers + 1  # the calling thread takes the first share
-    bounds = [_CHUNKS * i // n for i in range(n + 1)]
-    jobs = [pool.submit(_evaluate_chunks, bounds[i], bounds[i + 1], *args) for i in range(1, n)]
-    _evaluate_chunks(bounds[0], bounds[1], *args)
-    for job in jobs:
-        job.result()
-
-
-_POOL = [None]
-
-
-def _pool():
-    """Helper threads for :func:`evaluate_elements` (the compiled chunks release the GIL): one per
-    numba thread beyond the calling one.
-
-    Plain threads instead of numba's ``parallel=True``: a parfor around this body cost 17 s
-    of compilation on a clean cache, for the same speed.
-    """
-    n = numba.get_num_threads() - 1
-    if n < 1:
-        return None
-    pool, pid = _POOL[0] or (None, None)
-    if pool is None or pool._max_workers != n or pid != os.getpid():  # a forked child has no workers
-        pool = ThreadPoolExecutor(max_workers=n, thread_name_prefix="skfem-affine")
-        _POOL[0] = (pool, os.getpid())
-    return pool
+    run_chunks(_evaluate_chunks, _CHUNKS, F, code, mu, lam, project, P, C, vg, g, He, fe)
 
 
 @njit(cache=True, nogil=True, fastmath={"contract"})

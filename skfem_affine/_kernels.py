@@ -1,10 +1,14 @@
 """Compiled per-element kernels (numba) for the few hot spots numpy batches poorly.
 
 numpy's batched 3 x 3 SVD and eigh pay a LAPACK call per element (40 ms for
-24k tets); these kernels do the same work in registers, in parallel.
+24k tets); these kernels do the same work in registers. The element loops are ``nogil``
+kernels over work units, run in parallel by :func:`skfem_affine.threads.run_chunks` (no
+numba parallel regions: see :mod:`skfem_affine.threads`).
 """
 import numpy as np
-from numba import njit, prange
+from numba import njit
+
+from skfem_affine.threads import run_chunks
 
 
 @njit(cache=True, inline="always")
@@ -274,7 +278,7 @@ def _project_modes(Ce, Fe, U, V, s, A, W, Q, CQ):
                     Ce[a, b] -= lam * q[a] * q[b]
 
 
-_CHUNKS = 64  # parallel work units: each allocates its scratch once
+_CHUNKS = 64  # work units split across threads: each allocates its scratch once
 
 
 @njit(cache=True, inline="always")
@@ -306,7 +310,6 @@ def element_block(Ce, vg, g, e, He, X):
                 He[e, col, row] = v
 
 
-@njit(cache=True, parallel=True)
 def element_hessians(C, F, vg, g, project, He, blocks=True):
     """He[e] = V_e G_e^T C_e G_e (12 x 12, node-major), C_e optionally projected to PSD.
 
@@ -314,8 +317,14 @@ def element_hessians(C, F, vg, g, project, He, blocks=True):
     H_e[3k+a, 3l+b] = V_e sum_jq grad_k,j C[3a+j, 3b+q] grad_l,q. C is overwritten with
     the symmetrised (and projected) tensor actually used; ``blocks=False`` only does that.
     """
+    run_chunks(_element_hessians, _CHUNKS, C, F, vg, g, project, He, blocks)
+
+
+@njit(cache=True, nogil=True)
+def _element_hessians(c0, c1, C, F, vg, g, project, He, blocks):
+    """The work units c0 .. c1 - 1 (of ``_CHUNKS``) of :func:`element_hessians`."""
     m = C.shape[0]
-    for c in prange(_CHUNKS):
+    for c in range(c0, c1):
         U, V, A, W = np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3))
         s = np.empty(3)
         Q, CQ, Ce = np.empty((9, 9)), np.empty((9, 9)), np.empty((9, 9))
@@ -338,14 +347,20 @@ def scatter_add(slot, values, nnz):
     return out
 
 
-@njit(cache=True, parallel=True)
 def deformation_gradients(x, t, grads, out):
     """out[e] = sum_k x[t[k, e]] (x) grad phi_k (eq. 3; velocities give F_dot, eq. 4), (m, 3, 3).
 
     The compiled twin of :func:`kinematics.deformation_gradient` (numpy's einsum routes the
     batched product through multi-threaded BLAS: 0.65 against 0.04 ms at 5k tets).
     """
-    for e in prange(t.shape[1]):
+    run_chunks(_deformation_gradients, _CHUNKS, x, t, grads, out)
+
+
+@njit(cache=True, nogil=True)
+def _deformation_gradients(c0, c1, x, t, grads, out):
+    """The elements of work units c0 .. c1 - 1 (of ``_CHUNKS``) of :func:`deformation_gradients`."""
+    m = t.shape[1]
+    for e in range(c0 * m // _CHUNKS, c1 * m // _CHUNKS):
         for i in range(3):
             for j in range(3):
                 acc = 0.0
@@ -354,13 +369,19 @@ def deformation_gradients(x, t, grads, out):
                 out[e, i, j] = acc
 
 
-@njit(cache=True, parallel=True)
 def strain_rate_norms(x, v, t, grads, out):
     """out[e] = ||sym(F^T F_dot)||^2 with F from positions x and F_dot from velocities v (eq. 3-4).
 
     The rigidification metric (Mercier-Aubin et al. 2022) in one pass, F and F_dot kept in registers.
     """
-    for e in prange(t.shape[1]):
+    run_chunks(_strain_rate_norms, _CHUNKS, x, v, t, grads, out)
+
+
+@njit(cache=True, nogil=True)
+def _strain_rate_norms(c0, c1, x, v, t, grads, out):
+    """The elements of work units c0 .. c1 - 1 (of ``_CHUNKS``) of :func:`strain_rate_norms`."""
+    m = t.shape[1]
+    for e in range(c0 * m // _CHUNKS, c1 * m // _CHUNKS):
         F = np.empty((3, 3))
         D = np.empty((3, 3))
         for i in range(3):

@@ -11,7 +11,6 @@ the (PSD-projected) dP/dF, the 12 x 12 block and the element force
 Sign convention: ``f`` is the internal force ``-dPsi/dx``; the assembled
 ``H = dPsi^2/dx^2 = -K`` is the (positive) stiffness, K = df/dx of paper eq. 1.
 """
-import contextlib
 from dataclasses import dataclass
 
 import numpy as np
@@ -23,28 +22,7 @@ from skfem.helpers import dot
 from skfem_affine._eigensystems import evaluate_elements, internal_force, scatter_forces
 from skfem_affine._kernels import deformation_gradients, element_hessians, scatter_add
 from skfem_affine.kinematics import deformation_operator, element_dofs
-
-
-_OPENBLAS = None
-
-
-def serial_blas():
-    """Context in which numpy's and scipy's OpenBLAS run on one thread (MKL untouched).
-
-    A frame interleaves small BLAS calls (dot products, einsum contractions) with
-    numba's parallel kernels and MKL Pardiso. OpenBLAS workers spin after each call and
-    took the cores from the others: on 2 cores an affinification frame at 24k tets went
-    from 112 to 80 ms with one OpenBLAS thread (the full solve: 181 and 175 ms). The
-    previous thread counts are restored on exit. A no-op without threadpoolctl.
-    """
-    global _OPENBLAS
-    if _OPENBLAS is None:
-        try:
-            from threadpoolctl import ThreadpoolController
-            _OPENBLAS = ThreadpoolController().select(internal_api="openblas")
-        except Exception:  # not installed, or an unusual BLAS set-up
-            _OPENBLAS = False
-    return _OPENBLAS.limit(limits=1) if _OPENBLAS else contextlib.nullcontext()
+from skfem_affine.threads import serial_blas
 
 
 @dataclass

@@ -6,20 +6,19 @@
 ``"superlu"`` (scipy, always available), ``"amg"`` (pyamg smoothed
 aggregation preconditioned CG, hierarchy reused across frames), or ``"auto"``.
 
-Measured on A = M + h^2 K of the cantilever, 2 cores (``benchmarks/full_space.py``):
-Pardiso's Cholesky is 7x faster than SuperLU at 24k tets and 22x at 98k; AMG-CG
-to 1e-8 with a reused hierarchy beats both from about 3k DOFs on for soft
-materials (7 iterations at E = 1e5), but needs 50 iterations at E = 1e9 and 140
-at E = 1e9, nu = 0.49, h = 0.05, where it is 4-7x slower than Pardiso. ``auto``
-therefore starts with AMG-CG above :data:`AMG_MIN_DOFS` unknowns and a direct
-solver (Pardiso if installed, else SuperLU) below, and falls back to the direct
+Pardiso's Cholesky is much faster than SuperLU from a few thousand unknowns on; AMG-CG with
+a reused hierarchy beats both on soft materials but needs many iterations on stiff or nearly
+incompressible ones. ``auto`` therefore starts with AMG-CG above :data:`AMG_MIN_DOFS` unknowns
+and a direct solver (Pardiso if installed, else SuperLU) below, and falls back to the direct
 solver for good when a freshly built hierarchy still needs more than
-:data:`AMG_MAX_ITERATIONS` CG iterations. Reduced systems always use a direct
-solver (their affine blocks do not suit AMG).
+:data:`AMG_MAX_ITERATIONS` CG iterations. Reduced systems always use a direct solver (their
+affine blocks do not suit AMG). Measurements: ``docs/solvers.md``.
 """
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
+
+from skfem_affine import threads
 
 AMG_MIN_DOFS = 5000
 PARDISO_THREADED_MIN = 10000
@@ -40,7 +39,7 @@ class SolverError(RuntimeError):
 
 
 class SuperLU:
-    """scipy SuperLU in symmetric mode with MMD(A^T + A) ordering (2-3x its default)."""
+    """scipy SuperLU in symmetric mode with MMD(A^T + A) ordering (faster than its default here)."""
 
     name = "superlu"
     iterative = False
@@ -64,20 +63,20 @@ class Pardiso:
 
     The symbolic analysis (ordering) is redone only when the pattern changes
     (compared with ``np.array_equal``, not hashed). The ordering is METIS nested
-    dissection for a first analysis (a pattern that is then reused: on the paper's
-    5.5k-tet beam, 3.7k unknowns, its numeric factorisation is 20 % cheaper than with
-    minimum degree) and minimum degree below :data:`PARDISO_METIS_MIN` unknowns once
-    the pattern has changed on consecutive calls (a reduced system whose clusters change
-    every frame): there the analysis is paid every frame, and minimum degree's costs
-    half of METIS's (3.8 against 7.3 ms, 940 unknowns; 25 against 39 ms, 2.6k unknowns). The positions of the upper triangle in
-    a full symmetric CSR input are cached with its pattern, so a full-space frame
-    costs one gather instead of ``triu`` and a sort. ``factorize`` also accepts an
-    upper triangle directly (``upper=True``), as :func:`reduction.reduced_matrix` builds.
+    dissection for a first analysis (a pattern that is then reused, so a cheaper
+    numeric factorisation pays) and minimum degree below :data:`PARDISO_METIS_MIN`
+    unknowns once the pattern has changed on consecutive calls (a reduced system whose
+    clusters change every frame): there the analysis is paid every frame, and minimum
+    degree's is the cheaper one. The positions of the upper triangle in a full
+    symmetric CSR input are cached with its pattern, so a full-space frame costs one
+    gather instead of ``triu`` and a sort. ``factorize`` also accepts an upper triangle
+    directly (``upper=True``), as :func:`reduction.reduced_matrix` builds.
 
-    Systems below :data:`PARDISO_THREADED_MIN` unknowns are factorised on one
-    thread: on 2 cores, 2 MKL threads made the 3.5k-unknown cantilever matrix
-    2x slower (factorisation 17 ms against 8 ms, solve 1.3 against 0.35 ms),
-    and only helped from about 15k unknowns on an idle machine.
+    Systems below :data:`PARDISO_THREADED_MIN` unknowns are factorised and solved on one
+    MKL thread (more threads were slower there on 2 cores), larger ones on MKL's default
+    count, through :func:`skfem_affine.threads.mkl_threads` around each call (restored
+    afterwards). All calls into pypardiso's private parts go through one adapter,
+    :class:`_PardisoLibrary`. Measurements: ``docs/solvers.md``.
     """
 
     name = "pardiso"
@@ -85,21 +84,8 @@ class Pardiso:
     accepts_upper = True
 
     def __init__(self):
-        import ctypes
-        import os
-        import pypardiso
-        self._ps = pypardiso.PyPardisoSolver(mtype=2)
-        lib = self._ps.libmkl
-        # pypardiso searches site-packages for MKL on every instance (0.5 s); remember where it is
-        os.environ.setdefault("PYPARDISO_MKL_RT", lib._name)
-        self._ps.set_iparm(1, 1)  # user-set iparm
-        self._ps.set_iparm(35, 1)  # zero-based indices: no shifted copies of the pattern per call
-        self._set_threads = getattr(lib, "MKL_Domain_Set_Num_Threads", None)
-        get = getattr(lib, "MKL_Domain_Get_Max_Threads", None)
-        if self._set_threads is not None:
-            self._set_threads.restype = ctypes.c_int
-            get.restype = ctypes.c_int
-        self._max_threads = int(get(_MKL_DOMAIN_PARDISO)) if get is not None else 1
+        self._lib = _PardisoLibrary()
+        self._threads = 1         # MKL threads for the current pattern's factorisation and solves
         self._pattern = None      # (indptr, indices) of the last analysed upper triangle
         self._source = None       # (indptr, indices, upper positions) of the last full input
         self.last_iterations = 1
@@ -130,9 +116,6 @@ class Pardiso:
         ``order``: the unknowns in elimination order (a fill-reducing permutation the caller
         already knows, e.g. :meth:`reduction.Mapping.elimination_order`); Pardiso then skips
         its own ordering. Used for a new pattern, ignored when the pattern is the last one.
-        Measured on reduced systems whose pattern changes every frame (``factorization`` ms per
-        frame, with this order / with Pardiso's METIS): 1.7k unknowns 4.0 / 7.7 (MD: 4.1); 10k
-        unknowns on our cantilever 152 / 141; 14k unknowns on the paper's beam 129 / 166.
         """
         indptr, indices, data = self._upper(A, upper or getattr(A, "_upper", False))
         n = indptr.size - 1
@@ -141,37 +124,88 @@ class Pardiso:
         if phase == 12:
             churn = self._pattern is not None  # a second analysis: the pattern changes
             if churn:  # release the previous factors first (MKL crashed on a re-analysis with a new order)
-                self._ps.free_memory(everything=True)
+                self._lib.release()
             if order is not None:
                 order = np.ascontiguousarray(order, dtype=np.int32)
                 if order.shape != (n,) or (n and (order.min() < 0 or order.max() >= n)) or \
                         not np.all(np.bincount(order, minlength=n) == 1):
                     raise ValueError(f"order must list each of the {n} unknowns exactly once "
                                      f"(got {order.size} entries)")
-                self._ps.set_iparm(5, 1)
-                self._ps.perm = order
+                self._lib.use_order(order)
             else:
-                self._ps.set_iparm(5, 0)
-                self._ps.set_iparm(2, 0 if churn and n < PARDISO_METIS_MIN else 2)
+                self._lib.use_ordering("md" if churn and n < PARDISO_METIS_MIN else "metis")
             self._pattern = (indptr, indices)
-        if self._set_threads is not None:
-            self._set_threads(1 if n < PARDISO_THREADED_MIN else self._max_threads, _MKL_DOMAIN_PARDISO)
+        self._threads = 1 if n < PARDISO_THREADED_MIN else self._lib.max_threads
         self._arrays = (np.ascontiguousarray(data, dtype=float), indptr, indices, n)
         try:
-            self._call(phase, np.zeros((n, 1)))
+            with threads.mkl_threads(self._threads):
+                self._lib.call(phase, self._arrays, np.zeros((n, 1)))
         except Exception as err:
             self._pattern = None
             raise SolverError(f"Pardiso factorization failed ({err}); is the system positive definite?") from err
 
-    def _call(self, phase, b):
+    def __del__(self):
+        try:
+            if self._pattern is not None:
+                self._lib.release()
+        except Exception:
+            pass
+
+    def solve(self, b):
+        b = np.asarray(b, dtype=float)
+        with threads.mkl_threads(self._threads):
+            x = self._lib.call(33, self._arrays, np.asfortranarray(b.reshape(b.shape[0], -1)))
+        return np.ascontiguousarray(x).reshape(b.shape)
+
+
+class _PardisoLibrary:
+    """The one adapter to MKL Pardiso through pypardiso's private parts (ctypes, ``_mkl_pardiso``, iparm).
+
+    pypardiso solves full systems with its own checks and copies; the solver above needs the
+    raw phases (analysis 12, numeric factorisation 22, solve 33) on an upper triangle with
+    zero-based indices, its own ordering and one factor kept across calls, so it talks to
+    ``pardiso`` directly. Everything that depends on pypardiso's internals is here. Thread
+    counts are set by the caller (:func:`skfem_affine.threads.mkl_threads`).
+    """
+
+    MTYPE = 2  # real symmetric positive definite
+
+    def __init__(self):
+        import os
+
+        import pypardiso
+        self._ps = pypardiso.PyPardisoSolver(mtype=self.MTYPE)
+        # pypardiso searches site-packages for MKL on every instance unless PYPARDISO_MKL_RT (its
+        # documented override) names the library: set it once MKL is found, so later solvers skip it
+        os.environ.setdefault("PYPARDISO_MKL_RT", self._ps.libmkl._name)
+        self._ps.set_iparm(1, 1)   # user-set iparm
+        self._ps.set_iparm(35, 1)  # zero-based indices: no shifted copies of the pattern per call
+        self.max_threads = threads.mkl_max_threads() or 1  # MKL's count before any limit: every core
+
+    def use_order(self, order):
+        """Eliminate in the given order (int32 permutation) at the next analysis."""
+        self._ps.set_iparm(5, 1)
+        self._ps.perm = order
+
+    def use_ordering(self, kind):
+        """Pardiso's own ordering at the next analysis: ``"metis"`` (nested dissection) or ``"md"``."""
+        self._ps.set_iparm(5, 0)
+        self._ps.set_iparm(2, {"md": 0, "metis": 2}[kind])
+
+    def release(self):
+        """Free the factors and the analysis."""
+        self._ps.free_memory(everything=True)
+
+    def call(self, phase, arrays, b):
+        """One ``pardiso`` call on the upper triangle ``arrays = (data, indptr, indices, n)``; returns x."""
         import ctypes
         ps = self._ps
-        data, indptr, indices, n = self._arrays
+        data, indptr, indices, n = arrays
         x = np.zeros_like(b)
         error = ctypes.c_int32(0)
         i32, f64 = ctypes.POINTER(ctypes.c_int32), ctypes.POINTER(ctypes.c_double)
         ps._mkl_pardiso(ps.pt.ctypes.data_as(ctypes.POINTER(ps._pt_type[0])), ctypes.byref(ctypes.c_int32(1)),
-                        ctypes.byref(ctypes.c_int32(1)), ctypes.byref(ctypes.c_int32(2)),
+                        ctypes.byref(ctypes.c_int32(1)), ctypes.byref(ctypes.c_int32(self.MTYPE)),
                         ctypes.byref(ctypes.c_int32(phase)), ctypes.byref(ctypes.c_int32(n)),
                         data.ctypes.data_as(f64), indptr.ctypes.data_as(i32), indices.ctypes.data_as(i32),
                         ps.perm.ctypes.data_as(i32), ctypes.byref(ctypes.c_int32(b.shape[1])),
@@ -180,21 +214,6 @@ class Pardiso:
         if error.value != 0:
             raise SolverError(f"Pardiso error {error.value}")
         return x
-
-    def __del__(self):
-        try:
-            if self._pattern is not None:
-                self._ps.free_memory(everything=True)
-        except Exception:
-            pass
-
-    def solve(self, b):
-        b = np.asarray(b, dtype=float)
-        x = self._call(33, np.asfortranarray(b.reshape(b.shape[0], -1)))
-        return np.ascontiguousarray(x).reshape(b.shape)
-
-
-_MKL_DOMAIN_PARDISO = 4  # mkl_service.h
 
 
 def _same(a, b):

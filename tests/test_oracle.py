@@ -5,7 +5,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 import skfem_affine as sa
-from skfem_affine.reducers.affine import oracle
+from skfem_affine.reducers.affine import ichol, oracle
 
 
 @pytest.fixture(scope="module")
@@ -103,13 +103,23 @@ def test_degenerate_cases_return_gravity_or_zeros(bent, preconditioners):
 
 
 def test_ichol_breakdown_is_caught_and_shifted():
-    """ilupp's IC breaks down silently (zero pivots) on this SPD matrix; a diagonal shift is used."""
+    """IC(0) of Kershaw's SPD matrix meets a negative pivot; the factor of a shifted matrix is used."""
+    A = sp.csr_matrix(np.array([[3.0, -2, 0, 2], [-2, 3, -2, 0], [0, -2, 3, -2], [2, 0, -2, 3]]))
+    assert np.all(np.linalg.eigvalsh(A.toarray()) > 0)
+    factor = ichol.incomplete_cholesky(A, fill=None)
+    assert factor.shift > 0
+    assert np.all(factor.L.diagonal() > 0)
+    r = np.random.default_rng(0).standard_normal(4)
+    z = factor.solve(r)
+    assert np.all(np.isfinite(z)) and z @ r > 0
+
+
+def test_oracle_factor_of_a_random_spd_matrix_is_spd():
     X = sp.random(40, 40, density=0.2, random_state=np.random.default_rng(1))
     A = sp.csr_matrix(X @ X.T + 1e-6 * sp.eye(40))
     perm, factor, shift = oracle.ichol_factor(A)
-    assert shift > 0
-    assert np.all(factor.factors()[0].diagonal() > 0)
-    r = np.random.default_rng(0).standard_normal(40)
-    z = r[perm].copy()
-    factor.apply(z)
-    assert np.all(np.isfinite(z)) and z @ r[perm] > 0
+    assert sorted(perm) == list(range(40)) and shift >= 0
+    assert np.all(factor.L.diagonal() > 0)
+    R = np.random.default_rng(0).standard_normal((40, 5))
+    Z = factor.solve(R[perm])
+    assert np.all(np.isfinite(Z)) and np.all(np.einsum("ij,ij->j", Z, R[perm]) > 0)

@@ -175,14 +175,21 @@ def test_svd_of_interleaved_lanes(sweeps):
 
 @pytest.mark.skipif(not hasattr(os, "fork"), reason="needs os.fork")
 def test_element_pass_works_in_a_forked_child():
-    """The element pass's helper threads do not survive a fork: the child must make its own."""
-    sim = sa.scenes.cantilever(resolution=2)
-    sim.step()  # the parent's helper threads exist now
+    """The element pass's helper threads do not survive a fork: the child must make its own.
+
+    A full-space and an affinification frame (oracle, strain rates, reduced assembly) run in the
+    parent first, then in a forked child, whichever threading layer numba has.
+    """
+    sims = [sa.scenes.cantilever(resolution=2),
+            sa.scenes.cantilever(resolution=2, reducer=sa.Affinification(tau_a=1.0, tau_e=2.0))]
+    for sim in sims:
+        sim.step()  # the parent's helper threads exist now
     pid = os.fork()
     if pid == 0:  # child: a hang here would stall the test, an exception gives exit code 1
         try:
-            sim.step()
-            os._exit(0 if np.all(np.isfinite(sim.state.x)) else 1)
+            for sim in sims:
+                sim.step()
+            os._exit(0 if all(np.all(np.isfinite(sim.state.x)) for sim in sims) else 1)
         except BaseException:
             os._exit(1)
     deadline = time.time() + 60

@@ -33,11 +33,13 @@ def test_uniform_affine_motion_becomes_one_affine_body_and_stays_affine():
         # positions remain an affine image of the rest positions: least-squares fit is exact
         Xh = np.c_[x0, np.ones(len(x0))]
         coef, *_ = np.linalg.lstsq(Xh, s.x, rcond=None)
-        assert np.abs(Xh @ coef - s.x).max() <= 1e-10
+        assert np.abs(Xh @ coef - s.x).max() <= 1e-10 * sim.size
     assert sim.stats[-1]["dofs"] == 12
-    # linear momentum is conserved by the projection and the reduced solve
+    # linear momentum is conserved by the projection and the reduced solve, to round-off of the
+    # momentum's scale (total mass x largest speed): a component that starts at 0 is not exactly 0
     m = sim.system.lumped_mass[:, None]
-    assert np.allclose((m * s.v).sum(0), (m * v0).sum(0), rtol=1e-10, atol=1e-12)
+    scale = m.sum() * np.abs(v0).max()
+    assert np.abs((m * s.v).sum(0) - (m * v0).sum(0)).max() <= 1e-12 * scale
 
 
 def test_affinification_is_close_to_full_and_reduces_dofs():

@@ -48,7 +48,7 @@ from scipy.linalg import cho_solve, cholesky, solve_triangular
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from skfem_affine.assembly import serial_blas  # small dense blocks: 0.3 ms against 33 ms with spinning BLAS threads
+from skfem_affine.threads import serial_blas  # small dense blocks (docs/threads.md)
 from skfem_affine.contact.colliders import check_colliders
 from skfem_affine.reducers.affine.mapping import group_sum
 

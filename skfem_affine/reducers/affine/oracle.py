@@ -27,18 +27,16 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import reverse_cuthill_mckee
 
 from skfem_affine.kinematics import deformation_gradient
+from skfem_affine.reducers.affine.ichol import SHIFTS, incomplete_cholesky
 
 KINDS = ("ichol", "amg")
 
-# Incomplete Cholesky (ilupp.ICholTPreconditioner, Lin & More 1999): extra fill per
-# column and relative drop tolerance. Measured on S of the cantilever (24k tets, RCM):
-# IC(0) (the pattern of S) leaves the one-iteration prediction residual 28% above that
-# of an exact A_p solve; 10 extra entries per column, dropping below 1e-3, is within
-# 0.5% of exact for 2.8x the nonzeros of IC(0), 1.3 ms setup and 0.3 ms per application.
+# Incomplete Cholesky of S (Lin & More's threshold variant, :mod:`.ichol`): extra entries per
+# column and relative drop tolerance (docs/affinification.md has the measurements behind them).
 ICHOL_FILL = 10
 ICHOL_DROP = 1e-3
 # Diagonal shifts S + s diag(S) tried in turn if the incomplete factorisation breaks down.
-ICHOL_SHIFTS = (0.0, 1e-3, 1e-2, 1e-1, 1.0)
+ICHOL_SHIFTS = SHIFTS
 
 
 def element_moduli(system):
@@ -124,34 +122,26 @@ def scalar_matrix(system, dt, damping=None, weights=None):
 def ichol_factor(S):
     """Incomplete Cholesky of an SPD CSR matrix S after reverse Cuthill-McKee ordering.
 
-    ilupp's ``ICholTPreconditioner`` (:data:`ICHOL_FILL`, :data:`ICHOL_DROP`); on
-    breakdown, which ilupp reports by a zero or non-finite pivot in the factor, S
-    is shifted to S + s diag(S) for the next s in :data:`ICHOL_SHIFTS`.
+    The threshold variant of :func:`.ichol.incomplete_cholesky` (:data:`ICHOL_FILL` extra
+    entries per column, relative drop tolerance :data:`ICHOL_DROP`); on breakdown (a pivot
+    that is not positive) S is shifted to S + s diag(S) for the next s in :data:`ICHOL_SHIFTS`,
+    and :class:`.ichol.IncompleteCholeskyBreakdown` (a ValueError) is raised if none works.
+    RCM because, for a threshold IC whose dropping depends on the elimination order, the
+    bandwidth reduction is what matters, and scipy has it.
 
     Returns
     -------
     perm : (n,) int
         The ordering: the factor is of ``S[perm][:, perm]``.
-    factor : ilupp.ICholTPreconditioner
-        ``factor.apply(x)`` overwrites x with (L L^T)^{-1} x.
+    factor : ichol.IncompleteCholesky
+        ``factor.solve(X)`` is (L L^T)^{-1} X for X of shape (n,) or (n, k).
     shift : float
         The diagonal shift used (0 when none was needed).
     """
-    import ilupp
-
-    perm = reverse_cuthill_mckee(sp.csr_matrix(S), symmetric_mode=True)
-    Sp = sp.csr_matrix(S)[perm][:, perm]
-    d = Sp.diagonal()
-    for shift in ICHOL_SHIFTS:
-        trial = sp.csr_matrix(Sp + sp.diags(shift * d)) if shift else Sp.copy()
-        try:
-            factor = ilupp.ICholTPreconditioner(trial, ICHOL_FILL, ICHOL_DROP)
-        except RuntimeError:  # ilupp: "insufficient memory reserved"
-            continue
-        pivots = factor.factors()[0].diagonal()
-        if np.all(np.isfinite(pivots)) and np.all(pivots > 0):
-            return perm, factor, shift
-    raise RuntimeError("incomplete Cholesky of A_p broke down for every diagonal shift")
+    S = sp.csr_matrix(S)
+    perm = reverse_cuthill_mckee(S, symmetric_mode=True)
+    factor = incomplete_cholesky(S[perm][:, perm], fill=ICHOL_FILL, drop=ICHOL_DROP, shifts=ICHOL_SHIFTS)
+    return perm, factor, factor.shift
 
 
 class Preconditioner:
@@ -169,10 +159,10 @@ class Preconditioner:
     damping : Rayleigh, (alpha, beta) or None
         Rayleigh damping of the integrator (eq. 1), so that A_p matches A at rest.
     kind : {"ichol", "amg"}
-        ``"ichol"``: incomplete Cholesky with threshold dropping (ilupp's
-        ``ICholTPreconditioner``, Lin & More 1999: :data:`ICHOL_FILL` extra entries
-        per column, relative drop tolerance :data:`ICHOL_DROP`) of S after a
-        reverse Cuthill-McKee ordering. ``"amg"``: pyamg smoothed aggregation on
+        ``"ichol"``: incomplete Cholesky with threshold dropping (Lin & More 1999,
+        :func:`.ichol.incomplete_cholesky`: :data:`ICHOL_FILL` extra entries per
+        column, relative drop tolerance :data:`ICHOL_DROP`) of S after a reverse
+        Cuthill-McKee ordering (:func:`ichol_factor`). ``"amg"``: pyamg smoothed aggregation on
         S, one V-cycle (symmetric Gauss-Seidel smoothing, so the application is SPD).
     weights : (m,) array, optional
         w_e; default :func:`laplacian_weights`, V_e mu_e.
@@ -203,24 +193,17 @@ class Preconditioner:
     systems. V mu is the shear part mu grad u : grad v of the linearised tangent,
     the vector Laplacian of [MK23].
 
-    **ichol.** Measured on the bent cantilever at 24k tets (prediction residual,
-    exact A_p: 0.0751): ICholT(10, 1e-3) after RCM 0.0754; IC(0) 0.096; with the
-    mesh's own vertex order ICholT(10, 1e-3) 0.079, and with a randomly numbered
-    mesh 0.103 (IC(0): 0.49) against 0.0755 with RCM, whatever the input order. The
-    reference code's nested dissection needs METIS (not installed); RCM (scipy)
-    is the fill-reducing ordering that is at hand and, for a threshold IC whose
-    dropping depends on the elimination order, the bandwidth reduction is what
-    matters. ilupp's ``IChol0Preconditioner`` and ``ICholTPreconditioner`` both
-    fail silently on some SPD matrices (NaN or zero pivots), so the factor's
-    diagonal is checked and the factorisation retried on S + s diag(S) for the
-    shifts :data:`ICHOL_SHIFTS` (never needed on the scenes here: S is a
-    mass-augmented P1 Laplacian). ilupp 1.0.2 raises "insufficient memory
-    reserved" for ``add_fill_in`` around 50.
+    **ichol.** Threshold IC after RCM rather than IC(0): on the bent cantilever it
+    predicts about as well as an exact A_p solve, where IC(0) is clearly worse and
+    collapses on a badly numbered mesh; RCM makes the result independent of the
+    input vertex order. A factor that breaks down is retried on S + s diag(S)
+    (:data:`ICHOL_SHIFTS`); S, a mass-augmented P1 Laplacian, has not needed it.
 
-    **amg.** Default smoothed aggregation (4 levels at 24k tets) is as good as an
-    exact A_p solve (0.0752) but ~10x costlier per application than ichol (three
-    V-cycles, one per component); Jacobi smoothing halves that cost for a 22%
-    worse prediction.
+    **amg.** As good a prediction as an exact A_p solve but costlier per application
+    than ichol (three V-cycles, one per component).
+
+    Measurements behind these choices: ``docs/affinification.md``, "The oracle's
+    preconditioner".
     """
 
     def __init__(self, system, dt, damping=None, kind="ichol", weights=None):
@@ -259,11 +242,8 @@ class Preconditioner:
         R = np.asarray(r, dtype=float).reshape(-1, 3)
         if self.kind == "amg":
             return np.ascontiguousarray(self._vcycle @ R).ravel()
-        X = np.ascontiguousarray(R[self.perm].T)  # (3, n_vertices), one row per component
-        for row in X:
-            self._ic.apply(row)                    # in place: (L L^T)^{-1} row
         Z = np.empty_like(R)
-        Z[self.perm] = X.T
+        Z[self.perm] = self._ic.solve(R[self.perm])  # the three components in one pass
         return Z.ravel()
 
     __call__ = apply

@@ -32,7 +32,7 @@ from skfem_affine.reducers.affine import oracle
 
 from skfem_affine.reducers.affine import mapping as reduction
 from skfem_affine._kernels import strain_rate_norms
-from skfem_affine.assembly import serial_blas
+from skfem_affine.threads import serial_blas
 from skfem_affine.solvers import make_solver
 
 

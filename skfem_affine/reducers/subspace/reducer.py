@@ -44,6 +44,7 @@ from skfem_affine.assembly import Pattern
 from skfem_affine.reducers.subspace.bases import SkinningEigenmodes, _Basis
 from skfem_affine.checks import positive
 from skfem_affine.solvers import SolverError
+from skfem_affine import threads
 
 
 def _threshold(value, name):
@@ -364,10 +365,7 @@ class AdaptiveSubspace:
         (a few hundred modes), and OpenBLAS's thread hand-off cost more than it saved
         (measured 2.3x slower per frame on the 24k-tet beam with 2 threads).
         """
-        if self.blas_threads is None:
-            return self._minimize(ip, rec)
-        from threadpoolctl import threadpool_limits
-        with threadpool_limits(limits=self.blas_threads, user_api="blas"):
+        with threads.blas_threads(self.blas_threads):
             return self._minimize(ip, rec)
 
     def _minimize(self, ip, rec):
