@@ -6,6 +6,7 @@ import pytest
 
 import skfem_affine as sa
 from skfem_affine.lab import runners
+from skfem_affine.lab import sweep as sweeps
 
 TINY = runners.SceneSpec.make("cantilever", resolution=1)
 
@@ -101,7 +102,7 @@ def test_sweep_on_a_local_cluster_skips_finished_cells_and_records_failures(tmp_
     def no_cluster(*a, **k):
         raise AssertionError("a finished sweep must not start a cluster")
 
-    monkeypatch.setattr(runners, "connect", no_cluster)
+    monkeypatch.setattr(sweeps, "connect", no_cluster)
     again = runners.sweep(TINY, **kwargs)
     assert [r["cell_s"] for r in again] == pytest.approx([r["cell_s"] for r in rows])
     # a finer grid shares its corner cells: only the 5 new ones are computed (reference from the cache)
