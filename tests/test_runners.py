@@ -1,4 +1,4 @@
-"""compare, sweep (Dask LocalCluster) and scaling end to end on a tiny beam; tables; scene specs."""
+"""Runs, interleaved stepping, compare and scaling end to end on a tiny beam; scene specs."""
 import os
 
 import numpy as np
@@ -6,7 +6,6 @@ import pytest
 
 import skfem_affine as sa
 from skfem_affine.lab import runners
-from skfem_affine.lab import sweep as sweeps
 
 TINY = runners.SceneSpec.make("cantilever", resolution=1)
 
@@ -85,43 +84,6 @@ def test_divergence_is_recorded_not_raised():
         runners.run(TINY, "full", 20, reference=ref)
 
 
-def test_sweep_on_a_local_cluster_skips_finished_cells_and_records_failures(tmp_path, monkeypatch):
-    table = str(tmp_path / "sweep.csv")
-    kwargs = dict(frames=8, method=EXPLODING, grid=2, tau_range=(0.01, 0.3), table=table, workers=2,
-                  processes=False)
-    rows = runners.sweep(TINY, **kwargs)
-    assert len(rows) == 4
-    status = {(r["tau_a"], r["tau_e"]): r["status"] for r in rows}
-    assert status == {(0.01, 0.01): "ok", (0.01, 0.3): "ok", (0.3, 0.01): "diverged", (0.3, 0.3): "diverged"}
-    ok = [r for r in rows if r["status"] == "ok"]
-    for r in ok:
-        assert r["frames"] == 8 and r["speedup"] > 0 and 0 < r["dof_ratio"] <= 1 and r["max_distance_error"] >= 0
-    assert os.path.exists(table) and len(runners.read_table(table)) == 4
-    assert any(f.startswith("reference_") for f in os.listdir(tmp_path))
-
-    def no_cluster(*a, **k):
-        raise AssertionError("a finished sweep must not start a cluster")
-
-    monkeypatch.setattr(sweeps, "connect", no_cluster)
-    again = runners.sweep(TINY, **kwargs)
-    assert [r["cell_s"] for r in again] == pytest.approx([r["cell_s"] for r in rows])
-    # a finer grid shares its corner cells: only the 5 new ones are computed (reference from the cache)
-    monkeypatch.undo()
-    more = runners.sweep(TINY, **{**kwargs, "grid": 3})
-    assert len(more) == 9 and len(runners.read_table(table)) == 9
-    old = {(r["tau_a"], r["tau_e"]): r["cell_s"] for r in rows}
-    assert {k: r["cell_s"] for r in more if (k := (r["tau_a"], r["tau_e"])) in old} == pytest.approx(old)
-
-
-def test_tables_csv_and_parquet(tmp_path):
-    rows = [{"a": 1, "b": 0.5, "s": "ok", "n": None}, {"a": 2, "b": 1e-3, "s": "diverged", "n": 3.0}]
-    for name in ("t.csv", "t.parquet"):
-        path = runners.write_table(rows, str(tmp_path / name))
-        back = runners.read_table(path)
-        assert back[0]["a"] == 1 and back[1]["b"] == pytest.approx(1e-3) and back[1]["s"] == "diverged"
-        assert back[0]["n"] is None and back[1]["n"] == 3.0
-
-
 def test_scaling_rows():
     rows = runners.scaling(TINY, [1, 2], [6, 4])
     assert [r["elements"] for r in rows] == [24, 192] and [r["frames"] for r in rows] == [6, 4]
@@ -130,16 +92,6 @@ def test_scaling_rows():
         assert r["max_distance_error"] >= 0 and r["status"] == "ok"
     with pytest.raises(ValueError, match="one per resolution"):
         runners.scaling(TINY, [1, 2], [5, 5, 5])
-
-
-def test_sweep_on_an_existing_scheduler(tmp_path):
-    from dask.distributed import LocalCluster
-    with LocalCluster(n_workers=1, threads_per_worker=1, processes=False, dashboard_address=":0") as cluster:
-        rows = runners.sweep(TINY, frames=4, grid=1, tau_range=(0.1, 0.1), table=str(tmp_path / "s.parquet"),
-                             scheduler=cluster.scheduler_address)
-        assert cluster.scheduler is not None and len(cluster.scheduler.workers) == 1  # still running: not ours
-    assert len(rows) == 1 and rows[0]["status"] == "ok" and rows[0]["tau_a"] == 0.1
-    assert runners.read_table(str(tmp_path / "s.parquet"))[0]["frames"] == 4
 
 
 def test_subspace_method_is_measured_against_the_newton_reference():

@@ -49,8 +49,16 @@ def describe_exit(code):
     return f"the cell's process exited with code {code}"
 
 
+#: Seconds a new child may take to start (import the package) before it counts as crashed.
+START_TIMEOUT = 600.0
+
+
 class CellProcess:
-    """One child Python process that runs ``fn(*args)`` on request (see the module's docstring)."""
+    """One child Python process that runs ``fn(*args)`` on request (see the module's docstring).
+
+    The constructor returns once the child has imported the package, so that a call's
+    timeout does not include the start.
+    """
 
     def __init__(self):
         ours, theirs = socket.socketpair()
@@ -63,6 +71,13 @@ class CellProcess:
                                      if _has_fileno(sys.__stderr__) else subprocess.DEVNULL)
         theirs.close()
         self.conn = Connection(ours.detach())
+        try:
+            ready = self.conn.poll(START_TIMEOUT) and self.conn.recv_bytes() == b"ready"
+        except (EOFError, OSError):
+            ready = False
+        if not ready:
+            self.close()
+            raise CellCrashed(f"the cell's process did not start ({describe_exit(self.proc.returncode)})")
 
     def call(self, fn, args=(), timeout=None):
         """``fn(*args)`` in the child; its result, or :class:`CellCrashed` / :class:`CellTimedOut`.
@@ -154,6 +169,7 @@ def serve(fd, parent):
 
     threading.Thread(target=watchdog, daemon=True).start()
     conn = Connection(fd)
+    conn.send_bytes(b"ready")
     while True:
         try:
             fn, args = pickle.loads(conn.recv_bytes())

@@ -65,14 +65,16 @@ def sweep_cell(spec, method, frames, tau_a, tau_e, reference, step_error=True, r
 
 _WARM = set()
 
+#: Seconds a child's warm-up may take (a couple of frames, plus loading compiled kernels).
+WARM_UP_TIMEOUT = 300.0
 
-def _cell_in_child(spec, method, *args):
-    """A cell in the child process: warm up the scene's methods once per process, then :func:`sweep_cell`."""
+
+def _warm_up_once(spec, method):
+    """In the child process: warm the scene's methods up once per process (see :func:`warm_up`)."""
     warmed = (repr(spec), get_method(method).name)
     if warmed not in _WARM:
         warm_up(spec, ("full", method))
         _WARM.add(warmed)
-    return sweep_cell(spec, method, *args)
 
 
 def isolated_cell(spec, method, frames, tau_a, tau_e, reference, step_error=True, residual=True,
@@ -85,8 +87,9 @@ def isolated_cell(spec, method, frames, tau_a, tau_e, reference, step_error=True
     base = _base(spec, method, frames, tau_a, tau_e, paired_timing, scene_key)
     t0 = time.perf_counter()
     try:
-        return cells.call(_cell_in_child, (spec, method, frames, tau_a, tau_e, reference, step_error, residual,
-                                           paired_timing, base["scene_key"]), timeout)
+        cells.call(_warm_up_once, (spec, method), max(timeout or 0.0, WARM_UP_TIMEOUT) if timeout else None)
+        return cells.call(sweep_cell, (spec, method, frames, tau_a, tau_e, reference, step_error, residual,
+                                       paired_timing, base["scene_key"]), timeout)
     except cells.CellCrashed as err:
         row = {**base, "status": "crashed", "message": str(err)}
     except cells.CellTimedOut as err:
