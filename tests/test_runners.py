@@ -111,3 +111,66 @@ def test_every_method_is_timed_with_the_reducers_solver():
     full, aff = TINY.build(), TINY.build(reducer=sa.Affinification())
     assert type(full.solver).__name__ == type(aff.reducer.solver).__name__
     assert type(TINY.with_kwargs(solver="superlu").build().solver).__name__ == "SuperLU"
+
+
+def test_interleaved_steps_every_simulation_frame_by_frame_in_turn():
+    sims = {"full": TINY.build(), "affine": TINY.build(reducer=sa.Affinification(0.3, 0.6)),
+            "exploding": TINY.build(reducer=Exploding(0.3, 0.6))}
+    seen = []
+
+    def on_frame(frame, running):
+        seen.append((frame, {name: sim.state.frame for name, sim in running.items()}))
+
+    runs = runners.interleaved(sims, 5, on_frame=on_frame)
+    # every running simulation has done the same frame when on_frame is called; the diverged one stops
+    assert [f for f, _ in seen] == [1, 2, 3, 4, 5]
+    assert seen[0][1] == {"full": 1, "affine": 1, "exploding": 1}
+    assert seen[2][1] == {"full": 3, "affine": 3} and seen[4][1] == {"full": 5, "affine": 5}
+    full, aff, bad = runs["full"], runs["affine"], runs["exploding"]
+    assert len(full.records) == len(aff.records) == 5 and len(bad.records) == 2
+    assert bad.summary["status"] == "diverged" and "frame 3" in bad.summary["message"]
+    assert full.summary["speedup"] == 1 and full.summary["timing"] == "interleaved"
+    walls = [(f["wall"], a["wall"]) for f, a in zip(full.records, aff.records)]
+    assert aff.summary["speedup"] == pytest.approx(sum(f for f, _ in walls) / sum(a for _, a in walls))
+    assert aff.summary["dof_ratio"] < 1 and aff.sim is sims["affine"] and aff.sim.state.frame == 5
+    with pytest.raises(TypeError, match="Simulation"):
+        runners.interleaved({"x": TINY}, 2)
+
+
+def test_compare_times_interleaved_by_default_and_sequential_on_request():
+    taus = {"affinification": (0.3, 0.6)}
+    ref, inter = runners.compare(TINY, frames=8, methods=("affinification",), taus=taus, residual=False)
+    _, seq = runners.compare(TINY, frames=8, methods=("affinification",), taus=taus, residual=False,
+                             timing="sequential")
+    for runs, timing in ((inter, "interleaved"), (seq, "sequential")):
+        aff, full = runs["affinification"], runs["full"]
+        assert aff.summary["timing"] == full.summary["timing"] == timing
+        assert aff.summary["speedup"] == pytest.approx(
+            sum(r["wall"] for r in full.records) / sum(r["wall"] for r in aff.records))
+    # the same runs, only timed differently: identical trajectories and errors
+    for key in ("distance_error", "step_error", "energy_error", "dofs"):
+        assert [r[key] for r in inter["affinification"].records] == \
+            pytest.approx([r[key] for r in seq["affinification"].records], rel=1e-9, abs=1e-15), key
+    assert np.array_equal(ref.x[-1], inter["full"].sim.state.x)
+    with pytest.raises(ValueError, match="timing"):
+        runners.compare(TINY, frames=2, timing="parallel")
+
+
+def test_compare_stops_when_the_reference_diverges(tmp_path):
+    scene = tmp_path / "fragile.py"
+    scene.write_text("import skfem_affine as sa\n"
+                     "def scene(reducer=None, **kw):\n"
+                     "    sim = sa.scenes.cantilever(resolution=1, reducer=reducer, **kw)\n"
+                     "    if reducer is None:  # the full-space run diverges at frame 3\n"
+                     "        step = sim.step\n"
+                     "        def fragile():\n"
+                     "            if sim.state.frame == 2:\n"
+                     "                raise sa.SimulationDiverged(3, 'on purpose')\n"
+                     "            return step()\n"
+                     "        sim.step = fragile\n"
+                     "    return sim\n")
+    spec = runners.SceneSpec.make(str(scene))
+    for timing in ("interleaved", "sequential"):
+        with pytest.raises(sa.SimulationDiverged, match="reference diverged"):
+            runners.compare(spec, frames=5, methods=("affinification",), step_error=False, residual=False,
+                            timing=timing)
