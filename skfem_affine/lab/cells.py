@@ -71,6 +71,7 @@ class CellProcess:
                                      if _has_fileno(sys.__stderr__) else subprocess.DEVNULL)
         theirs.close()
         self.conn = Connection(ours.detach())
+        self.busy = False
         try:
             ready = self.conn.poll(START_TIMEOUT) and self.conn.recv_bytes() == b"ready"
         except (EOFError, OSError):
@@ -84,6 +85,13 @@ class CellProcess:
 
         An exception raised by ``fn`` comes back as a RuntimeError naming it.
         """
+        self.busy = True
+        try:
+            return self._call(fn, args, timeout)
+        finally:
+            self.busy = False
+
+    def _call(self, fn, args, timeout):
         try:
             self.conn.send_bytes(cloudpickle.dumps((fn, tuple(args))))
             ready = self.conn.poll(timeout)
@@ -128,8 +136,15 @@ def call(fn, args=(), timeout=None):
     key = (os.getpid(), threading.get_ident())
     with _LOCK:
         proc = _PROCESSES.get(key)
-        if proc is None or not proc.alive():
-            proc = _PROCESSES[key] = CellProcess()
+        if proc is not None and proc.alive():
+            proc.busy = True  # not idle from now: close_idle leaves it alone
+        else:
+            proc = None
+    if proc is None:
+        proc = CellProcess()
+        proc.busy = True
+        with _LOCK:
+            _PROCESSES[key] = proc
     try:
         return proc.call(fn, args, timeout)
     except (CellCrashed, CellTimedOut):
@@ -139,12 +154,14 @@ def call(fn, args=(), timeout=None):
         raise
 
 
-def close_all():
-    """End every child process of this process (a sweep calls it on its workers when done)."""
+def close_idle():
+    """End the child processes of this process that run no cell (a sweep calls it on its workers
+    when done; a child busy with another sweep's cell is left to it)."""
     with _LOCK:
-        procs = list(_PROCESSES.values())
-        _PROCESSES.clear()
-    for proc in procs:
+        idle = {key: proc for key, proc in _PROCESSES.items() if not proc.busy}
+        for key in idle:
+            del _PROCESSES[key]
+    for proc in idle.values():
         proc.close()
 
 

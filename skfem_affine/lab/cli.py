@@ -322,6 +322,7 @@ def cmd_scaling(args):
                   f"{r['time_full_s']:8.2f} "
                   f"{r['time_reduced_s']:9.2f} {_fmt(r['speedup'], '8.2f')} {_fmt(r['max_distance_error'], '9.1e')} "
                   f"{_fmt(r['dof_ratio'], '9.3f')}")
+        print(f"timing: {runners.TIMING[rows[-1]['timing']]}")
         print(f"wrote {table} and {figure}")
     last = rows[-1]
     summary = {"scene": spec.label, "method": method.name, "frames": last["frames"], "elements": last["elements"],

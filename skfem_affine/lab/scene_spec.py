@@ -78,7 +78,12 @@ class SceneSpec:
             except OSError as err:
                 raise ValueError(f"scene file {self.name!r} cannot be read: {err.strerror}") from None
         else:
-            data = inspect.getsource(scenes.SCENES[self.name]).encode()
+            factory = scenes.SCENES[self.name]
+            try:
+                data = inspect.getsource(factory).encode()
+            except (OSError, TypeError):  # no source at hand (e.g. a compiled install): its bytecode
+                code = getattr(factory, "__code__", None)
+                data = code.co_code if code is not None else repr(factory).encode()
         return hashlib.sha1(data).hexdigest()
 
     def key(self):

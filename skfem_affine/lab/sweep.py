@@ -194,7 +194,7 @@ def sweep(spec, frames=None, method="affinification", grid=9, tau_range=(1e-3, 1
         finally:
             if isolate:
                 try:
-                    client.run(cells.close_all)
+                    client.run(cells.close_idle)
                 except Exception:  # a worker that is gone has no children to end
                     pass
             client.close()
