@@ -66,8 +66,8 @@ def run_interleaved(sims, frames):
         def mean(key):
             return float(np.mean([r.get(key, 0) for r in st]))
 
-        out[name] = {"wall": run.summary["wall_s"], "err": errs[name] / run.sim.size, "enriched": mean("enriched_ratio"),
-                     "modes": mean("active_modes"), "newton": mean("newton_iters"), "pcg": mean("pcg_iters"),
+        out[name] = {"wall": run.summary["wall_s"], "err": errs[name] / run.sim.size,
+                     "enriched": mean("enriched_ratio"), "modes": mean("active_modes"), "newton": mean("newton_iters"), "pcg": mean("pcg_iters"),
                      "phases": st.phase_totals()}
     return out
 
