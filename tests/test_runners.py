@@ -1,5 +1,4 @@
 """Runs, interleaved stepping, compare and scaling end to end on a tiny beam; scene specs."""
-import os
 
 import numpy as np
 import pytest
