@@ -22,7 +22,6 @@ import argparse
 import json
 import os
 import sys
-import time
 
 import numpy as np
 
@@ -30,6 +29,7 @@ import numpy as np
 # (``python benchmarks/x.py`` puts benchmarks/, not the working directory, on sys.path)
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 import skfem_affine as sa  # noqa: E402
+from skfem_affine.lab import runners  # noqa: E402
 
 MATERIALS = {"neohookean": sa.NeoHookean, "stvk": sa.StVK, "corotational": sa.Corotational}
 PHASES = ("assembly", "prediction", "clustering", "map_assembly", "reduced_assembly", "factorization", "solve")
@@ -53,27 +53,26 @@ def make_scene(scene, material, solver, reducer):
 
 
 def run_interleaved(scene, material, frames, solver, reducers):
-    """Step the full solve and every reducer frame by frame, in turn, in one process.
+    """Step the full solve and every reducer frame by frame, in turn, in one process (``runners.interleaved``).
 
     Interleaving makes the ratios robust on a shared machine: a burst of load from
     elsewhere slows every method's frame alike. Returns the full simulation and one
     result dict per method (``None`` = full).
     """
-    sims = [make_scene(scene, material, solver, red) for red in [None] + list(reducers)]
-    walls = np.zeros(len(sims))
-    errs = np.zeros(len(sims))
-    for _ in range(frames):
-        for i, sim in enumerate(sims):
-            t0 = time.perf_counter()
-            sim.step()
-            walls[i] += time.perf_counter() - t0
-            if i:
-                errs[i] = max(errs[i], np.abs(sim.state.x - sims[0].state.x).max())
+    sims = {i: make_scene(scene, material, solver, red) for i, red in enumerate([None] + list(reducers))}
+    errs = dict.fromkeys(sims, 0.0)
+
+    def error(frame, running):  # largest coordinate distance to the full solve at the same frame
+        if 0 in running:
+            for i, sim in running.items():
+                errs[i] = max(errs[i], np.abs(sim.state.x - running[0].state.x).max())
+
+    runs = runners.interleaved(sims, frames, on_frame=error)
     out = []
-    for sim, wall, err in zip(sims, walls, errs):
-        st = sim.stats
+    for i, run in runs.items():
+        st = run.sim.stats
         oracle = sum(st.total(p) for p in ("prediction", "clustering", "map_assembly"))
-        out.append({"wall": float(wall), "dofs": st.total("dofs"), "err": float(err / sim.size),
+        out.append({"wall": run.summary["wall_s"], "dofs": st.total("dofs"), "err": float(errs[i] / run.sim.size),
                     "clusters": float(np.mean([r.get("n_clusters", 0) for r in st])),
                     "oracle_share": oracle / max(st.total("wall"), 1e-300),
                     "ms_per_frame": {p: 1e3 * st.mean(p) for p in PHASES}})

@@ -1,7 +1,8 @@
 """Contact scenes: full vs affinification vs rigidification, in one process (paper Table 1 "Pills").
 
-For each scene and resolution, runs the same frames with the same solver and
-prints: wall time, speedup over full, mean contacts per frame, mean PGS sweeps,
+For each scene and resolution, steps the full solve and both methods frame by frame in turn
+(interleaved, so that load from elsewhere on a shared machine hits all alike), the same frames
+with the same solver, and prints: wall time, speedup over full, mean contacts per frame, mean PGS sweeps,
 the contact share of the step (detection + Delassus operator + PGS + velocity
 correction, ``rec["contact"] / rec["wall"]``), the DOFs solved relative to full
 space, and the largest centre-of-mass distance to the full run relative to the
@@ -13,7 +14,6 @@ import argparse
 import json
 import os
 import sys
-import time
 
 # BLAS/MKL threads, set before numpy loads them (default 1: on a shared machine spinning threads
 # made small solves 10-100x slower; the same setting holds for every method of a run)
@@ -23,29 +23,44 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 
 import numpy as np  # noqa: E402
 
+# measure the checkout this script sits in, not whatever skfem_affine is installed
+sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 import skfem_affine as sa  # noqa: E402
+from skfem_affine.lab import runners  # noqa: E402
 
 
 DEFAULT_RESOLUTIONS = {"drop": [2, 3], "pills": [1, 2]}
 
 
-def run(scene, k, frames, solver, reducer=None, reference=None):
-    sim = sa.scenes.SCENES[scene](resolution=k, solver=solver, reducer=reducer)
-    m = sim.system.lumped_mass
-    t0 = time.perf_counter()
-    coms, err = [], 0.0
-    for i, s in enumerate(sim.run(frames)):
-        com = m @ s.x / m.sum()
-        coms.append(com)
-        if reference is not None:
-            err = max(err, np.abs(com - reference[i]).max())
-    wall = time.perf_counter() - t0
-    st = sim.stats
-    return sim, {"wall": wall, "dofs": st.total("dofs"), "contacts": st.mean("n_contacts"),
-                 "sweeps": st.mean("pgs_iterations"),
-                 "contact_share": st.total("contact") / max(st.total("wall"), 1e-300),
-                 "com_err": err / sim.size, "reduced": float(np.mean([r.get("reduced_fraction", 0.0) for r in st])),
-                 "phases": st.phase_totals()}, coms
+def run_interleaved(scene, k, frames, solver, reducers):
+    """Step every method frame by frame, in turn, in one process (``runners.interleaved``).
+
+    ``reducers`` maps a method's name to its reducer (None: full space, the first). Returns the
+    full simulation and a result dict per method; ``com_err`` is the largest centre-of-mass
+    coordinate distance to the full run at the same frame, relative to the scene's size.
+    """
+    sims = {name: sa.scenes.SCENES[scene](resolution=k, solver=solver, reducer=red) for name, red in reducers.items()}
+    first = next(iter(sims))
+    m = sims[first].system.lumped_mass
+    errs = dict.fromkeys(sims, 0.0)
+
+    def com_error(frame, running):
+        if first in running:
+            ref = m @ running[first].state.x / m.sum()
+            for name, sim in running.items():
+                errs[name] = max(errs[name], np.abs(m @ sim.state.x / m.sum() - ref).max())
+
+    runs = runners.interleaved(sims, frames, on_frame=com_error)
+    out = {}
+    for name, run in runs.items():
+        sim, st = run.sim, run.sim.stats
+        out[name] = {"wall": run.summary["wall_s"], "dofs": st.total("dofs"), "contacts": st.mean("n_contacts"),
+                     "sweeps": st.mean("pgs_iterations"),
+                     "contact_share": st.total("contact") / max(st.total("wall"), 1e-300),
+                     "com_err": errs[name] / sim.size,
+                     "reduced": float(np.mean([r.get("reduced_fraction", 0.0) for r in st])),
+                     "phases": st.phase_totals()}
+    return sims[first], out
 
 
 def main(argv=None):
@@ -62,23 +77,18 @@ def main(argv=None):
     args = p.parse_args(argv)
     tau_a, tau_e = map(float, args.tau.split(","))
     # warm-up: numba kernels and thread-pool discovery load once per process, outside the table
-    for red in (None, sa.Affinification(), sa.Rigidification()):
-        for _ in sa.scenes.stacked_beams(resolution=1, reducer=red, solver=args.solver).run(5):
-            pass
+    runners.interleaved({i: sa.scenes.stacked_beams(resolution=1, reducer=red, solver=args.solver)
+                         for i, red in enumerate((None, sa.Affinification(), sa.Rigidification()))}, 5)
     rows = []
     print(f"{'scene':>7} {'tets':>6} {'method':>15} {'wall_s':>8} {'speedup':>7} {'contacts':>8} {'sweeps':>6} "
           f"{'PGS%':>5} {'dof_ratio':>9} {'reduced':>7} {'com_err':>8}", flush=True)
     for scene in args.scenes:
         for k in args.resolutions or DEFAULT_RESOLUTIONS.get(scene, [1, 2]):
-            sim, full, ref = run(scene, k, args.frames, args.solver)
-            methods = [("full", None), (f"affine {tau_a:g}/{tau_e:g}", "affine"), (f"rigid {args.tau_r:g}", "rigid")]
-            for name, spec in methods:
-                if spec is None:
-                    res = full
-                else:
-                    red = (sa.Affinification(tau_a=tau_a, tau_e=tau_e) if spec == "affine"
-                           else sa.Rigidification(tau_r=args.tau_r, tau_e=2 * args.tau_r))
-                    _, res, _ = run(scene, k, args.frames, args.solver, red, ref)
+            reducers = {"full": None, f"affine {tau_a:g}/{tau_e:g}": sa.Affinification(tau_a=tau_a, tau_e=tau_e),
+                        f"rigid {args.tau_r:g}": sa.Rigidification(tau_r=args.tau_r, tau_e=2 * args.tau_r)}
+            sim, results = run_interleaved(scene, k, args.frames, args.solver, reducers)
+            full = results["full"]
+            for name, res in results.items():
                 row = {"scene": scene, "tets": sim.system.m, "resolution": k, "method": name, "frames": args.frames,
                        **res, "speedup": full["wall"] / res["wall"], "dof_ratio": res["dofs"] / full["dofs"]}
                 rows.append(row)

@@ -4,7 +4,8 @@ For each resolution, in one process:
 
 1. end to end: the same frames with the full-space Newton integrator (implicit Euler, direct
    solver), with ``AdaptiveSubspace`` at each error threshold, and with affinification (its
-   linearized integrator); wall time, speedup over full Newton, max vertex error relative to the
+   linearized integrator), stepped frame by frame in turn (interleaved, so that load from
+   elsewhere on a shared machine hits all alike); wall time, speedup over full Newton, max vertex error relative to the
    beam size, mean enriched-node ratio, active modes, Newton and PCG iterations;
 2. linear solve (Table 3): at the first Newton iterate of the frame after the run, the coupled
    system (eq. 19) solved by the Schur complement against the full-space Newton system at the same
@@ -22,12 +23,16 @@ integrators, PGS contact for affinification (its linearized integrator).
 import argparse
 import json
 import os
+import sys
 import time
 
 import numpy as np
 
-import skfem_affine as sa
-from skfem_affine.reducers.subspace import reducer as subspace
+# measure the checkout this script sits in, not whatever skfem_affine is installed
+sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+import skfem_affine as sa  # noqa: E402
+from skfem_affine.lab import runners  # noqa: E402
+from skfem_affine.reducers.subspace import reducer as subspace  # noqa: E402
 
 
 def scene(k, kind="cantilever", **kw):
@@ -40,22 +45,31 @@ def scene(k, kind="cantilever", **kw):
                                material=material, colliders=[sa.Plane(point=(0, 0, -0.52), normal=(0, 0, 1))], **kw)
 
 
-def run(sim, frames, reference=None):
-    t0 = time.perf_counter()
-    xs, err = [], 0.0
-    for i, s in enumerate(sim.run(frames)):
-        if reference is None:
-            xs.append(s.x)
-        else:
-            err = max(err, np.abs(s.x - reference[i]).max())
-    wall = time.perf_counter() - t0
-    st = sim.stats
+def run_interleaved(sims, frames):
+    """Step every simulation frame by frame, in turn, in one process (``runners.interleaved``).
 
-    def mean(key):
-        return float(np.mean([r.get(key, 0) for r in st]))
+    ``sims`` maps a method's name to its simulation, the full-space Newton run first; ``err``
+    is the largest vertex coordinate distance to it at the same frame, relative to the size.
+    """
+    first = next(iter(sims))
+    errs = dict.fromkeys(sims, 0.0)
 
-    return {"wall": wall, "err": err / sim.size, "enriched": mean("enriched_ratio"), "modes": mean("active_modes"),
-            "newton": mean("newton_iters"), "pcg": mean("pcg_iters"), "phases": st.phase_totals()}, xs
+    def error(frame, running):
+        if first in running:
+            for name, sim in running.items():
+                errs[name] = max(errs[name], np.abs(sim.state.x - running[first].state.x).max())
+
+    out = {}
+    for name, run in runners.interleaved(sims, frames, on_frame=error).items():
+        st = run.sim.stats
+
+        def mean(key):
+            return float(np.mean([r.get(key, 0) for r in st]))
+
+        out[name] = {"wall": run.summary["wall_s"], "err": errs[name] / run.sim.size,
+                     "enriched": mean("enriched_ratio"), "modes": mean("active_modes"), "newton": mean("newton_iters"), "pcg": mean("pcg_iters"),
+                     "phases": st.phase_totals()}
+    return out
 
 
 def linear_solves(sim, solver):
@@ -104,23 +118,24 @@ def main(argv=None):
     for k in args.resolutions:
         n = frames[k]
         full = scene(k, args.scene, integrator="implicit_euler", newton_tol=1e-3, solver=args.solver)
-        base, ref = run(full, n)
         m = full.system.m
-        methods = [("full Newton", base)]
+        sims, reducers = {"full Newton": full}, {}
         for eps in args.eps:
             red = sa.AdaptiveSubspace(basis=sa.SkinningEigenmodes(n=args.modes), eps_nodal=eps, eps_modal=eps,
                                       subdomains=args.subdomains, newton_tol=1e-3)
-            sim = scene(k, args.scene, integrator="implicit_euler", reducer=red)
-            res, _ = run(sim, n, ref)
-            res["setup_s"] = red.setup_time
-            methods.append((f"subspace eps={eps:g}", res))
-            sol = linear_solves(sim, args.solver)
+            sims[f"subspace eps={eps:g}"] = scene(k, args.scene, integrator="implicit_euler", reducer=red)
+            reducers[eps] = red
+        ta, te = map(float, args.tau.split(","))
+        sims[f"affinification {args.tau}"] = scene(k, args.scene, solver=args.solver,
+                                                   reducer=sa.Affinification(tau_a=ta, tau_e=te))
+        results = run_interleaved(sims, n)  # every method frame by frame in turn
+        base = results["full Newton"]
+        for eps, red in reducers.items():
+            results[f"subspace eps={eps:g}"]["setup_s"] = red.setup_time
+            sol = linear_solves(sims[f"subspace eps={eps:g}"], args.solver)
             sol.update(tets=m, eps=eps)
             solves.append(sol)
-        ta, te = map(float, args.tau.split(","))
-        aff = scene(k, args.scene, solver=args.solver, reducer=sa.Affinification(tau_a=ta, tau_e=te))
-        res, _ = run(aff, n, ref)
-        methods.append((f"affinification {args.tau}", res))
+        methods = list(results.items())
         for name, r in methods:
             r.update(tets=m, method=name, frames=n, speedup=base["wall"] / r["wall"])
             rows.append(r)

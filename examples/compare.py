@@ -7,9 +7,10 @@ trade on the cantilever the way the paper's evaluation does (sec. 4.1):
 
 1. a *scene* is named by :class:`~skfem_affine.lab.runners.SceneSpec` (a name in
    ``sa.scenes.SCENES`` with keyword overrides, or a user's ``.py`` file);
-2. :func:`~skfem_affine.lab.runners.compare` runs the full-space reference first
-   and then each *method* (a name and a reducer factory,
-   ``runners.METHODS``) from the same initial state;
+2. :func:`~skfem_affine.lab.runners.compare` runs the full-space reference and
+   each *method* (a name and a reducer factory, ``runners.METHODS``) from the
+   same initial state, frame by frame in turn in one process, so that load from
+   elsewhere on the machine slows every method alike;
 3. every frame is measured (:mod:`skfem_affine.lab.metrics`): the largest vertex
    distance to the reference over the scene size, the same after re-starting
    the reference from the reduced state (step error, which discounts phase

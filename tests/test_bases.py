@@ -82,6 +82,21 @@ def test_cache_hit_and_key(tmp_path):
     assert bases.SkinningEigenmodes(n=4).key(system) != first.key(system)
 
 
+def test_cache_key_includes_the_code_version(tmp_path, monkeypatch):
+    system = cube()
+    kind = bases.SkinningEigenmodes(n=3, cache_dir=tmp_path)
+    kind.build(system)
+    key = kind.key(system)
+    monkeypatch.setattr(bases, "_SOURCE", "0" * 40)  # other basis code
+    assert kind.key(system) != key
+    kind.build(system)
+    assert not kind.last_cache_hit and len(list(tmp_path.glob("*.npz"))) == 2
+    monkeypatch.undo()
+    assert kind.key(system) == key
+    monkeypatch.setattr(sa, "__version__", "0.0.0-other")  # another release
+    assert kind.key(system) != key and "0.0.0-other" in bases.code_version()
+
+
 def test_bad_mode_count():
     with pytest.raises(ValueError, match="n must be"):
         bases.SkinningEigenmodes(n=0)

@@ -118,3 +118,17 @@ def test_demo(tmp_path, capsys):
     assert "speedup" in out and "affinification" in out and "rigidification" in out
     names = set(os.listdir(tmp_path / "compare_cantilever"))
     assert {"compare_clusters.png", "compare_speedup.png", "affinification.gif", "paraview"} <= names
+
+
+def test_compare_and_run_say_how_they_timed(tmp_path, capsys):
+    base = ["--resolution", "1", "--frames", "4", "--no-step-error", "--no-residual", "--no-paraview",
+            "--out", str(tmp_path)]
+    assert main(["compare"] + base) == 0
+    assert "timing: interleaved frame by frame in one process" in capsys.readouterr().out
+    code, s = run_json(capsys, ["compare", "--sequential-timing"] + base)
+    assert code == 0 and s["timing"] == "sequential"
+    assert all(m["timing"] == "sequential" for m in s["methods"].values())
+    code, s = run_json(capsys, ["run", "--reference", "--method", "rigidification"] + base)
+    assert code == 0 and s["timing"] == "interleaved" and s["speedup"] > 0
+    assert main(["run", "--reference"] + base) == 0
+    assert "timing: interleaved frame by frame in one process" in capsys.readouterr().out

@@ -1,5 +1,4 @@
-"""compare, sweep (Dask LocalCluster) and scaling end to end on a tiny beam; tables; scene specs."""
-import os
+"""Runs, interleaved stepping, compare and scaling end to end on a tiny beam; scene specs."""
 
 import numpy as np
 import pytest
@@ -84,43 +83,6 @@ def test_divergence_is_recorded_not_raised():
         runners.run(TINY, "full", 20, reference=ref)
 
 
-def test_sweep_on_a_local_cluster_skips_finished_cells_and_records_failures(tmp_path, monkeypatch):
-    table = str(tmp_path / "sweep.csv")
-    kwargs = dict(frames=8, method=EXPLODING, grid=2, tau_range=(0.01, 0.3), table=table, workers=2,
-                  processes=False)
-    rows = runners.sweep(TINY, **kwargs)
-    assert len(rows) == 4
-    status = {(r["tau_a"], r["tau_e"]): r["status"] for r in rows}
-    assert status == {(0.01, 0.01): "ok", (0.01, 0.3): "ok", (0.3, 0.01): "diverged", (0.3, 0.3): "diverged"}
-    ok = [r for r in rows if r["status"] == "ok"]
-    for r in ok:
-        assert r["frames"] == 8 and r["speedup"] > 0 and 0 < r["dof_ratio"] <= 1 and r["max_distance_error"] >= 0
-    assert os.path.exists(table) and len(runners.read_table(table)) == 4
-    assert any(f.startswith("reference_") for f in os.listdir(tmp_path))
-
-    def no_cluster(*a, **k):
-        raise AssertionError("a finished sweep must not start a cluster")
-
-    monkeypatch.setattr(runners, "connect", no_cluster)
-    again = runners.sweep(TINY, **kwargs)
-    assert [r["cell_s"] for r in again] == pytest.approx([r["cell_s"] for r in rows])
-    # a finer grid shares its corner cells: only the 5 new ones are computed (reference from the cache)
-    monkeypatch.undo()
-    more = runners.sweep(TINY, **{**kwargs, "grid": 3})
-    assert len(more) == 9 and len(runners.read_table(table)) == 9
-    old = {(r["tau_a"], r["tau_e"]): r["cell_s"] for r in rows}
-    assert {k: r["cell_s"] for r in more if (k := (r["tau_a"], r["tau_e"])) in old} == pytest.approx(old)
-
-
-def test_tables_csv_and_parquet(tmp_path):
-    rows = [{"a": 1, "b": 0.5, "s": "ok", "n": None}, {"a": 2, "b": 1e-3, "s": "diverged", "n": 3.0}]
-    for name in ("t.csv", "t.parquet"):
-        path = runners.write_table(rows, str(tmp_path / name))
-        back = runners.read_table(path)
-        assert back[0]["a"] == 1 and back[1]["b"] == pytest.approx(1e-3) and back[1]["s"] == "diverged"
-        assert back[0]["n"] is None and back[1]["n"] == 3.0
-
-
 def test_scaling_rows():
     rows = runners.scaling(TINY, [1, 2], [6, 4])
     assert [r["elements"] for r in rows] == [24, 192] and [r["frames"] for r in rows] == [6, 4]
@@ -129,16 +91,6 @@ def test_scaling_rows():
         assert r["max_distance_error"] >= 0 and r["status"] == "ok"
     with pytest.raises(ValueError, match="one per resolution"):
         runners.scaling(TINY, [1, 2], [5, 5, 5])
-
-
-def test_sweep_on_an_existing_scheduler(tmp_path):
-    from dask.distributed import LocalCluster
-    with LocalCluster(n_workers=1, threads_per_worker=1, processes=False, dashboard_address=":0") as cluster:
-        rows = runners.sweep(TINY, frames=4, grid=1, tau_range=(0.1, 0.1), table=str(tmp_path / "s.parquet"),
-                             scheduler=cluster.scheduler_address)
-        assert cluster.scheduler is not None and len(cluster.scheduler.workers) == 1  # still running: not ours
-    assert len(rows) == 1 and rows[0]["status"] == "ok" and rows[0]["tau_a"] == 0.1
-    assert runners.read_table(str(tmp_path / "s.parquet"))[0]["frames"] == 4
 
 
 def test_subspace_method_is_measured_against_the_newton_reference():
@@ -158,3 +110,66 @@ def test_every_method_is_timed_with_the_reducers_solver():
     full, aff = TINY.build(), TINY.build(reducer=sa.Affinification())
     assert type(full.solver).__name__ == type(aff.reducer.solver).__name__
     assert type(TINY.with_kwargs(solver="superlu").build().solver).__name__ == "SuperLU"
+
+
+def test_interleaved_steps_every_simulation_frame_by_frame_in_turn():
+    sims = {"full": TINY.build(), "affine": TINY.build(reducer=sa.Affinification(0.3, 0.6)),
+            "exploding": TINY.build(reducer=Exploding(0.3, 0.6))}
+    seen = []
+
+    def on_frame(frame, running):
+        seen.append((frame, {name: sim.state.frame for name, sim in running.items()}))
+
+    runs = runners.interleaved(sims, 5, on_frame=on_frame)
+    # every running simulation has done the same frame when on_frame is called; the diverged one stops
+    assert [f for f, _ in seen] == [1, 2, 3, 4, 5]
+    assert seen[0][1] == {"full": 1, "affine": 1, "exploding": 1}
+    assert seen[2][1] == {"full": 3, "affine": 3} and seen[4][1] == {"full": 5, "affine": 5}
+    full, aff, bad = runs["full"], runs["affine"], runs["exploding"]
+    assert len(full.records) == len(aff.records) == 5 and len(bad.records) == 2
+    assert bad.summary["status"] == "diverged" and "frame 3" in bad.summary["message"]
+    assert full.summary["speedup"] == 1 and full.summary["timing"] == "interleaved"
+    walls = [(f["wall"], a["wall"]) for f, a in zip(full.records, aff.records)]
+    assert aff.summary["speedup"] == pytest.approx(sum(f for f, _ in walls) / sum(a for _, a in walls))
+    assert aff.summary["dof_ratio"] < 1 and aff.sim is sims["affine"] and aff.sim.state.frame == 5
+    with pytest.raises(TypeError, match="Simulation"):
+        runners.interleaved({"x": TINY}, 2)
+
+
+def test_compare_times_interleaved_by_default_and_sequential_on_request():
+    taus = {"affinification": (0.3, 0.6)}
+    ref, inter = runners.compare(TINY, frames=8, methods=("affinification",), taus=taus, residual=False)
+    _, seq = runners.compare(TINY, frames=8, methods=("affinification",), taus=taus, residual=False,
+                             timing="sequential")
+    for runs, timing in ((inter, "interleaved"), (seq, "sequential")):
+        aff, full = runs["affinification"], runs["full"]
+        assert aff.summary["timing"] == full.summary["timing"] == timing
+        assert aff.summary["speedup"] == pytest.approx(
+            sum(r["wall"] for r in full.records) / sum(r["wall"] for r in aff.records))
+    # the same runs, only timed differently: identical trajectories and errors
+    for key in ("distance_error", "step_error", "energy_error", "dofs"):
+        assert [r[key] for r in inter["affinification"].records] == \
+            pytest.approx([r[key] for r in seq["affinification"].records], rel=1e-9, abs=1e-15), key
+    assert np.array_equal(ref.x[-1], inter["full"].sim.state.x)
+    with pytest.raises(ValueError, match="timing"):
+        runners.compare(TINY, frames=2, timing="parallel")
+
+
+def test_compare_stops_when_the_reference_diverges(tmp_path):
+    scene = tmp_path / "fragile.py"
+    scene.write_text("import skfem_affine as sa\n"
+                     "def scene(reducer=None, **kw):\n"
+                     "    sim = sa.scenes.cantilever(resolution=1, reducer=reducer, **kw)\n"
+                     "    if reducer is None:  # the full-space run diverges at frame 3\n"
+                     "        step = sim.step\n"
+                     "        def fragile():\n"
+                     "            if sim.state.frame == 2:\n"
+                     "                raise sa.SimulationDiverged(3, 'on purpose')\n"
+                     "            return step()\n"
+                     "        sim.step = fragile\n"
+                     "    return sim\n")
+    spec = runners.SceneSpec.make(str(scene))
+    for timing in ("interleaved", "sequential"):
+        with pytest.raises(sa.SimulationDiverged, match="reference diverged"):
+            runners.compare(spec, frames=5, methods=("affinification",), step_error=False, residual=False,
+                            timing=timing)

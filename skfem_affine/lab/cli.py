@@ -122,6 +122,10 @@ def _frames_table(runs):
     return rows
 
 
+def _timing(args):
+    return "sequential" if getattr(args, "sequential_timing", False) else "interleaved"
+
+
 def _summary_json(summary, extra=None):
     out = {k: summary.get(k) for k in SUMMARY_KEYS}
     out.update(extra or {})
@@ -150,11 +154,6 @@ def cmd_run(args):
     method = runners.get_method(args.method)
     out = _folder(args, "run", spec)
     progress = _progress(args)
-    reference = None
-    if args.reference and method.name != "full":
-        runners.warm_up(spec, ("full", method))
-        _say(args, f"reference: full space, {spec.label} ...")
-        reference, _ = runners.reference_run(spec, args.frames, progress)
     writer = io.SeriesWriter(os.path.join(out, "paraview", method.name)) if not args.no_paraview else None
     every = max(1, args.every)
 
@@ -162,11 +161,17 @@ def cmd_run(args):
         if writer is not None and (state.frame % every == 0):
             writer.write(sim, state)
 
-    frames = reference.frames if reference is not None else args.frames
-    result = runners.run(spec, method, frames, args.tau_a, args.tau_e, reference=reference,
-                         step_error=not args.no_step_error, residual=not args.no_residual,
-                         keep_every=every, keep_frames=[args.frame] if args.frame is not None else (),
-                         progress=progress, on_state=write)
+    measure = dict(step_error=not args.no_step_error, residual=not args.no_residual, keep_every=every,
+                   keep_frames=[args.frame] if args.frame is not None else (), progress=progress)
+    reference = None
+    if args.reference and method.name != "full":
+        timing = _timing(args)
+        _say(args, f"reference: full space, {spec.label}; timing: {runners.TIMING[timing]}")
+        reference, runs = runners.compare(spec, args.frames, ("full", method), {method.name: (args.tau_a, args.tau_e)},
+                                          timing=timing, on_state={method.name: write}, **measure)
+        result = runs[method.name]
+    else:
+        result = runners.run(spec, method, args.frames, args.tau_a, args.tau_e, on_state=write, **measure)
     s = result.summary
     if writer is not None and result.records and (len(result.records) % every):
         writer.write(result.sim, result.sim.state)
@@ -179,10 +184,12 @@ def cmd_run(args):
                f"in {s['wall_s']:.2f} s ({s['frames'] / max(s['wall_s'], 1e-300):.1f} frames/s), status {s['status']}")
     if reference is not None:
         _say(args, _table([s]))
+        _say(args, f"timing: {runners.TIMING[s['timing']]}")
     _say(args, f"wrote {out}/: {method.name}_frames.csv, {os.path.basename(picture)}"
                + (f", {os.path.basename(gif)}" if gif else "")
                + (f", {os.path.relpath(writer.pvd, out)} (ParaView)" if writer else ""))
-    _emit(args, _summary_json(s, {"status": s["status"], "out": out}))
+    _emit(args, _summary_json(s, {"status": s["status"], "timing": s["timing"] if reference is not None else None,
+                                  "out": out}))
     return 0 if s["status"] == "ok" else 1
 
 
@@ -235,19 +242,22 @@ def cmd_compare(args):
                f"(the full-space run is the reference)")
     _, runs = runners.compare(spec, args.frames, methods, taus, step_error=not args.no_step_error,
                               residual=not args.no_residual, keep_every=max(1, args.every),
-                              keep_frames=[args.frame] if args.frame is not None else (), progress=_progress(args))
+                              keep_frames=[args.frame] if args.frame is not None else (), progress=_progress(args),
+                              timing=_timing(args))
     written = compare_outputs(args, spec, runs, out)
     summaries = [r.summary for r in runs.values()]
     first = runs["full"].summary
     _say(args, f"{first['elements']} tets, {first['vertices']} vertices, {first['frames']} frames, "
                f"dt = {runs['full'].sim.dt} s")
     _say(args, _table(summaries))
+    _say(args, f"timing: {runners.TIMING[first['timing']]}")
     _say(args, "speedup = full wall time / method wall time (same frames, this machine); errors are the largest\n"
                "over frames: vertex distance / scene size, step = reference re-started each frame, residual =\n"
                "||A dv - b|| / ||b|| in full space, energy = |strain energy difference| / max reference energy.")
     _say(args, f"wrote {out}/: {', '.join(written)}  ({time.perf_counter() - t0:.1f} s in all)")
     main = runs[methods[1]] if len(methods) > 1 else runs["full"]
-    _emit(args, _summary_json(main.summary, {"out": out, "methods": {n: r.summary for n, r in runs.items()}}))
+    _emit(args, _summary_json(main.summary, {"timing": first["timing"], "out": out,
+                                             "methods": {n: r.summary for n, r in runs.items()}}))
     return 0 if all(s["status"] == "ok" for s in summaries) else 1
 
 
@@ -266,7 +276,7 @@ def cmd_sweep(args):
     rows = runners.sweep(spec, args.frames, method, args.grid, (lo, hi), table, scheduler=args.scheduler,
                          workers=args.workers, processes=not args.threads, step_error=not args.no_step_error,
                          residual=not args.no_residual, retry_failed=args.retry_failed, progress=_progress(args),
-                         paired_timing=args.paired_timing)
+                         paired_timing=args.paired_timing, cell_timeout=args.cell_timeout)
     heatmaps = plots.sweep_heatmaps(rows, os.path.join(out, f"{method.name}_heatmaps.png"),
                                     title=f"{spec.label}: {method.name} sweep ({len(rows)} cells)")
     ok = [r for r in rows if r.get("status") == "ok"]
@@ -277,6 +287,9 @@ def cmd_sweep(args):
             print(f"{r['tau_a']:9.3g} {r['tau_e']:9.3g} {r['status']:>8} {_fmt(r.get('speedup'), '8.2f')} "
                   f"{_fmt(r.get('dof_ratio'), '9.3f')} {_fmt(r.get('mean_clusters'), '7.1f')} "
                   f"{_fmt(r.get('max_distance_error'), '9.1e')}")
+        for r in rows:
+            if r.get("status") in ("crashed", "timeout", "error"):
+                print(f"cell tau_a={r['tau_a']:.3g} tau_e={r['tau_e']:.3g} {r['status']}: {r.get('message')}")
         failed = len(rows) - len(ok)
         print(f"{len(rows)} cells, {failed} failed; wrote {table} and {heatmaps} ({time.perf_counter() - t0:.1f} s)")
     summary = {"scene": spec.label, "method": method.name, "frames": best.get("frames"),
@@ -309,6 +322,7 @@ def cmd_scaling(args):
                   f"{r['time_full_s']:8.2f} "
                   f"{r['time_reduced_s']:9.2f} {_fmt(r['speedup'], '8.2f')} {_fmt(r['max_distance_error'], '9.1e')} "
                   f"{_fmt(r['dof_ratio'], '9.3f')}")
+        print(f"timing: {runners.TIMING[rows[-1]['timing']]}")
         print(f"wrote {table} and {figure}")
     last = rows[-1]
     summary = {"scene": spec.label, "method": method.name, "frames": last["frames"], "elements": last["elements"],
@@ -359,6 +373,12 @@ def _measure(p):
     p.add_argument("--no-residual", action="store_true", help="skip the full-space residual (an assembly per frame)")
 
 
+def _sequential(p):
+    p.add_argument("--sequential-timing", action="store_true",
+                   help="time each method alone, one after the other (default: all methods interleaved frame "
+                        "by frame in one process, so that machine load hits all alike)")
+
+
 def _pictures(p, every=10):
     p.add_argument("--every", type=int, default=every, help=f"keep/write every N-th frame (default {every})")
     p.add_argument("--frame", type=int, default=None,
@@ -393,6 +413,7 @@ def parser():
     _taus(p)
     p.add_argument("--reference", action="store_true",
                    help="also run the full-space reference, for speedup and errors")
+    _sequential(p)
     _measure(p)
     _pictures(p)
     p.set_defaults(func=cmd_run)
@@ -405,6 +426,7 @@ def parser():
     _taus(p, "for the first method; affinification's")
     p.add_argument("--taus", action="append", metavar="METHOD=A,E", default=[],
                    help="thresholds of any method, e.g. --taus rigidification=0.01,0.02 (repeatable)")
+    _sequential(p)
     _measure(p)
     _pictures(p)
     p.set_defaults(func=cmd_compare)
@@ -426,6 +448,9 @@ def parser():
     p.add_argument("--paired-timing", action="store_true",
                    help="time a full-space twin in lockstep in every cell (speedups robust to shared, busy cores; "
                         "one more full run per cell)")
+    p.add_argument("--cell-timeout", type=float, default=None, metavar="SECONDS",
+                   help="a cell still running after this is killed and recorded as timed out (default: 10 x the "
+                        "reference's wall time, at least 300 s)")
     _measure(p)
     p.set_defaults(func=cmd_sweep)
 

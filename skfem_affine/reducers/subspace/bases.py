@@ -20,7 +20,9 @@ start active. Three kinds:
 Within a block the columns are orthonormalised (Euclidean, same span), so that the oracle's
 projection (eq. 16) is the orthogonal projection onto the block. Bases are computed once per
 mesh and material and cached on disk (``.npz``), keyed by a hash of the rest positions,
-elements, fixed vertices, density and per-element material parameters.
+elements, fixed vertices, density and per-element material parameters, and of the code that
+computes them (:func:`code_version`: the package version and this module's source), so that
+a basis cached by other code is never reused.
 """
 import hashlib
 import os
@@ -47,6 +49,15 @@ class ModalBasis:
         return self.U.shape[1]
 
 
+_SOURCE = hashlib.sha1(Path(__file__).read_bytes()).hexdigest()
+
+
+def code_version():
+    """The package version and a hash of this module's source: part of every cache key."""
+    import skfem_affine
+    return f"{getattr(skfem_affine, '__version__', '?')}:{_SOURCE}"
+
+
 def default_cache_dir():
     return Path(os.environ.get("SKFEM_AFFINE_CACHE", Path.home() / ".cache" / "skfem-affine" / "bases"))
 
@@ -68,9 +79,9 @@ class _Basis:
         return f"{type(self).__name__}(n={self.n})"
 
     def key(self, system):
-        """Hash of everything the basis depends on: mesh, fixed vertices, density and materials."""
+        """Hash of everything the basis depends on: mesh, fixed vertices, density, materials and the code."""
         h = hashlib.sha1()
-        h.update(f"{self.kind}:{self.n}".encode())
+        h.update(f"{self.kind}:{self.n}:{code_version()}".encode())
         for a in (system.p0, system.t, system.fixed, system.density, system.material_index):
             a = np.ascontiguousarray(a)
             h.update(str(a.dtype).encode() + str(a.shape).encode() + a.tobytes())
