@@ -47,7 +47,8 @@ class ElasticBody:
         self.fixed = _vertex_mask(fixed, n)
         self.velocity = _velocity(velocity, n)
         self.velocity[self.fixed] = 0.0
-        self.grads, self.volumes = shape_gradients(mesh)
+        with np.errstate(all="ignore"):  # checked just below
+            self.grads, self.volumes = shape_gradients(mesh)
         if not (np.all(np.isfinite(self.grads)) and np.all(self.volumes > 0)):
             raise ValueError("mesh coordinates are too large or too small for floating point: rest "
                              "volumes or shape gradients are not finite and positive; rescale the mesh "
@@ -123,7 +124,7 @@ def _check_mesh(mesh):
         qb = quality[bad[0]]
         raise ValueError(f"degenerate (zero-volume) rest elements {_some(bad)} "
                          f"(relative volume {qb if np.isfinite(qb) else 0.0:.1e}, below {_MIN_QUALITY:g})")
-    _check_folds(mesh, vol)
+    _check_folds(mesh, q)
     return mesh
 
 
@@ -132,15 +133,17 @@ def _some(indices, k=5):
     return f"{np.asarray(indices)[:k].tolist()}{' ...' if len(indices) > k else ''}"
 
 
-def _check_folds(mesh, vol):
-    """Raise if an element is inverted relative to its face neighbour (the mesh folds)."""
+def _check_folds(mesh, q):
+    """Raise if an element is inverted relative to its face neighbour (the mesh folds).
+
+    ``q`` are the mesh points scaled to a unit box (see :func:`_check_mesh`)."""
     f2t = mesh.f2t
     inner = f2t[1] >= 0
     if not np.any(inner):
         return
     e0, e1 = f2t[0, inner], f2t[1, inner]
     facets = mesh.facets[:, inner]
-    p, t = mesh.p.T, mesh.t
+    p, t = q.T, mesh.t
 
     def side(e):
         # the vertex of e opposite the shared facet
