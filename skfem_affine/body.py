@@ -98,7 +98,7 @@ def _check_mesh(mesh):
     sorted_t = np.sort(t, axis=0)
     if np.any(sorted_t[1:] == sorted_t[:-1]):
         bad = np.flatnonzero(np.any(sorted_t[1:] == sorted_t[:-1], axis=0))
-        raise ValueError(f"degenerate rest elements {_some(bad)}: an element uses the same vertex twice")
+        raise ValueError(f"mesh has degenerate rest elements {_some(bad)}: an element uses the same vertex twice")
     order = np.lexsort(sorted_t[::-1])
     same = np.all(sorted_t[:, order[1:]] == sorted_t[:, order[:-1]], axis=0)
     if np.any(same):
@@ -109,7 +109,7 @@ def _check_mesh(mesh):
     # no overflow or underflow for very large or very small meshes
     extent = np.ptp(p, axis=1).max()
     if not extent > 0:
-        raise ValueError("degenerate mesh: all its vertices coincide")
+        raise ValueError("mesh is degenerate: all its vertices coincide")
     q = (p - p.min(axis=1, keepdims=True)) / extent
     vol = signed_volumes(q, t)
     edges = q.T[t[[0, 0, 0, 1, 1, 2]]] - q.T[t[[1, 2, 3, 2, 3, 3]]]
@@ -122,7 +122,7 @@ def _check_mesh(mesh):
     if not np.all(good):
         bad = np.flatnonzero(~good)
         qb = quality[bad[0]]
-        raise ValueError(f"degenerate (zero-volume) rest elements {_some(bad)} "
+        raise ValueError(f"mesh has degenerate (zero-volume) rest elements {_some(bad)} "
                          f"(relative volume {qb if np.isfinite(qb) else 0.0:.1e}, below {_MIN_QUALITY:g})")
     _check_folds(mesh, q)
     return mesh
@@ -155,7 +155,7 @@ def _check_folds(mesh, q):
     same = np.sign(side(e0)) == np.sign(side(e1))
     if np.any(same):
         k = np.flatnonzero(same)[0]
-        raise ValueError(f"inverted rest element: elements {int(e0[k])} and {int(e1[k])} lie on the "
+        raise ValueError(f"mesh folds: inverted rest element: elements {int(e0[k])} and {int(e1[k])} lie on the "
                          f"same side of their shared face ({int(same.sum())} such faces)")
 
 
@@ -212,7 +212,7 @@ def _check_material(mat):
     if not isinstance(mat, Material):
         raise TypeError(f"material must be a Material (StVK, Corotational, NeoHookean), got {type(mat).__name__}")
     if mat.E.ndim or mat.nu.ndim:
-        raise ValueError("per-element materials must have scalar E and nu")
+        raise ValueError("material: a list or dict of materials needs scalar E and nu in each (per-element arrays go in one material)")
 
 
 def _positive_per_element(value, m, what):

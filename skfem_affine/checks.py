@@ -324,7 +324,8 @@ def check_bodies(bodies):
     hint = "make one with sa.ElasticBody(mesh, material)"
     if isinstance(bodies, ElasticBody):
         return [bodies]
-    if bodies is None or isinstance(bodies, (str, bytes, type, dict)) or not hasattr(bodies, "__iter__"):
+    if bodies is None or isinstance(bodies, (str, bytes, type, dict)) or not hasattr(bodies, "__iter__") \
+            or _looks_like_mesh(bodies):
         extra = f"; {hint}" if bodies is not None and _looks_like_mesh(bodies) else ""
         raise TypeError(f"bodies must be an ElasticBody or a non-empty list of them, got {_describe(bodies)}{extra}")
     out = list(bodies)
