@@ -109,3 +109,25 @@ def test_check_bodies():
         check_bodies([sa.ElasticBody])
     with pytest.raises(TypeError, match="bodies must be"):
         check_bodies(sa.ElasticBody)
+
+
+@pytest.mark.parametrize("make, error, match", [
+    (lambda: sa.solvers.AMGCG(maxiter=2.7), ValueError, "maxiter must be an integer"),
+    (lambda: sa.solvers.AMGCG(tol="1e-8"), TypeError, "tol"),
+    (lambda: sa.solvers.AMGCG(tol=0.0), ValueError, "tol"),
+    (lambda: sa.solvers.AutoSolver(amg_min_dofs=10.5), ValueError, "amg_min_dofs"),
+    (lambda: sa.solvers.AutoSolver(amg_max_iterations=0), ValueError, "amg_max_iterations"),
+    (lambda: sa.solvers.make_solver(sa.solvers.SuperLU), TypeError, r"class SuperLU: write SuperLU\(\)"),
+    (lambda: sa.solvers.make_solver(3), TypeError, "solver must be"),
+    (lambda: beam_mesh(2.7), ValueError, "resolution must be an integer"),
+    (lambda: sa.scenes.free_body(resolution="2"), TypeError, "resolution"),
+    (lambda: sa.scenes.stacked_beams(n=1.5), ValueError, "n must be an integer"),
+])
+def test_integer_options_are_not_truncated(make, error, match):
+    with pytest.raises(error, match=match):
+        make()
+
+
+def test_integral_floats_still_work_where_integers_are_asked():
+    assert beam_mesh(2.0).t.shape[1] == beam_mesh(2).t.shape[1]
+    assert sa.solvers.AMGCG(maxiter=100.0).maxiter == 100
