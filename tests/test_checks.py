@@ -122,6 +122,8 @@ def test_check_bodies():
     (lambda: beam_mesh(2.7), ValueError, "resolution must be an integer"),
     (lambda: sa.scenes.free_body(resolution="2"), TypeError, "resolution"),
     (lambda: sa.scenes.stacked_beams(n=1.5), ValueError, "n must be an integer"),
+    (lambda: sa.runners.sweep_taus(grid=2.5), ValueError, "grid must be an integer"),
+    (lambda: sa.runners.default_frames(None, frames="10"), TypeError, "frames"),
 ])
 def test_integer_options_are_not_truncated(make, error, match):
     with pytest.raises(error, match=match):

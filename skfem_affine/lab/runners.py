@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from skfem_affine.checks import integer
 from skfem_affine.lab import metrics
 
 from skfem_affine.lab import scenes
@@ -125,7 +126,7 @@ class SceneSpec:
 
 
 def default_frames(sim, frames=None):
-    return int(frames) if frames is not None else int(getattr(sim, "frames", 100))
+    return integer(frames if frames is not None else getattr(sim, "frames", 100), "frames", low=0)
 
 
 # ---------------------------------------------------------------- runs
@@ -200,7 +201,7 @@ def run(spec, method="full", frames=None, tau_a=None, tau_e=None, reference=None
     evaluator = spec.build() if measure else None
     strain_scale = float(np.max(reference.strain)) if reference is not None else 0.0
     records, kept = [], []
-    keep = set(int(f) for f in keep_frames)
+    keep = set(integer(f, "keep_frames", low=0) for f in keep_frames)
 
     def want(state):
         return (keep_every and (state.frame % keep_every == 0 or state.frame == frames)) or state.frame in keep
@@ -335,9 +336,8 @@ def sweep_taus(grid=9, tau_range=(1e-3, 1.0)):
     lo, hi = map(float, tau_range)
     if not 0 < lo <= hi:
         raise ValueError(f"tau range must satisfy 0 < lo <= hi, got {tau_range}")
-    if int(grid) < 1:
-        raise ValueError(f"grid must be >= 1, got {grid}")
-    return np.array([float(f"{t:.6g}") for t in np.logspace(np.log10(lo), np.log10(hi), int(grid))])
+    grid = integer(grid, "grid", low=1)
+    return np.array([float(f"{t:.6g}") for t in np.logspace(np.log10(lo), np.log10(hi), grid)])
 
 
 def cell_key(row):
@@ -393,7 +393,7 @@ def sweep(spec, frames=None, method="affinification", grid=9, tau_range=(1e-3, 1
     taus = sweep_taus(grid, tau_range)
     if frames is None:
         frames = default_frames(spec.build())
-    frames = int(frames)
+    frames = integer(frames, "frames", low=0)
     base = {"scene_key": spec.key(), "frames_asked": frames, "method": method.name,
             "timing_asked": "paired" if paired_timing else "reference"}
     cells = [(ta, te) for te in taus for ta in taus]
@@ -490,7 +490,7 @@ def scaling(spec, resolutions, frames, method="affinification", tau_a=None, tau_
 
     ``frames`` is one number or one per resolution (large meshes may take fewer).
     """
-    resolutions = [int(k) for k in resolutions]
+    resolutions = [integer(k, "resolutions", low=1) for k in resolutions]
     frames = [frames] * len(resolutions) if np.ndim(frames) == 0 else list(frames)
     if len(frames) != len(resolutions):
         raise ValueError(f"give one frame count, or one per resolution ({len(resolutions)}), got {len(frames)}")
