@@ -21,15 +21,21 @@ class ElasticBody:
     Parameters
     ----------
     mesh : skfem.MeshTet
-        Linear tetrahedral mesh (any orientation of the elements).
+        Linear (P1) tetrahedral mesh, any orientation of the elements. Refused (ValueError
+        or TypeError naming ``mesh``): other element types, an empty mesh, non-finite
+        coordinates, vertices used by no element (drop them first with
+        ``mesh.remove_unused_nodes()``), repeated or duplicated elements, degenerate or
+        folded rest elements (docs/reliability.md).
     material : Material, sequence of Material (one per element), or dict
         A dict maps subdomain names of ``mesh.subdomains`` to materials; every
-        element must be covered exactly once.
+        element must be covered exactly once. A single material may hold per-element
+        ``E``/``nu`` arrays of length m.
     density : float or (m,) array
         Mass density (kg/m^3), > 0.
     fixed : array of vertex indices or boolean mask, optional
         Vertices held in place (zero velocity, Dirichlet), e.g. from
-        ``mesh.nodes_satisfying``.
+        ``mesh.nodes_satisfying``. A mask must be boolean with one entry per vertex;
+        an integer array of n zeros and ones is refused as ambiguous.
     velocity : (n, 3) or (3,) array, optional
         Initial velocity (default zero). Fixed vertices get zero velocity.
     name : str, optional
