@@ -21,6 +21,7 @@ from skfem.helpers import dot
 
 from skfem_affine._eigensystems import evaluate_elements, internal_force, scatter_forces
 from skfem_affine._kernels import deformation_gradients, element_hessians, scatter_add
+from skfem_affine.checks import check_bodies, choice
 from skfem_affine.kinematics import deformation_operator, element_dofs
 from skfem_affine.threads import serial_blas
 
@@ -107,9 +108,8 @@ class ElasticSystem:
     """
 
     def __init__(self, bodies, mass="lumped"):
-        if mass not in ("lumped", "consistent"):
-            raise ValueError(f"mass must be 'lumped' or 'consistent', got {mass!r}")
-        self.bodies = list(bodies)
+        choice(mass, "mass", ("lumped", "consistent"))
+        self.bodies = check_bodies(bodies)
         offsets = np.cumsum([0] + [b.n_vertices for b in self.bodies])
         eoffsets = np.cumsum([0] + [b.n_elements for b in self.bodies])
         self.vertex_offsets, self.element_offsets = offsets, eoffsets

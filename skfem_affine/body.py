@@ -7,7 +7,12 @@ import numpy as np
 import skfem
 
 from skfem_affine.kinematics import shape_gradients, signed_volumes
+from skfem_affine.checks import real_array
 from skfem_affine.materials import Material
+
+# a rest element whose volume is below this fraction of a regular tet with its longest edge
+# is degenerate (its shape gradients would be meaningless)
+_MIN_QUALITY = 1e-9
 
 
 class ElasticBody:
@@ -16,15 +21,21 @@ class ElasticBody:
     Parameters
     ----------
     mesh : skfem.MeshTet
-        Linear tetrahedral mesh (any orientation of the elements).
+        Linear (P1) tetrahedral mesh, any orientation of the elements. Refused (ValueError
+        or TypeError naming ``mesh``): other element types, an empty mesh, non-finite
+        coordinates, vertices used by no element (drop them first with
+        ``mesh.remove_unused_nodes()``), repeated or duplicated elements, degenerate or
+        folded rest elements (docs/reliability.md).
     material : Material, sequence of Material (one per element), or dict
         A dict maps subdomain names of ``mesh.subdomains`` to materials; every
-        element must be covered exactly once.
+        element must be covered exactly once. A single material may hold per-element
+        ``E``/``nu`` arrays of length m.
     density : float or (m,) array
         Mass density (kg/m^3), > 0.
     fixed : array of vertex indices or boolean mask, optional
         Vertices held in place (zero velocity, Dirichlet), e.g. from
-        ``mesh.nodes_satisfying``.
+        ``mesh.nodes_satisfying``. A mask must be boolean with one entry per vertex;
+        an integer array of n zeros and ones is refused as ambiguous.
     velocity : (n, 3) or (3,) array, optional
         Initial velocity (default zero). Fixed vertices get zero velocity.
     name : str, optional
@@ -32,6 +43,8 @@ class ElasticBody:
 
     def __init__(self, mesh, material, density=1000.0, fixed=None, velocity=None, name=None):
         self.mesh = _check_mesh(mesh)
+        if name is not None and not isinstance(name, str):
+            raise TypeError(f"name must be a str or None, got {type(name).__name__}")
         self.name = name or "body"
         n, m = mesh.p.shape[1], mesh.t.shape[1]
         self.n_vertices, self.n_elements = n, m
@@ -40,7 +53,12 @@ class ElasticBody:
         self.fixed = _vertex_mask(fixed, n)
         self.velocity = _velocity(velocity, n)
         self.velocity[self.fixed] = 0.0
-        self.grads, self.volumes = shape_gradients(mesh)
+        with np.errstate(all="ignore"):  # checked just below
+            self.grads, self.volumes = shape_gradients(mesh)
+        if not (np.all(np.isfinite(self.grads)) and np.all(self.volumes > 0)):
+            raise ValueError("mesh coordinates are too large or too small for floating point: rest "
+                             "volumes or shape gradients are not finite and positive; rescale the mesh "
+                             "(e.g. to metres)")
 
     def __repr__(self):
         return (f"ElasticBody({self.name!r}, vertices={self.n_vertices}, elements={self.n_elements}, "
@@ -54,40 +72,84 @@ class ElasticBody:
 
 
 def _check_mesh(mesh):
+    """Refuse meshes the simulator cannot run: wrong kind, empty, non-finite, unused vertices,
+    out-of-range or repeated elements, degenerate or folded rest elements."""
     if not isinstance(mesh, skfem.Mesh):
         raise TypeError(f"mesh must be a skfem.MeshTet, got {type(mesh).__name__}")
-    if not isinstance(mesh, skfem.MeshTet1) or mesh.t.shape[0] != 4:
+    if isinstance(mesh, skfem.MeshTet1) and getattr(mesh, "elem", skfem.ElementTetP1) is not skfem.ElementTetP1:
+        raise TypeError(f"mesh must be a linear (P1) tetrahedral skfem.MeshTet, got the higher-order "
+                        f"{type(mesh).__name__}; keep its vertices with "
+                        f"skfem.MeshTet(mesh.p[:, :mesh.nvertices], mesh.t)")
+    if not isinstance(mesh, skfem.MeshTet1) or mesh.t.ndim != 2 or mesh.t.shape[0] != 4:
         raise TypeError(f"mesh must be a linear tetrahedral skfem.MeshTet, got {type(mesh).__name__}")
     p, t = mesh.p, mesh.t
-    if p.shape[0] != 3:
+    if p.ndim != 2 or p.shape[0] != 3:
         raise ValueError(f"mesh points must be 3D, got shape {p.shape}")
+    if p.shape[1] == 0 or t.shape[1] == 0:
+        raise ValueError(f"mesh is empty ({p.shape[1]} vertices, {t.shape[1]} elements); "
+                         f"an ElasticBody needs at least one tetrahedron")
     if not np.all(np.isfinite(p)):
         bad = np.flatnonzero(~np.all(np.isfinite(p), axis=0))
-        raise ValueError(f"mesh has non-finite (NaN/inf) coordinates at vertices {bad[:5].tolist()}")
+        raise ValueError(f"mesh has non-finite (NaN/inf) coordinates at vertices {_some(bad)}")
     if t.min() < 0 or t.max() >= p.shape[1]:
-        raise ValueError("mesh elements reference vertices out of range")
-    vol = signed_volumes(p, t)
-    edges = p.T[t[[0, 0, 0, 1, 1, 2]]] - p.T[t[[1, 2, 3, 2, 3, 3]]]
+        bad = np.flatnonzero(np.any((t < 0) | (t >= p.shape[1]), axis=0))
+        raise ValueError(f"mesh elements {_some(bad)} reference vertices out of range [0, {p.shape[1]})")
+    used = np.zeros(p.shape[1], dtype=bool)
+    used[t.ravel()] = True
+    if not np.all(used):
+        bad = np.flatnonzero(~used)
+        raise ValueError(f"mesh has {bad.size} vertices used by no element: {_some(bad)}; they would make "
+                         f"the system singular. Drop them with mesh = mesh.remove_unused_nodes() "
+                         f"(renumbers the vertices: compute fixed vertices afterwards)")
+    sorted_t = np.sort(t, axis=0)
+    if np.any(sorted_t[1:] == sorted_t[:-1]):
+        bad = np.flatnonzero(np.any(sorted_t[1:] == sorted_t[:-1], axis=0))
+        raise ValueError(f"mesh has degenerate rest elements {_some(bad)}: an element uses the same vertex twice")
+    order = np.lexsort(sorted_t[::-1])
+    same = np.all(sorted_t[:, order[1:]] == sorted_t[:, order[:-1]], axis=0)
+    if np.any(same):
+        k = np.flatnonzero(same)[0]
+        raise ValueError(f"mesh has duplicated elements (same four vertices): elements "
+                         f"{sorted([int(order[k]), int(order[k + 1])])} ({int(same.sum())} such pairs)")
+    # quality on coordinates scaled to a unit bounding box: independent of the unit of length,
+    # no overflow or underflow for very large or very small meshes
+    extent = np.ptp(p, axis=1).max()
+    if not extent > 0:
+        raise ValueError("mesh is degenerate: all its vertices coincide")
+    q = (p - p.min(axis=1, keepdims=True)) / extent
+    vol = signed_volumes(q, t)
+    edges = q.T[t[[0, 0, 0, 1, 1, 2]]] - q.T[t[[1, 2, 3, 2, 3, 3]]]
     longest = np.linalg.norm(edges, axis=-1).max(axis=0)
-    # volume relative to a regular tet with the same longest edge (1 for regular)
-    quality = np.abs(vol) * 6.0 * np.sqrt(2.0) / np.maximum(longest, 1e-300) ** 3
-    bad = np.flatnonzero(quality < 1e-9)
-    if bad.size:
-        raise ValueError(f"degenerate (zero-volume) rest elements {bad[:5].tolist()}"
-                         f"{' ...' if bad.size > 5 else ''} (relative volume {quality[bad[0]]:.1e})")
-    _check_folds(mesh, vol)
+    # volume relative to a regular tet with the same longest edge (1 for regular); NaN-proof:
+    # coincident vertices (longest = 0) or any non-finite value count as degenerate
+    with np.errstate(divide="ignore", invalid="ignore"):
+        quality = np.abs(vol) * 6.0 * np.sqrt(2.0) / longest ** 3
+    good = np.isfinite(quality) & (longest > 0) & (quality >= _MIN_QUALITY)
+    if not np.all(good):
+        bad = np.flatnonzero(~good)
+        qb = quality[bad[0]]
+        raise ValueError(f"mesh has degenerate (zero-volume) rest elements {_some(bad)} "
+                         f"(relative volume {qb if np.isfinite(qb) else 0.0:.1e}, below {_MIN_QUALITY:g})")
+    _check_folds(mesh, q)
     return mesh
 
 
-def _check_folds(mesh, vol):
-    """Raise if an element is inverted relative to its face neighbour (the mesh folds)."""
+def _some(indices, k=5):
+    """The first ``k`` indices as a list, with ' ...' when there are more."""
+    return f"{np.asarray(indices)[:k].tolist()}{' ...' if len(indices) > k else ''}"
+
+
+def _check_folds(mesh, q):
+    """Raise if an element is inverted relative to its face neighbour (the mesh folds).
+
+    ``q`` are the mesh points scaled to a unit box (see :func:`_check_mesh`)."""
     f2t = mesh.f2t
     inner = f2t[1] >= 0
     if not np.any(inner):
         return
     e0, e1 = f2t[0, inner], f2t[1, inner]
     facets = mesh.facets[:, inner]
-    p, t = mesh.p.T, mesh.t
+    p, t = q.T, mesh.t
 
     def side(e):
         # the vertex of e opposite the shared facet
@@ -99,7 +161,7 @@ def _check_folds(mesh, vol):
     same = np.sign(side(e0)) == np.sign(side(e1))
     if np.any(same):
         k = np.flatnonzero(same)[0]
-        raise ValueError(f"inverted rest element: elements {int(e0[k])} and {int(e1[k])} lie on the "
+        raise ValueError(f"mesh folds: inverted rest element: elements {int(e0[k])} and {int(e1[k])} lie on the "
                          f"same side of their shared face ({int(same.sum())} such faces)")
 
 
@@ -107,6 +169,11 @@ def _element_materials(material, mesh):
     """Return (unique materials, per-element index into them)."""
     m = mesh.t.shape[1]
     if isinstance(material, Material):
+        for what in ("E", "nu"):
+            a = getattr(material, what)
+            if a.ndim and a.shape != (m,):
+                raise ValueError(f"material {what} has one value per element: it must have length {m} "
+                                 f"(the mesh's elements), got length {a.shape[0]}")
         return [material], np.zeros(m, dtype=np.int64)
     if isinstance(material, dict):
         subs = mesh.subdomains or {}
@@ -139,40 +206,65 @@ def _element_materials(material, mesh):
                 mats.append(mat)
             index[e] = ids[key]
         return mats, index
+    if isinstance(material, type):
+        _check_material(material)
     raise TypeError(f"material must be a Material, a sequence of them or a dict, got {type(material).__name__}")
 
 
 def _check_material(mat):
+    if isinstance(mat, type):
+        raise TypeError(f"material must be a Material instance such as sa.NeoHookean(E=1e5, nu=0.3), "
+                        f"got the class {mat.__name__}")
     if not isinstance(mat, Material):
-        raise TypeError(f"expected a Material (StVK, Corotational, NeoHookean), got {type(mat).__name__}")
+        raise TypeError(f"material must be a Material (StVK, Corotational, NeoHookean), got {type(mat).__name__}")
     if mat.E.ndim or mat.nu.ndim:
-        raise ValueError("per-element materials must have scalar E and nu")
+        raise ValueError("material: a list or dict of materials needs scalar E and nu in each (per-element arrays go in one material)")
 
 
 def _positive_per_element(value, m, what):
-    a = np.asarray(value, dtype=float)
+    a = real_array(value, what)
     if a.ndim == 0:
         a = np.full(m, float(a))
     if a.shape != (m,):
-        raise ValueError(f"{what} must be a scalar or an array of length {m}, got shape {a.shape}")
-    if not np.all(np.isfinite(a)) or np.any(a <= 0):
-        bad = np.flatnonzero(~(np.isfinite(a) & (a > 0)))
-        raise ValueError(f"{what} must be finite and > 0, got {a[bad[0]]:g} (element {bad[0]})")
+        raise ValueError(f"{what} must be a scalar or an array of length {m} (one value per element), "
+                         f"got shape {a.shape}")
+    if np.any(a <= 0):
+        bad = np.flatnonzero(a <= 0)
+        raise ValueError(f"{what} must be > 0, got {a[bad[0]]:g} (element {bad[0]})")
     return a
 
 
 def _vertex_mask(fixed, n):
+    """Boolean (n,) mask from a boolean mask or vertex indices.
+
+    An integer array of only 0 and 1 with one entry per vertex reads as well as a mask as
+    as indices with repeats: it is refused, the user says which it is.
+    """
     mask = np.zeros(n, dtype=bool)
     if fixed is None:
         return mask
-    f = np.asarray(fixed)
+    if isinstance(fixed, (set, frozenset)):
+        fixed = sorted(fixed)
+    if isinstance(fixed, (str, bytes)):
+        raise TypeError(f"fixed must hold vertex indices (integers) or a boolean mask, got {type(fixed).__name__}")
+    if isinstance(fixed, (list, tuple)) and any(isinstance(v, (bool, np.bool_)) for v in fixed) \
+            and not all(isinstance(v, (bool, np.bool_)) for v in fixed):
+        raise TypeError("fixed mixes booleans and integers; pass a boolean mask of length "
+                        f"{n} or a list of vertex indices")
+    try:
+        f = np.asarray(fixed)
+    except (TypeError, ValueError):
+        raise TypeError(f"fixed must hold vertex indices (integers) or a boolean mask, got {type(fixed).__name__}") from None
     if f.dtype == bool:
         if f.shape != (n,):
-            raise ValueError(f"boolean fixed mask must have length {n}, got {f.shape}")
+            raise ValueError(f"boolean fixed mask must have length {n} (one entry per vertex), got shape {f.shape}")
         return f.copy()
     if f.size and not np.issubdtype(f.dtype, np.integer):
-        raise TypeError(f"fixed must hold vertex indices (integers) or a boolean mask, got {f.dtype}")
+        raise TypeError(f"fixed must hold vertex indices (integers) or a boolean mask, got {f.dtype} values")
     f = f.ravel().astype(np.int64)
+    if f.size == n and n > 2 and np.all((f == 0) | (f == 1)):
+        raise ValueError(f"fixed has {n} entries, all 0 or 1: a mask or vertex indices? Pass a boolean mask "
+                         f"(np.asarray(fixed, dtype=bool)) or the indices (np.flatnonzero(fixed))")
     if f.size and (f.min() < 0 or f.max() >= n):
         raise ValueError(f"fixed vertex indices out of range [0, {n}): min {f.min()}, max {f.max()}")
     mask[f] = True
@@ -182,11 +274,9 @@ def _vertex_mask(fixed, n):
 def _velocity(velocity, n):
     if velocity is None:
         return np.zeros((n, 3))
-    v = np.array(velocity, dtype=float)
+    v = real_array(velocity, "velocity")
     if v.shape == (3,):
         v = np.tile(v, (n, 1))
     if v.shape != (n, 3):
         raise ValueError(f"velocity must have shape ({n}, 3) or (3,), got {v.shape}")
-    if not np.all(np.isfinite(v)):
-        raise ValueError("initial velocity has non-finite values")
     return v

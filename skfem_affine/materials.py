@@ -23,6 +23,7 @@ Models (paper sec. 4, [SGK18]):
 import numpy as np
 
 from skfem_affine._eigensystems import COROTATIONAL, GENERIC, NEOHOOKEAN, STVK, evaluate_elements
+from skfem_affine.checks import real_array
 
 # Levi-Civita symbol, used for the cofactor and the Hessian of det F.
 _EPS = np.zeros((3, 3, 3))
@@ -32,17 +33,26 @@ _I3 = np.eye(3)
 
 
 def lame(E, nu):
-    """Lame parameters (mu, lam) from Young's modulus and Poisson ratio, validated."""
-    E = np.asarray(E, dtype=float)
-    nu = np.asarray(nu, dtype=float)
-    if not (np.all(np.isfinite(E)) and np.all(np.isfinite(nu))):
-        raise ValueError("material parameters must be finite (got NaN or inf in E or nu)")
-    if np.any(E <= 0):
-        raise ValueError(f"Young's modulus E must be > 0, got min E = {E.min():g}")
-    if np.any(nu >= 0.5) or np.any(nu <= -1.0):
-        raise ValueError(f"Poisson ratio nu must lie in (-1, 0.5), got nu in [{nu.min():g}, {nu.max():g}]")
-    mu = E / (2.0 * (1.0 + nu))
-    lam = E * nu / ((1.0 + nu) * (1.0 - 2.0 * nu))
+    """Lame parameters (mu, lam) from Young's modulus and Poisson ratio, validated.
+
+    ``E`` and ``nu`` are real numbers or 1-D arrays of them (one value per element; two arrays
+    must have the same length), E > 0 and -1 < nu < 0.5, all finite. Anything else raises a
+    TypeError or ValueError naming ``E`` or ``nu``.
+    """
+    E = real_array(E, "Young's modulus E", low=0.0, include_low=False)
+    nu = real_array(nu, "Poisson ratio nu", low=-1.0, high=0.5, include_low=False, include_high=False)
+    for what, a in (("E", E), ("nu", nu)):
+        if a.ndim > 1:
+            raise ValueError(f"{what} must be a number or a 1-D array (one value per element), got shape {a.shape}")
+        if a.ndim == 1 and a.size == 0:
+            raise ValueError(f"{what} is an empty array; give a number or one value per element")
+    if E.ndim and nu.ndim and E.shape != nu.shape:
+        raise ValueError(f"E and nu per element must have the same length, got {E.shape[0]} and {nu.shape[0]}")
+    with np.errstate(over="ignore", invalid="ignore"):
+        mu = E / (2.0 * (1.0 + nu))
+        lam = E * nu / ((1.0 + nu) * (1.0 - 2.0 * nu))
+    if not (np.all(np.isfinite(mu)) and np.all(np.isfinite(lam))):
+        raise ValueError("E and nu give non-finite Lame parameters (E too large, or nu too close to 0.5 or -1)")
     return mu, lam
 
 
@@ -114,9 +124,9 @@ class Material:
     _code = GENERIC
 
     def __init__(self, E, nu):
+        self.mu, self.lam = lame(E, nu)
         self.E = np.asarray(E, dtype=float)
         self.nu = np.asarray(nu, dtype=float)
-        self.mu, self.lam = lame(self.E, self.nu)
 
     def __repr__(self):
         def fmt(a):

@@ -19,6 +19,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from skfem_affine import threads
+from skfem_affine.checks import integer, positive
 
 AMG_MIN_DOFS = 5000
 PARDISO_THREADED_MIN = 10000
@@ -232,7 +233,9 @@ class AMGCG:
     iterative = True
 
     def __init__(self, tol=1e-8, maxiter=500, rebuild_iterations=15):
-        self.tol, self.maxiter, self.rebuild_iterations = tol, maxiter, rebuild_iterations
+        self.tol = positive(tol, "tol")
+        self.maxiter = integer(maxiter, "maxiter", low=1)
+        self.rebuild_iterations = integer(rebuild_iterations, "rebuild_iterations", low=1)
         self._ml = None
         self._stale = False
         self.last_iterations = 0
@@ -290,8 +293,9 @@ class AutoSolver:
     iterative = False
 
     def __init__(self, amg_min_dofs=None, amg_max_iterations=None):
-        self.amg_min_dofs = AMG_MIN_DOFS if amg_min_dofs is None else amg_min_dofs
-        self.amg_max_iterations = AMG_MAX_ITERATIONS if amg_max_iterations is None else amg_max_iterations
+        self.amg_min_dofs = AMG_MIN_DOFS if amg_min_dofs is None else integer(amg_min_dofs, "amg_min_dofs", low=0)
+        self.amg_max_iterations = (AMG_MAX_ITERATIONS if amg_max_iterations is None
+                                   else integer(amg_max_iterations, "amg_max_iterations", low=1))
         self._direct = self._amg = None
         self._current = None
         self.amg_abandoned = False
@@ -333,6 +337,10 @@ def make_solver(solver):
         if solver == "pardiso" and not has_pardiso():
             raise ValueError("solver 'pardiso' needs the optional package pypardiso (pip install skfem-affine[fast])")
         return SOLVERS[solver]()
+    if isinstance(solver, type):
+        raise TypeError(f"solver must be a name or a solver instance, got the class {solver.__name__}: "
+                        f"write {solver.__name__}()")
     if not (hasattr(solver, "factorize") and hasattr(solver, "solve")):
-        raise TypeError("solver must be a name or an object with factorize(A) and solve(b)")
+        raise TypeError(f"solver must be a name or an object with factorize(A) and solve(b), "
+                        f"got {type(solver).__name__}")
     return solver

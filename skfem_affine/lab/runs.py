@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from skfem_affine.checks import integer
 from skfem_affine.lab import metrics
 from skfem_affine.lab.methods import COMPARED, get_method
 from skfem_affine.lab.scene_spec import default_frames
@@ -101,7 +102,7 @@ class _Stepped:
     def __init__(self, name, sim, ref_x=None, size=None, trajectory=False, keep_every=0, keep_frames=(),
                  frames=None, on_state=None, strain=True, positions=None, required=False):
         self.name, self.sim, self.ref_x, self.size = name, sim, ref_x, size
-        self.keep_every, self.keep, self.frames = keep_every, {int(f) for f in keep_frames}, frames
+        self.keep_every, self.keep, self.frames = keep_every, {integer(f, "keep_frames", low=0) for f in keep_frames}, frames
         self.on_state, self.strain, self.positions, self.required = on_state, strain, positions, required
         self.records, self.kept, self.status, self.message = [], [], "ok", ""
         first = sim.state.copy()

@@ -1,6 +1,7 @@
 """The same scene at increasing resolution (paper Table 2): full and reduced wall time, speedup, error."""
 import numpy as np
 
+from skfem_affine.checks import integer
 from skfem_affine.lab.methods import get_method
 from skfem_affine.lab.runs import compare
 
@@ -13,7 +14,7 @@ def scaling(spec, resolutions, frames, method="affinification", tau_a=None, tau_
     resolution the full-space reference and the method are timed as in :func:`compare`
     (``timing``: interleaved frame by frame by default).
     """
-    resolutions = [int(k) for k in resolutions]
+    resolutions = [integer(k, "resolutions", low=1) for k in resolutions]
     frames = [frames] * len(resolutions) if np.ndim(frames) == 0 else list(frames)
     if len(frames) != len(resolutions):
         raise ValueError(f"give one frame count, or one per resolution ({len(resolutions)}), got {len(frames)}")

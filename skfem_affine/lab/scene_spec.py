@@ -11,6 +11,7 @@ import os
 import runpy
 from dataclasses import dataclass
 
+from skfem_affine.checks import integer
 from skfem_affine.lab import scenes
 
 
@@ -99,4 +100,4 @@ class SceneSpec:
 
 def default_frames(sim, frames=None):
     """``frames`` if given, else the scene's own ``sim.frames`` (100 when it has none)."""
-    return int(frames) if frames is not None else int(getattr(sim, "frames", 100))
+    return integer(frames if frames is not None else getattr(sim, "frames", 100), "frames", low=0)

@@ -13,6 +13,7 @@ import numpy as np
 import skfem
 
 from skfem_affine.body import ElasticBody
+from skfem_affine.checks import integer
 from skfem_affine.contact.colliders import Bowl, Plane
 from skfem_affine.contact.pgs import PGS
 from skfem_affine.simulation import Simulation
@@ -29,9 +30,7 @@ def _split(kwargs):
 
 def beam_mesh(resolution, length=4.0, width=1.0):
     """A length x width x width box with ``resolution`` cells across: 24 k^3 tets (length 4)."""
-    k = int(resolution)
-    if k < 1:
-        raise ValueError(f"resolution must be >= 1, got {resolution}")
+    k = integer(resolution, "resolution", low=1)
     nx = max(1, int(round(k * length / width)))
     return skfem.MeshTet.init_tensor(np.linspace(0, length, nx + 1), np.linspace(0, width, k + 1),
                                      np.linspace(0, width, k + 1))
@@ -64,7 +63,7 @@ def free_body(resolution=3, shape="cube", size=1.0, spin=(0.0, 0.0, 2.0), veloci
     """
     sim_kw, body_kw = _split(dict(kwargs))
     sim_kw.setdefault("dt", 0.01)
-    k = int(resolution)
+    k = integer(resolution, "resolution", low=1)
     if shape == "cube":
         mesh = skfem.MeshTet.init_tensor(*[np.linspace(-size / 2, size / 2, k + 1)] * 3)
     elif shape == "ball":
@@ -87,10 +86,7 @@ def free_body(resolution=3, shape="cube", size=1.0, spin=(0.0, 0.0, 2.0), veloci
 
 # ---------------------------------------------------------------------------- contact scenes
 def _resolution(resolution):
-    k = int(resolution)
-    if k < 1:
-        raise ValueError(f"resolution must be >= 1, got {resolution}")
-    return k
+    return integer(resolution, "resolution", low=1)
 
 
 def box_mesh(size, cells, center=(0.0, 0.0, 0.0)):
@@ -138,9 +134,7 @@ def _contact_scene_kwargs(kwargs, friction, collider):
 
 
 def _count(n):
-    if int(n) < 1:
-        raise ValueError(f"n must be >= 1, got {n}")
-    return int(n)
+    return integer(n, "n", low=1)
 
 
 def _scene(sim, name, frames):

@@ -15,6 +15,7 @@ import time
 
 import numpy as np
 
+from skfem_affine.checks import integer
 from skfem_affine.lab import cells
 from skfem_affine.lab.methods import get_method
 from skfem_affine.lab.runs import Reference, _bar, reference_run, run, warm_up
@@ -31,9 +32,8 @@ def sweep_taus(grid=9, tau_range=(1e-3, 1.0)):
     lo, hi = map(float, tau_range)
     if not 0 < lo <= hi:
         raise ValueError(f"tau range must satisfy 0 < lo <= hi, got {tau_range}")
-    if int(grid) < 1:
-        raise ValueError(f"grid must be >= 1, got {grid}")
-    return np.array([float(f"{t:.6g}") for t in np.logspace(np.log10(lo), np.log10(hi), int(grid))])
+    grid = integer(grid, "grid", low=1)
+    return np.array([float(f"{t:.6g}") for t in np.logspace(np.log10(lo), np.log10(hi), grid)])
 
 
 def cell_key(row):
@@ -153,7 +153,7 @@ def sweep(spec, frames=None, method="affinification", grid=9, tau_range=(1e-3, 1
         raise ValueError(f"cell_timeout must be > 0 seconds, got {cell_timeout}")
     if frames is None:
         frames = default_frames(spec.build())
-    frames = int(frames)
+    frames = integer(frames, "frames", low=0)
     key = spec.key()
     base = {"scene_key": key, "frames_asked": frames, "method": method.name,
             "timing_asked": "paired" if paired_timing else "reference"}
