@@ -314,9 +314,7 @@ def interleaved(sims, frames, on_frame=None, progress=False):
     for name, sim in sims.items():
         if not hasattr(sim, "step") or not hasattr(sim, "stats"):
             raise TypeError(f"sims[{name!r}] is {type(sim).__name__}, not a Simulation")
-    frames = int(frames)
-    if frames < 0:
-        raise ValueError(f"frames must be >= 0, got {frames}")
+    frames = integer(frames, "frames", low=0)
     stepped = [_Stepped(name, sim, strain=False) for name, sim in sims.items()]
     bar = _bar(frames, "interleaved", progress)
     try:
