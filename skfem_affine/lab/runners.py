@@ -23,7 +23,8 @@ from skfem_affine.lab import metrics
 
 from skfem_affine.lab import scenes
 from skfem_affine.simulation import SimulationDiverged
-from skfem_affine.reducers.affine.reducers import Affinification, Rigidification
+from skfem_affine.reducers.affine.affinification import Affinification
+from skfem_affine.reducers.affine.rigidification import Rigidification
 from skfem_affine.reducers.subspace.reducer import AdaptiveSubspace
 
 

@@ -26,6 +26,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import reverse_cuthill_mckee
 
+from skfem_affine.integrators.problem import Rayleigh, system_coefficients
 from skfem_affine.kinematics import deformation_gradient
 
 KINDS = ("ichol", "amg")
@@ -105,7 +106,6 @@ def scalar_matrix(system, dt, damping=None, weights=None):
     ``3v``): the x-, y- and z-blocks of both are identical and uncoupled.
     """
     alpha, beta = _damping(damping)
-    h = float(dt)
     free = system.free
     nf = free.size // 3
     if free.size % 3 or np.any(free.reshape(nf, 3) != free[::3, None] + np.arange(3)):
@@ -114,7 +114,8 @@ def scalar_matrix(system, dt, damping=None, weights=None):
     rows = (9 * np.arange(system.m)[:, None] + np.arange(3)).ravel()  # F_0j of every element
     Bs = system.deformation_operator()[rows][:, free[::3]]
     L = (Bs.T @ sp.diags(np.repeat(w, 3)) @ Bs).tocsr()
-    S = (1.0 + h * alpha) * system.Mff[::3][:, ::3] + (h * h + h * beta) * L
+    cm, ck = system_coefficients(dt, Rayleigh(alpha, beta))
+    S = cm * system.Mff[::3][:, ::3] + ck * L
     S = sp.csr_matrix(S)
     S.sum_duplicates()
     S.sort_indices()
@@ -267,6 +268,15 @@ class Preconditioner:
         return Z.ravel()
 
     __call__ = apply
+
+
+def system_operator(mdiag, H, coefficients):
+    """p -> A p = c_M M p + c_K H p from the lumped mass diagonal and the assembled H; A is never formed.
+
+    ``coefficients`` are (c_M, c_K) of :func:`~skfem_affine.integrators.problem.system_coefficients`.
+    """
+    cm, ck = coefficients
+    return lambda p: cm * mdiag * p + ck * (H @ p)
 
 
 def predict(apply_A, b, precond, gravity_dv=None):
