@@ -7,10 +7,11 @@ out of the solve (eq. 13),
 .. math:: \Delta\dot x \approx \alpha z + h g, \qquad z = A_p^{-1} b, \qquad
           \alpha = \frac{b \cdot z}{z \cdot A z},
 
-with A z = (1 + h alpha) M z + (h beta + h^2) H z, A itself never formed (the
-reducers pass the frame's stiffness H, which the reduced system needs anyway: a CSR
-product is 50x the matrix-free one, :func:`stiffness_operator`, at 5k tets), and A_p a
-Laplacian-like approximation of A built once at rest (eq. 14, :class:`Preconditioner`),
+with A z = c_M M z + c_K H z (:func:`system_operator`), A itself never formed: the
+reducers apply the frame's assembled stiffness H, which the reduced system needs anyway and
+whose CSR product is much cheaper than the matrix-free one (:func:`stiffness_operator`;
+measurements in docs/affinification.md). A_p is a Laplacian-like approximation of A built
+once at rest (eq. 14, :class:`Preconditioner`),
 
 .. math:: A_p = (1 + h\alpha) M + (h^2 + h\beta) B^T W B, \qquad W = \mathrm{diag}(w_e I_9).
 
@@ -32,10 +33,9 @@ from skfem_affine.kinematics import deformation_gradient
 KINDS = ("ichol", "amg")
 
 # Incomplete Cholesky (ilupp.ICholTPreconditioner, Lin & More 1999): extra fill per
-# column and relative drop tolerance. Measured on S of the cantilever (24k tets, RCM):
-# IC(0) (the pattern of S) leaves the one-iteration prediction residual 28% above that
-# of an exact A_p solve; 10 extra entries per column, dropping below 1e-3, is within
-# 0.5% of exact for 2.8x the nonzeros of IC(0), 1.3 ms setup and 0.3 ms per application.
+# column and relative drop tolerance, chosen so that the one-iteration prediction is
+# as good as with an exact A_p solve for a few times the nonzeros of IC(0)
+# (docs/affinification.md, "The oracle's preconditioner").
 ICHOL_FILL = 10
 ICHOL_DROP = 1e-3
 # Diagonal shifts S + s diag(S) tried in turn if the incomplete factorisation breaks down.
@@ -180,48 +180,22 @@ class Preconditioner:
 
     Notes
     -----
-    **Weights.** Measured with :func:`predict` (``kind="ichol"``; ``"amg"`` and an
-    exact A_p solve agree within 3%): relative residual ||b - A dv|| / ||b|| of the
-    true system after one iteration, lower is better, on the default cantilever
-    (Neo-Hookean E = 1e5, nu = 0.35, h = 0.01, k = resolution) at rest (b = h M g)
-    and bent after 10 frames (b with gravity split out, as the oracle uses it):
+    **Weights.** w_e = V_e mu_e, the shear part mu grad u : grad v of the linearised tangent
+    (the vector Laplacian of [MK23]): of the candidates mu / 2, mu, 2 mu, mu + lam and
+    2 mu + lam it gives the smallest prediction residual, undamped and damped.
 
-    ==============  =============  ==============  =============  ==============
-    w_e / V_e       k=3 rest       k=3 bent        k=6 rest       k=6 bent
-    ==============  =============  ==============  =============  ==============
-    mu / 2          0.0065         0.021           0.015          0.049
-    mu              **0.0048**     **0.018**       **0.0086**     **0.042**
-    2 mu            0.0093         0.032           0.020          0.060
-    mu + lam        0.018          0.058           0.036          0.095
-    2 mu + lam      0.025          0.077           0.046          0.118
-    ==============  =============  ==============  =============  ==============
+    **ichol.** A threshold IC after reverse Cuthill-McKee: for a threshold IC whose dropping
+    depends on the elimination order, bandwidth reduction is what matters, and RCM makes the
+    result independent of the mesh's numbering. ilupp's incomplete Cholesky factorisations
+    may fail silently on some SPD matrices (NaN or zero pivots), so the factor's diagonal is
+    checked and the factorisation retried on S + s diag(S) for the shifts
+    :data:`ICHOL_SHIFTS`. ilupp 1.0.2 raises "insufficient memory reserved" for
+    ``add_fill_in`` around 50.
 
-    mu also wins with Rayleigh damping (0.03, 0.02). Stiffer (E = 1e7, k = 4, exact
-    A_p): in the A-norm of the error, which CG minimises, mu / 2 to mu stay best
-    (2 mu + lam is 1.4-1.9x worse); the 2-norm residual then prefers more weight
-    (nu = 0.45, bent: 0.82 with 2 mu + lam, 1.20 with mu): alpha minimises the
-    energy norm, so one iteration may even increase the 2-norm residual of stiff
-    systems. V mu is the shear part mu grad u : grad v of the linearised tangent,
-    the vector Laplacian of [MK23].
+    **amg.** Default smoothed aggregation, one V-cycle per component: as good a prediction as
+    an exact A_p solve, but costlier per application than ichol, hence not the default.
 
-    **ichol.** Measured on the bent cantilever at 24k tets (prediction residual,
-    exact A_p: 0.0751): ICholT(10, 1e-3) after RCM 0.0754; IC(0) 0.096; with the
-    mesh's own vertex order ICholT(10, 1e-3) 0.079, and with a randomly numbered
-    mesh 0.103 (IC(0): 0.49) against 0.0755 with RCM, whatever the input order. The
-    reference code's nested dissection needs METIS (not installed); RCM (scipy)
-    is the fill-reducing ordering that is at hand and, for a threshold IC whose
-    dropping depends on the elimination order, the bandwidth reduction is what
-    matters. ilupp's ``IChol0Preconditioner`` and ``ICholTPreconditioner`` both
-    fail silently on some SPD matrices (NaN or zero pivots), so the factor's
-    diagonal is checked and the factorisation retried on S + s diag(S) for the
-    shifts :data:`ICHOL_SHIFTS` (never needed on the scenes here: S is a
-    mass-augmented P1 Laplacian). ilupp 1.0.2 raises "insufficient memory
-    reserved" for ``add_fill_in`` around 50.
-
-    **amg.** Default smoothed aggregation (4 levels at 24k tets) is as good as an
-    exact A_p solve (0.0752) but ~10x costlier per application than ichol (three
-    V-cycles, one per component); Jacobi smoothing halves that cost for a 22%
-    worse prediction.
+    The measurements behind these choices are in docs/affinification.md.
     """
 
     def __init__(self, system, dt, damping=None, kind="ichol", weights=None):
