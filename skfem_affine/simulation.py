@@ -188,20 +188,23 @@ class Simulation:
         if isinstance(reducer, AdaptiveSubspace) and not isinstance(reducer, Reducer):
             # the subspace reducer of the Newton integrators, until it follows the Reducer protocol
             # (integrators/newton.py's NewtonIntegrator takes over at merge)
+            if linearized:
+                raise ValueError("AdaptiveSubspace runs with integrator='implicit_euler' or 'bdf2', "
+                                 "not integrator='linearized'")
             self.integrator = _TimeStepperShim(self, integrator)
             reducer.attach(self)
             return
         if reducer is not None and not isinstance(reducer, Reducer):
             raise TypeError(f"reducer must be None or a reducer such as sa.Affinification(...) "
                             f"(a skfem_affine.reducers.base.Reducer), got {type(reducer).__name__}")
-        solve = FullSpace(self.solver) if reducer is None else reducer
-        solve.check_integrator(integrator, self.newton_iters)
+        active = FullSpace(self.solver) if reducer is None else reducer
+        active.check_integrator(integrator, self.newton_iters)
         if linearized:
-            self.integrator = LinearizedEuler(self.model, solve, self.solver, self.contact, self.newton_iters,
+            self.integrator = LinearizedEuler(self.model, active, self.solver, self.contact, self.newton_iters,
                                               self.newton_tol)
         else:
             self.integrator = _TimeStepperShim(self, integrator)
-        solve.attach(self.model)
+        active.attach(self.model)
 
     # ------------------------------------------------------------------ public
     def run(self, frames):

@@ -12,6 +12,9 @@ A minimal reducer (see ``examples/custom_reducer.py`` for one that builds affine
         name = "my-full"
         integrators = ("linearized",)
 
+        def _setup(self, model):
+            self.solver = make_solver("direct")
+
         def solve(self, problem):
             A = problem.matrix()
             self.solver.factorize(A)
