@@ -84,6 +84,7 @@ class LinearizedEuler:
         """Newton on Phi from v = 0 (x = x_t): the first iterate is the linearized step."""
         m = self.model
         sysm, h, d = m.system, m.dt, m.damping
+        cm, _ = m.coefficients
         stats = {}
         free = sysm.free
         vt = state.v.reshape(-1)[free]
@@ -99,7 +100,8 @@ class LinearizedEuler:
             if H0 is None:
                 H0data, H0 = H, sysm.pattern.matrix(H)
             grad = sysm.Mff @ (v - vt) - h * f[free] + h * (d.alpha * (sysm.Mff @ v) + d.beta * (H0 @ v))
-            A = sysm.pattern.matrix((1.0 + h * d.alpha) * sysm.mass_data + h * h * H + h * d.beta * H0data)
+            # the Hessian of Phi: c_M M + h^2 H(x) + h beta H_t (damping lagged at x_t)
+            A = sysm.pattern.matrix(cm * sysm.mass_data + h * h * H + h * d.beta * H0data)
             stats["assembly"] = stats.get("assembly", 0.0) + time.perf_counter() - t0
             step = factorize_and_solve(self.solver, A, -grad, stats)
             phi = self._potential(state, v, H0) if phi is None else phi
