@@ -17,7 +17,8 @@ from skfem_affine.contact import colliders
 from skfem_affine.contact.colliders import Bowl, Box, Capsule, Plane, SDFCollider, Sphere
 from skfem_affine.contact.pgs import PGS
 from skfem_affine.materials import Corotational, Material, NeoHookean, StVK
-from skfem_affine.reducers.affine.reducers import Affinification, Rigidification
+from skfem_affine.reducers.affine.affinification import Affinification
+from skfem_affine.reducers.affine.rigidification import Rigidification
 from skfem_affine.reducers.subspace import bases
 from skfem_affine.reducers.subspace.bases import AffineModes, LinearModes, SkinningEigenmodes
 from skfem_affine.reducers.subspace.reducer import AdaptiveSubspace

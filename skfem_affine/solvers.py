@@ -290,8 +290,6 @@ class AutoSolver:
     direct solver takes over for the rest of the simulation.
     """
 
-    iterative = False
-
     def __init__(self, amg_min_dofs=None, amg_max_iterations=None):
         self.amg_min_dofs = AMG_MIN_DOFS if amg_min_dofs is None else integer(amg_min_dofs, "amg_min_dofs", low=0)
         self.amg_max_iterations = (AMG_MAX_ITERATIONS if amg_max_iterations is None
@@ -307,6 +305,11 @@ class AutoSolver:
     @property
     def last_iterations(self):
         return self._current.last_iterations if self._current else 0
+
+    @property
+    def iterative(self):
+        """Whether the solver that factorised the last system is iterative (AMG-CG)."""
+        return bool(self._current.iterative) if self._current else False
 
     def factorize(self, A):
         amg = self._amg

@@ -5,6 +5,7 @@ import scipy.sparse as sp
 import skfem
 
 import skfem_affine as sa
+from skfem_affine.contact import delassus, geometry
 from skfem_affine.contact import pgs as contact
 from skfem_affine.lab.scenes import box_mesh
 
@@ -24,7 +25,7 @@ def test_closest_points_on_triangles_against_sampling():
     k = 200
     a, b, c = (rng.normal(size=(k, 3)) for _ in range(3))
     p = 1.5 * rng.normal(size=(k, 3))
-    W = contact.closest_points_on_triangles(p, a, b, c)
+    W = geometry.closest_points_on_triangles(p, a, b, c)
     assert np.all(W >= -1e-12) and np.allclose(W.sum(axis=1), 1.0)
     q = W[:, :1] * a + W[:, 1:2] * b + W[:, 2:] * c
     s = np.linspace(0, 1, 201)
@@ -40,7 +41,7 @@ def test_closest_points_on_triangles_against_sampling():
 
 def test_boundary_surface_is_closed_and_outward():
     sim = sa.scenes.pills(n=2)
-    tris, owner = contact.boundary_surface(sim.system)
+    tris, owner = geometry.boundary_surface(sim.system)
     x = sim.system.p0
     for b in range(2):
         t = tris[owner == b]
@@ -57,8 +58,8 @@ def test_body_contact_measures_overlap_and_ignores_edges():
     upper = _block(0.2, 2, z0=0.4 - overlap)
     beside = sa.ElasticBody(box_mesh(0.2, 1, (0.31, 0.0, 0.5)), sa.NeoHookean(E=1e6, nu=0.3))  # off the edge
     sim = sa.Simulation([lower, upper, beside], contact=sa.PGS(margin=0.005))
-    cs = sim.contact.find(sim.state.x, sim.state.v, sim.dt)
-    body = sim.contact.body_of_vertex
+    cs = sim.contact.detector.find(sim.state.x, sim.state.v, sim.dt)
+    body = sim.contact.detector.body_of_vertex
     up = body[cs.vertex] == 1
     assert np.allclose(cs.distance[up], -overlap)                 # the upper box's bottom inside the lower
     assert np.allclose(cs.normal[up], [0, 0, 1])
@@ -117,24 +118,28 @@ def test_delassus_equals_dense_inverse_through_G(scene, reducer):
     captured = {}
     original = sim.contact.resolve
 
-    def spy(s, dv, resolvent, rec):
+    def spy(problem, result, rec):
         captured.clear()
-        if s.contact.current is not None:
-            captured["W"] = resolvent.delassus(s.contact.current.J)
+        if sim.contact.current is not None:
+            resolvent = delassus.Resolvent(result.operator, block=sim.contact.settings.block)
+            captured["W"] = resolvent.delassus(sim.contact.current.J)
             captured["resolvent"] = resolvent
-        return original(s, dv, resolvent, rec)
+            captured["operator"] = result.operator
+        return original(problem, result, rec)
 
     sim.contact.resolve = spy
     for state in sim.run(80):
-        if "W" in captured and sim.contact.current.size > 3 and (red is None or red.G.shape[1] < red.G.shape[0]):
+        op = captured.get("operator")
+        if "W" in captured and sim.contact.current.size > 3 and (red is None or op.G.shape[1] < op.G.shape[0]):
             break
     J = sim.contact.current.J.toarray()
     if red is None:
-        Ainv = np.linalg.inv(sim.last_matrix.toarray())
+        assert op.G is None
+        Ainv = np.linalg.inv(op.matrix.toarray())
     else:
-        G = red.G.toarray()
-        Ainv = G @ np.linalg.inv(red.Ar.toarray()) @ G.T
-        assert red.G.shape[1] < red.G.shape[0]  # really reduced
+        G = op.G.toarray()
+        Ainv = G @ np.linalg.inv(op.matrix.toarray()) @ G.T
+        assert op.G.shape[1] < op.G.shape[0]  # really reduced
     assert np.allclose(captured["W"], J @ Ainv @ J.T, rtol=1e-8, atol=1e-12 * np.abs(captured["W"]).max())
     lam = np.random.default_rng(0).normal(size=J.shape[0])
     assert np.allclose(captured["resolvent"].apply(lam), Ainv @ J.T @ lam, atol=1e-10 * np.abs(Ainv @ J.T @ lam).max())
@@ -149,6 +154,7 @@ def test_no_contact_code_without_colliders_or_second_body(monkeypatch):
     for _ in sim.run(3):
         pass
     assert sim.contact is None and sim.stats.total("contact") == 0.0
+    assert sim.contact_model == "none" and all(r["contact_model"] == "none" for r in sim.stats)
     assert sim.stats.summary()["contact_s"] == 0.0
 
 
@@ -262,17 +268,17 @@ def test_prediction_takes_contact_impulses_as_explicit_forces():
     body = _block(0.2, 2, velocity=(0.0, 0.0, -1.0))
     sim = sa.Simulation(body, dt=0.01, colliders=[sa.Plane()], reducer=sa.Affinification())
     rec = {}
-    cs = sim.contact.detect(sim, rec)
+    cs = sim.contact.detect(sim.model, sim.state.x, sim.state.v, rec)
     bottom = np.flatnonzero(np.isclose(sim.state.x[:, 2], 0.0))
     assert set(cs.vertex[cs.distance <= 1e-12]) == set(bottom)
-    impulse = sim.contact_impulse().reshape(-1, 3)
+    impulse = sim.contact.prediction_impulse().reshape(-1, 3)
     # lambda_n = m_v |v_n| stops each touching vertex; nothing else is pushed
     assert np.allclose(impulse[bottom, 2], sim.system.lumped_mass[bottom] * 1.0)
     others = np.setdiff1d(np.arange(sim.system.n), bottom)
     assert np.allclose(impulse[others], 0.0) and np.allclose(impulse[:, :2], 0.0)
     # the next frame warm-starts from the solved impulses instead
     sim.step()
-    sim.contact.detect(sim, rec)
+    sim.contact.detect(sim.model, sim.state.x, sim.state.v, rec)
     assert np.all(sim.contact.matched[np.isin(sim.contact.current.vertex, bottom)])
 
 
@@ -280,10 +286,10 @@ def test_prediction_takes_contact_impulses_as_explicit_forces():
 def test_contact_scenes_take_overrides_and_run(name):
     sim = sa.scenes.SCENES[name](resolution=1, dt=0.005, contact=sa.PGS(friction=0.1, iterations=20))
     assert sim.scene == name and sim.frames > 0 and sim.dt == 0.005
-    assert sim.contact.settings.friction == 0.1 and sim.colliders
+    assert sim.contact.settings.friction == 0.1 and sim.colliders and sim.contact_model == "pgs"
     for s in sim.run(3):
         pass
-    assert np.all(np.isfinite(s.x)) and all("n_contacts" in r for r in sim.stats)
+    assert np.all(np.isfinite(s.x)) and all("n_contacts" in r and r["contact_model"] == "pgs" for r in sim.stats)
     with pytest.raises(ValueError, match="resolution"):
         sa.scenes.SCENES[name](resolution=0)
 
@@ -303,7 +309,7 @@ def test_contact_impulses_in_the_prediction_elastify_the_impact():
     def elastic_fraction(with_impulses):
         sim = sa.scenes.drop(resolution=2, shape="box", height=0.02, reducer=sa.Affinification(tau_a=2.0, tau_e=4.0))
         if not with_impulses:
-            sim.contact_impulse = lambda: 0.0
+            sim.contact.prediction_impulse = lambda: 0.0
         for _ in sim.run(12):
             pass
         return np.array([1.0 - r["reduced_fraction"] for r in sim.stats])
@@ -311,3 +317,14 @@ def test_contact_impulses_in_the_prediction_elastify_the_impact():
     with_impulses, without = elastic_fraction(True), elastic_fraction(False)
     assert with_impulses[:5].max() == 0.0 and without.max() == 0.0   # free fall is one affine body
     assert with_impulses[5:].max() > 0.05                            # the impact elastifies elements
+
+
+def test_the_contact_model_of_each_integrator_is_recorded():
+    """colliders= means PGS with friction under the linearized integrator, a frictionless IPC
+    barrier under the Newton integrators: sim.contact_model and every frame's record say which."""
+    for kwargs, expected in [({}, "pgs"), (dict(integrator="implicit_euler", contact=None), "ipc-barrier"),
+                             (dict(contact=False, colliders=[]), "none")]:
+        sim = sa.scenes.drop(resolution=1, **kwargs)
+        sim.step()
+        assert sim.contact_model == expected and sim.stats[-1]["contact_model"] == expected
+    assert sa.scenes.free_body(resolution=1, integrator="bdf2").contact_model == "none"

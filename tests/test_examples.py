@@ -16,7 +16,8 @@ def run(name):
 
 def test_every_example_is_tested():
     tested = {"cantilever.py", "beam_frequency.py", "affinification.py", "contact_drop.py",
-              "contact_stacking.py", "contact_materials.py", "compare.py", "adaptive_subspace.py"}
+              "contact_stacking.py", "contact_materials.py", "compare.py", "adaptive_subspace.py",
+              "custom_reducer.py"}
     assert set(f for f in os.listdir(EXAMPLES) if f.endswith(".py")) <= tested
 
 
@@ -82,3 +83,15 @@ def test_compare_example_measures_the_trade():
     assert aff["status"] == "ok" and aff["dof_ratio"] < 0.9 and 0 < aff["max_distance_error"] < 0.1
     assert aff["max_step_error"] < aff["max_distance_error"]  # re-starting the reference discounts drift
     assert g["reference"].frames == 60 and len(g["runs"]["rigidification"].records) == 60
+
+
+def test_custom_reducer_example_runs_beside_full_and_affinification():
+    g = run("custom_reducer.py")
+    s = g["summary"]
+    assert set(s) == {"full", "affinification", "static-kmeans"}
+    assert s["full"]["max_distance_error"] == 0 and s["full"]["dof_ratio"] == 1
+    mine = s["static-kmeans"]
+    assert mine["status"] == "ok" and mine["frames"] == 40
+    assert mine["dof_ratio"] < 0.5
+    assert 0 < mine["max_distance_error"] < 0.05
+    assert all(r["n_clusters"] == 3 and r["dofs"] == 81 for r in g["runs"]["static-kmeans"].records)

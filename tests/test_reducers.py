@@ -3,6 +3,7 @@ import numpy as np
 import pytest
 
 import skfem_affine as sa
+from skfem_affine.reducers.affine.rigidification import strain_rates
 
 
 def test_zero_thresholds_reproduce_the_full_solve():
@@ -131,10 +132,53 @@ def test_rigidification_metric_is_the_squared_strain_rate_at_the_midpoint():
     E = np.einsum("eki,ekj->eij", F, sysm.deformation_gradients(v))
     E = 0.5 * (E + E.transpose(0, 2, 1))
     ref = np.einsum("eij,eij->e", E, E)
-    assert np.allclose(sim.reducer._strain_rate(sim, x, v), ref, rtol=1e-12, atol=0)
+    assert np.allclose(strain_rates(sysm, x, v, sim.dt), ref, rtol=1e-12, atol=0)
     # a rigid rotation rate about the current shape has no strain rate
     W = np.array([[0.0, -0.5, -0.2], [0.5, 0.0, -0.3], [0.2, 0.3, 0.0]])  # [w]x
     mid = np.linalg.solve(np.eye(3) - 0.5 * sim.dt * W, x.T).T  # y = x + h/2 W y
     spin = mid @ W.T  # v = w x y, so that F_dot = [w]x F at the midpoint y
     assert np.allclose(mid, x + 0.5 * sim.dt * spin)
-    assert np.all(sim.reducer._strain_rate(sim, x, spin) < 1e-24)
+    assert np.all(strain_rates(sysm, x, spin, sim.dt) < 1e-24)
+
+
+def test_shared_arguments_have_one_name_and_the_old_names_still_work():
+    assert sa.Affinification(min_affine_fraction=0.3).min_fraction == 0.3
+    assert sa.Rigidification(min_rigid_fraction=0.2).min_fraction == 0.2
+    assert sa.Affinification(0.1, 0.2, min_fraction=0.4).min_fraction == 0.4
+    with pytest.raises(ValueError, match="not both"):
+        sa.Affinification(min_fraction=0.1, min_affine_fraction=0.2)
+    with pytest.raises(ValueError, match="min_fraction"):
+        sa.Rigidification(min_fraction=-0.1)
+    with pytest.raises(TypeError):  # beyond the thresholds, arguments are keyword-only
+        sa.Affinification(0.1, 0.2, "random")
+    a = sa.Affinification(seeding="index", preconditioner="amg", seed=3, solver="superlu")
+    r = sa.Rigidification(seeding="index", preconditioner="amg", seed=3, solver="superlu")
+    for key in ("seeding", "preconditioner_kind", "seed", "solver_spec", "min_fraction", "tau_e"):
+        assert type(getattr(a, key)) is type(getattr(r, key))
+        assert getattr(a, key) == getattr(r, key) or key == "tau_e"
+
+
+def test_the_simulation_checks_the_reducers_declared_integrators():
+    body = sa.scenes.cantilever(resolution=1).bodies[0]
+    with pytest.raises(ValueError, match="newton_iters"):  # was silently ignored: the reducer solves once
+        sa.Simulation(body, reducer=sa.Affinification(), newton_iters=3)
+    with pytest.raises(ValueError, match="linearized"):
+        sa.Simulation(body, reducer=sa.Rigidification(), integrator="implicit_euler")
+    with pytest.raises(TypeError, match="reducer"):
+        sa.Simulation(body, reducer=object())
+    with pytest.raises(ValueError, match="integrator"):
+        sa.Simulation(body, integrator="rk4")
+    assert sa.Affinification.integrators == ("linearized",) and sa.Rigidification.integrators == ("linearized",)
+    # the full space iterates: newton_iters > 1 is fine without a reducer
+    sim = sa.Simulation(body, newton_iters=3, gravity=(0, 0, -9.81))
+    sim.step()
+    assert sim.stats[-1]["newton_iters"] >= 1
+
+
+def test_a_reducer_gets_the_model_never_the_simulation():
+    sim = sa.scenes.cantilever(resolution=1, reducer=sa.Affinification(0.1, 0.2))
+    red = sim.reducer
+    assert red.model is sim.model and red.setup_time > 0
+    assert not any(isinstance(v, sa.Simulation) for v in vars(red).values())
+    sim.step()
+    assert not any(isinstance(v, sa.Simulation) for v in vars(red).values())

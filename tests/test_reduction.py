@@ -23,12 +23,12 @@ def setup():
 def maps(sim, vcl, kind):
     sysm = sim.system
     if kind == "affine":
-        Gam = reduction.affine_rows(vcl, sysm.p0, sysm.lumped_mass, 2)
+        gmap = reduction.affine_mapping(sysm.free, vcl, sysm.p0, sysm.lumped_mass, 2)
     else:
-        Gam, _ = reduction.rigid_rows(vcl, sim.state.x, sysm.lumped_mass, 2)
-    gmap = reduction.mapping(sysm.free, vcl, Gam, 2)
+        gmap = reduction.rigid_mapping(sysm.free, vcl, sim.state.x, sysm.lumped_mass, 2)
+    assert gmap.kind is {"affine": reduction.AFFINE, "rigid": reduction.RIGID}[kind]
     assert np.array_equal(gmap.elastic_dofs, np.flatnonzero(vcl[sysm.free // 3] < 0))
-    return Gam, gmap.elastic_dofs, gmap
+    return gmap.rows, gmap.elastic_dofs, gmap
 
 
 def test_G_reproduces_affine_fields_exactly(setup):
@@ -94,7 +94,7 @@ def test_reduced_matrix_equals_GtAG(setup, kind, blocks, upper):
         data = sim.system.evaluate_tangent(s.x, project=sim.project_hessian)
     Gam, el, gmap = maps(sim, vcl, kind)
     G = gmap.G
-    R = reduction.reduced_matrix(sim, data, gmap, vcl, affine=kind == "affine", upper=upper)
+    R = reduction.reduced_matrix(sim.model, data, gmap, upper=upper)
     ref = (G.T @ A @ G).toarray()
     if upper:  # the upper triangle only, sorted rows (what Pardiso reads)
         ref = np.triu(ref)
@@ -107,12 +107,11 @@ def test_no_clusters_is_the_identity(setup):
     sim, s, _ = setup
     sysm = sim.system
     vcl = np.full(sysm.n, -1)
-    Gam = reduction.affine_rows(vcl, sysm.p0, sysm.lumped_mass, 0)
     el = np.arange(sysm.free.size)
-    gmap = reduction.mapping(sysm.free, vcl, Gam, 0)
+    gmap = reduction.affine_mapping(sysm.free, vcl, sysm.p0, sysm.lumped_mass, 0)
     A, b, data = sim.linear_system(s.x, s.v)
     assert (gmap.G != sp_identity(el.size)).nnz == 0
-    R = reduction.reduced_matrix(sim, data, gmap, vcl)
+    R = reduction.reduced_matrix(sim.model, data, gmap)
     assert abs(R - A).max() <= 1e-13 * abs(A).max()  # same sums, element order
 
 
@@ -134,7 +133,7 @@ def test_elimination_order_is_a_permutation_that_keeps_bodies_together(setup):
     rank = reduction.nested_dissection_rank(sysm)
     assert np.array_equal(np.sort(rank[sysm.free[::3] // 3]), np.arange(sysm.free.size // 3))
     assert np.all(rank[sysm.fixed] == -1)
-    order = gmap.elimination_order(sysm.free, vcl, rank)
+    order = gmap.elimination_order(rank)
     assert np.array_equal(np.sort(order), np.arange(gmap.shape[1]))
     pos = np.empty_like(order)
     pos[order] = np.arange(order.size)
@@ -153,10 +152,10 @@ def test_pardiso_with_a_given_order_solves_the_reduced_system(setup):
     sysm = sim.system
     A, b, data = sim.linear_system(s.x, s.v)
     _, el, gmap = maps(sim, vcl, "affine")
-    U = reduction.reduced_matrix(sim, data, gmap, vcl, upper=True)
+    U = reduction.reduced_matrix(sim.model, data, gmap, upper=True)
     full = (gmap.G.T @ A @ gmap.G).tocsr()
     rhs = np.random.default_rng(1).normal(size=full.shape[0])
-    order = gmap.elimination_order(sysm.free, vcl, reduction.nested_dissection_rank(sysm))
+    order = gmap.elimination_order(reduction.nested_dissection_rank(sysm))
     solver = Pardiso()
     solver.factorize(U, upper=True, order=order)
     x = solver.solve(rhs)
@@ -178,7 +177,32 @@ def test_reduced_matrix_with_consistent_mass_equals_GtAG(kind):
     vcl[X[:, 0] > 2.9] = 1
     A, b, data = sim.linear_system(s.x, s.v)
     _, _, gmap = maps(sim, vcl, kind)
-    R = reduction.reduced_matrix(sim, data, gmap, vcl, affine=kind == "affine")
+    R = reduction.reduced_matrix(sim.model, data, gmap)
     ref = (gmap.G.T @ A @ gmap.G).toarray()
     assert abs(sim.system.Mff - sp.diags(sim.system.Mff.diagonal())).max() > 0  # really not lumped
     assert np.abs(R.toarray() - ref).max() <= 1e-12 * np.abs(ref).max()
+
+
+def test_rigid_mapping_moves_its_bodies_rigidly_and_the_rest_by_h_v(setup):
+    """The rigid body kind integrates positions by an exact rotation about the centre: distances
+    inside a body are kept; elastic vertices (and affine mappings) move by x + h v."""
+    sim, s, vcl = setup
+    sysm, h = sim.system, sim.dt
+    gmap = reduction.rigid_mapping(sysm.free, vcl, s.x, sysm.lumped_mass, 2)
+    q = np.random.default_rng(2).normal(size=gmap.shape[1])
+    v = np.zeros(3 * sysm.n)
+    v[sysm.free] = gmap.G @ q  # a rigid velocity field on each body
+    v = v.reshape(-1, 3)
+    x1 = gmap.positions(s.x, v, h)
+    for b in range(2):
+        body = np.flatnonzero(vcl == b)
+        d0 = np.linalg.norm(s.x[body, None] - s.x[None, body], axis=2)
+        d1 = np.linalg.norm(x1[body, None] - x1[None, body], axis=2)
+        assert np.abs(d1 - d0).max() <= 1e-12 * d0.max()
+        assert np.abs(x1[body] - s.x[body] - h * v[body]).max() > 1e-9  # rotated, not translated along v
+    elastic = vcl < 0
+    assert np.array_equal(x1[elastic], (s.x + h * v)[elastic])
+    affine = reduction.affine_mapping(sysm.free, vcl, sysm.p0, sysm.lumped_mass, 2)
+    assert np.array_equal(affine.positions(s.x, v, h), s.x + h * v)
+    with pytest.raises(ValueError, match="width"):
+        reduction.Mapping(sysm.free, vcl, gmap.rows, 2, reduction.AFFINE)

@@ -6,7 +6,8 @@ runner and the command line know it by name.
 """
 from dataclasses import dataclass
 
-from skfem_affine.reducers.affine.reducers import Affinification, Rigidification
+from skfem_affine.reducers.affine.affinification import Affinification
+from skfem_affine.reducers.affine.rigidification import Rigidification
 from skfem_affine.reducers.subspace.reducer import AdaptiveSubspace
 
 

@@ -12,6 +12,11 @@ body: 3 translation + 9 entries of the affine matrix, row-major; w = 6 for a
 rigid body of the baseline). Velocities are projected by the mass-weighted
 least squares of eq. 9, the discrepancy d = G q - v (eq. 11) is added back
 after the reduced solve G^T A G dq = G^T b (eq. 10): dv = G dq + d (eq. 12).
+
+The kind of body lives in the mapping (:class:`BodyKind`: :data:`AFFINE`, :data:`RIGID`): its
+width, its rows Gamma_i, the basis the reduced assembly expands them in, and how its vertices'
+positions are integrated. Build a frame's mapping with :func:`affine_mapping` or
+:func:`rigid_mapping`.
 """
 import numpy as np
 import scipy.sparse as sp
@@ -180,16 +185,35 @@ class Mapping:
 
     Elastic free DOFs keep an identity column each, in their order (``elastic_dofs``);
     body b owns the ``width`` columns ``n_elastic + width b + [0, width)``. G is built by one
-    compiled pass over the free DOFs (:func:`mapping`); products with G^T use ``G.T`` (scipy's
-    transposed view, no copy).
+    compiled pass over the free DOFs; products with G^T use ``G.T`` (scipy's transposed view,
+    no copy).
+
+    Parameters
+    ----------
+    free : (n_free,) int array
+        The free DOFs.
+    vcluster : (n,) int array
+        Body of each vertex, -1 elastic.
+    Gam : (n, 3, width) array
+        The rows Gamma_i of reduced vertices (:meth:`BodyKind.rows`).
+    n_bodies : int
+    kind : BodyKind
+        :data:`AFFINE` or :data:`RIGID`.
+    mass : (n,) array
+        Lumped vertex masses (the rigid position update needs them).
+    centres : (n_bodies, 3) array, optional
+        The bodies' centres of mass the rows are taken about (rigid bodies).
     """
 
-    def __init__(self, free, vcluster, Gam, n_bodies):
+    def __init__(self, free, vcluster, Gam, n_bodies, kind, mass=None, centres=None):
         free = np.asarray(free, dtype=np.int64)
         vcluster = np.asarray(vcluster, dtype=np.int64)
+        if Gam.shape[2] != kind.width:
+            raise ValueError(f"rows of width {Gam.shape[2]} do not fit {kind.name} bodies (width {kind.width})")
         g_ptr, g_ind, g_val, el = _mapping_csr(free, vcluster, np.ascontiguousarray(Gam, float), int(n_bodies))
-        self.width, self.n_bodies = Gam.shape[2], int(n_bodies)
-        self.rows = Gam
+        self.kind, self.width, self.n_bodies = kind, kind.width, int(n_bodies)
+        self.free, self.vcluster, self.rows = free, vcluster, Gam
+        self.mass, self.centres = mass, centres
         self.elastic_dofs, self.n_elastic = el, el.size
         shape = (free.size, el.size + self.width * self.n_bodies)
         self.G = sp.csr_matrix((g_val, g_ind, g_ptr), shape=shape)
@@ -210,18 +234,22 @@ class Mapping:
             q[self.n_elastic:] = np.linalg.solve(MG, rhs[..., None])[..., 0].ravel()
         return q
 
-    def elimination_order(self, free, vcluster, vertex_rank):
+    def positions(self, x, v, dt):
+        """x_{t+1} (n, 3) from x_t and v_{t+1}: the body kind's update (:meth:`BodyKind.positions`)."""
+        return self.kind.positions(self, x, v, dt)
+
+    def elimination_order(self, vertex_rank):
         """A fill-reducing order of the reduced DOFs inherited from the full mesh's order.
 
         Elastic DOFs keep their vertex's rank in ``vertex_rank`` (a nested-dissection order of
         the free vertices, :func:`nested_dissection_rank`); a body's DOFs come right after its
         latest vertex, as if the body were part of the separator that vertex belongs to. Our
         choice (the paper is silent): it spares the direct solver its ordering step, which on
-        reduced systems whose clusters change every frame costs as much as the factorisation
-        (beam1264, 1.1k reduced unknowns: analysis + factorisation 4.2 ms with Pardiso's minimum
-        degree, 3.2 ms with this order, numeric factorisation 1.6-1.7 ms with either). Returns
-        the reduced DOFs in elimination order (int32).
+        reduced systems whose clusters change every frame costs about as much as the
+        factorisation (measurements in docs/affinification.md). Returns the reduced DOFs in
+        elimination order (int32).
         """
+        free, vcluster = self.free, self.vcluster
         ne, w = self.n_elastic, self.width
         key = np.empty(self.shape[1])
         fe = np.asarray(free)[self.elastic_dofs]
@@ -252,9 +280,15 @@ def nested_dissection_rank(system):
     return rank
 
 
-def mapping(free, vcluster, Gam, n_bodies):
-    """G of eq. 7 with Gamma_i rows on reduced vertices (:func:`affine_rows` or :func:`rigid_rows`)."""
-    return Mapping(free, vcluster, Gam, n_bodies)
+def affine_mapping(free, vcluster, rest, mass, n_bodies):
+    """G of eq. 7 for affine bodies: rows of :func:`affine_rows` about the rest centres of mass."""
+    return Mapping(free, vcluster, affine_rows(vcluster, rest, mass, n_bodies), n_bodies, AFFINE, mass=mass)
+
+
+def rigid_mapping(free, vcluster, x, mass, n_bodies):
+    """G for rigid bodies (6 DOFs each): rows of :func:`rigid_rows` about the current centres of mass."""
+    Gam, com = rigid_rows(vcluster, x, mass, n_bodies)
+    return Mapping(free, vcluster, Gam, n_bodies, RIGID, mass=mass, centres=com)
 
 
 def discrepancy(G, q, v):
@@ -357,22 +391,100 @@ def _entry(nptr, nind, R, C):
     return lo
 
 
-# Gamma_i = sum_s rho_i[s] E_s with rho_i = (1, r_i): the nonzeros (s, row a, column p, value) of the E_s,
-# as the arrays (s, a, p) int64 and values float64 that :func:`_reduced_upper_data` takes
-_BASIS = {w: (np.array([e[:3] for e in entries], dtype=np.int64).T, np.array([e[3] for e in entries]))
-          for w, entries in {
-              12: [(0, a, a, 1.0) for a in range(3)] + [(q + 1, a, 3 + 3 * a + q, 1.0)
-                                                        for a in range(3) for q in range(3)],
-              6: [(0, a, a, 1.0) for a in range(3)] + [(3, 0, 4, 1.0), (2, 0, 5, -1.0), (3, 1, 3, -1.0),
-                                                       (1, 1, 5, 1.0), (2, 2, 3, 1.0), (1, 2, 4, -1.0)],
-          }.items()}
+def _basis(entries):
+    """The nonzeros (s, row a, column p, value) of the E_s in Gamma_i = sum_s rho_i[s] E_s,
+    rho_i = (1, r_i), as the arrays (s, a, p) int64 and values float64 of :func:`_reduced_upper_data`."""
+    return np.array([e[:3] for e in entries], dtype=np.int64).T, np.array([e[3] for e in entries])
 
 
-def _offsets_from_rows(Gam):
-    """r_i back from the rows Gamma_i of :func:`affine_rows` (w = 12) or :func:`rigid_rows` (w = 6)."""
-    if Gam.shape[2] == 12:
+class BodyKind:
+    """How the vertices of one kind of reduced body move.
+
+    Attributes
+    ----------
+    name : str
+    width : int
+        Reduced DOFs per body.
+    basis : ((3, k) int array, (k,) array)
+        Gamma_i = sum_s rho_i[s] E_s with rho_i = (1, r_i): the nonzeros of the E_s.
+    interior_exact : bool
+        Elements inside one body have B_e G_e = [0 | I_9] (affine bodies), so that
+        :func:`reduced_matrix` may add their V_e C_e to the body's columns without their blocks.
+    """
+
+    name, width, basis, interior_exact = "body", 0, None, False
+
+    def offsets(self, Gam):
+        """r_i back from the rows Gamma_i (n, 3, width)."""
+        raise NotImplementedError
+
+    def positions(self, mapping, x, v, dt):
+        """x_{t+1} = x + h v (symplectic Euler, Algorithm 1)."""
+        return x + dt * v
+
+
+class AffineBody(BodyKind):
+    """12 DOFs: translation and the 9 entries of the affine matrix (row-major), about the rest centre."""
+
+    name, width, interior_exact = "affine", 12, True
+    basis = _basis([(0, a, a, 1.0) for a in range(3)] + [(q + 1, a, 3 + 3 * a + q, 1.0)
+                                                         for a in range(3) for q in range(3)])
+
+    def offsets(self, Gam):
         return Gam[:, 0, 3:6]
-    return np.stack([Gam[:, 1, 5], Gam[:, 2, 3], Gam[:, 0, 4]], axis=1)
+
+
+class RigidBody(BodyKind):
+    """6 DOFs: velocity of the centre and angular velocity, v_i = v_c + omega x (x_i - x_c).
+
+    Positions rotate exactly (exponential map) about the centre, so that bodies do not grow.
+    """
+
+    name, width = "rigid", 6
+    basis = _basis([(0, a, a, 1.0) for a in range(3)] + [(3, 0, 4, 1.0), (2, 0, 5, -1.0), (3, 1, 3, -1.0),
+                                                         (1, 1, 5, 1.0), (2, 2, 3, 1.0), (1, 2, 4, -1.0)])
+
+    def offsets(self, Gam):
+        return np.stack([Gam[:, 1, 5], Gam[:, 2, 3], Gam[:, 0, 4]], axis=1)
+
+    def positions(self, mapping, x, v, dt):
+        """x + h v for elastic vertices; exact rotation about the centre for rigid ones."""
+        x_new = x + dt * v
+        vc = mapping.vcluster
+        if not np.any(vc >= 0):
+            return x_new
+        red = np.flatnonzero(vc >= 0)
+        c = vc[red]
+        n_bodies = mapping.centres.shape[0]
+        com = mapping.centres
+        m = mapping.mass[red]
+        mt = np.bincount(c, weights=m, minlength=n_bodies)
+        vcom = group_sum(c, m[:, None] * v[red], n_bodies) / mt[:, None]
+        r = x[red] - com[c]
+        # angular velocity from the (rigid) vertex velocities: I w = sum m r x (v - v_c)
+        L = group_sum(c, m[:, None] * np.cross(r, v[red] - vcom[c]), n_bodies)
+        rr = np.einsum("vi,vi->v", r, r)
+        I = group_sum(c, m[:, None, None] * (rr[:, None, None] * np.eye(3) - r[:, :, None] * r[:, None, :]),
+                      n_bodies)
+        w = np.linalg.solve(I + 1e-300 * np.eye(3), L[..., None])[..., 0]
+        R = rotation(dt * w)
+        x_new[red] = com[c] + dt * vcom[c] + np.einsum("vij,vj->vi", R[c], r)
+        return x_new
+
+
+AFFINE, RIGID = AffineBody(), RigidBody()
+
+
+def rotation(phi):
+    """Rotation matrices exp([phi]_x) (Rodrigues), phi (k, 3)."""
+    theta = np.linalg.norm(phi, axis=1)
+    small = theta < 1e-12
+    k = np.where(small[:, None], 0.0, phi / np.where(small, 1.0, theta)[:, None])
+    K = np.zeros((phi.shape[0], 3, 3))
+    K[:, 0, 1], K[:, 0, 2], K[:, 1, 2] = -k[:, 2], k[:, 1], -k[:, 0]
+    K[:, 1, 0], K[:, 2, 0], K[:, 2, 1] = k[:, 2], -k[:, 1], k[:, 0]
+    s, c = np.sin(theta)[:, None, None], np.cos(theta)[:, None, None]
+    return np.eye(3) + s * K + (1 - c) * (K @ K)
 
 
 @njit(cache=True)
@@ -473,18 +585,21 @@ def _reduced_upper_data(layout, vptr, vind, a_ptr, h_val, m_val, lumped, ck, cm,
     return data
 
 
-def reduced_matrix(sim, data, gmap, vcluster, affine=True, upper=False):
+def reduced_matrix(model, data, gmap, upper=False):
     """G^T A G (CSR) with A = (1 + h alpha) M + (h beta + h^2) H (eq. 10), never forming A G.
 
     Parameters
     ----------
-    data : FrameData of the frame (``H`` data on the system's pattern). Without H
+    model : Model
+        The system and the coefficients of A (:func:`~skfem_affine.integrators.problem.system_coefficients`).
+    data : FrameData
+        The frame's evaluation (``H`` data on the system's pattern). Without H
         (``data.He is None``, from :meth:`ElasticSystem.evaluate_tangent`), element blocks are
         assembled here for the elements that need them (below).
-    gmap : the frame's :class:`Mapping` (G).
-    vcluster : (n,) body of each vertex, -1 elastic.
-    affine : use the exact shortcut for elements inside one affine body (below).
-    upper : return only the upper triangle, rows sorted (what a Cholesky solver reads).
+    gmap : Mapping
+        The frame's G; its body kind says whether the interior shortcut below applies.
+    upper : bool
+        Return only the upper triangle, rows sorted (what a Cholesky solver reads).
 
     The pattern (:func:`_reduced_layout`) is the vertex graph contracted by the bodies; the
     values (:func:`_reduced_upper_data`) come vertex by vertex from the 3 x 3 blocks of A,
@@ -494,14 +609,15 @@ def reduced_matrix(sim, data, gmap, vcluster, affine=True, upper=False):
     B_e G_e = [0 | I_9] because sum_k r_k (x) grad phi_k = I, so their 12 x 12 triple
     product is never formed.
     """
-    sysm, h, d = sim.system, sim.dt, sim.damping
-    cm, ck = 1.0 + h * d.alpha, h * d.beta + h * h
+    sysm = model.system
+    cm, ck = model.coefficients
+    vcluster = gmap.vcluster
     pat = sysm.pattern
     w, n_bodies = gmap.width, gmap.n_bodies
     K9 = None
     if data.He is None:
         vt = vcluster[sysm.t]  # (4, m)
-        inside = (vt[0] >= 0) & np.all(vt == vt[0], axis=0) if (affine and n_bodies) else np.zeros(sysm.m, bool)
+        inside = (vt[0] >= 0) & np.all(vt == vt[0], axis=0) if (gmap.kind.interior_exact and n_bodies) else np.zeros(sysm.m, bool)
         _, Hdata = sysm.partial_stiffness(data, np.flatnonzero(~inside))
         if np.any(inside):
             e_in = np.flatnonzero(inside)
@@ -515,8 +631,8 @@ def reduced_matrix(sim, data, gmap, vcluster, affine=True, upper=False):
     layout = _reduced_layout(np.ascontiguousarray(vcluster[fv], dtype=np.int64), n_bodies, w, vptr, vind)
     G = gmap.G
     rho = np.ones((fv.size, 4))
-    rho[:, 1:] = _offsets_from_rows(gmap.rows[fv])
-    (b_s, b_a, b_p), b_g = _BASIS[w]
+    rho[:, 1:] = gmap.kind.offsets(gmap.rows[fv])
+    (b_s, b_a, b_p), b_g = gmap.kind.basis
     lumped = sysm.mass_kind == "lumped"
     mass = sysm.Mff.diagonal() if lumped else sysm.mass_data
     vals = _reduced_upper_data(layout, vptr, vind, pat.indptr, Hdata, mass, lumped, ck, cm, rho, b_s, b_a, b_p, b_g)

@@ -7,10 +7,11 @@ out of the solve (eq. 13),
 .. math:: \Delta\dot x \approx \alpha z + h g, \qquad z = A_p^{-1} b, \qquad
           \alpha = \frac{b \cdot z}{z \cdot A z},
 
-with A z = (1 + h alpha) M z + (h beta + h^2) H z, A itself never formed (the
-reducers pass the frame's stiffness H, which the reduced system needs anyway: a CSR
-product is 50x the matrix-free one, :func:`stiffness_operator`, at 5k tets), and A_p a
-Laplacian-like approximation of A built once at rest (eq. 14, :class:`Preconditioner`),
+with A z = c_M M z + c_K H z (:func:`system_operator`), A itself never formed: the
+reducers apply the frame's assembled stiffness H, which the reduced system needs anyway and
+whose CSR product is much cheaper than the matrix-free one (:func:`stiffness_operator`;
+measurements in docs/affinification.md). A_p is a Laplacian-like approximation of A built
+once at rest (eq. 14, :class:`Preconditioner`),
 
 .. math:: A_p = (1 + h\alpha) M + (h^2 + h\beta) B^T W B, \qquad W = \mathrm{diag}(w_e I_9).
 
@@ -26,6 +27,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import reverse_cuthill_mckee
 
+from skfem_affine.integrators.problem import Rayleigh, system_coefficients
 from skfem_affine.kinematics import deformation_gradient
 from skfem_affine.reducers.affine.ichol import SHIFTS, incomplete_cholesky
 
@@ -103,7 +105,6 @@ def scalar_matrix(system, dt, damping=None, weights=None):
     ``3v``): the x-, y- and z-blocks of both are identical and uncoupled.
     """
     alpha, beta = _damping(damping)
-    h = float(dt)
     free = system.free
     nf = free.size // 3
     if free.size % 3 or np.any(free.reshape(nf, 3) != free[::3, None] + np.arange(3)):
@@ -112,7 +113,8 @@ def scalar_matrix(system, dt, damping=None, weights=None):
     rows = (9 * np.arange(system.m)[:, None] + np.arange(3)).ravel()  # F_0j of every element
     Bs = system.deformation_operator()[rows][:, free[::3]]
     L = (Bs.T @ sp.diags(np.repeat(w, 3)) @ Bs).tocsr()
-    S = (1.0 + h * alpha) * system.Mff[::3][:, ::3] + (h * h + h * beta) * L
+    cm, ck = system_coefficients(dt, Rayleigh(alpha, beta))
+    S = cm * system.Mff[::3][:, ::3] + ck * L
     S = sp.csr_matrix(S)
     S.sum_duplicates()
     S.sort_indices()
@@ -169,29 +171,9 @@ class Preconditioner:
 
     Notes
     -----
-    **Weights.** Measured with :func:`predict` (``kind="ichol"``; ``"amg"`` and an
-    exact A_p solve agree within 3%): relative residual ||b - A dv|| / ||b|| of the
-    true system after one iteration, lower is better, on the default cantilever
-    (Neo-Hookean E = 1e5, nu = 0.35, h = 0.01, k = resolution) at rest (b = h M g)
-    and bent after 10 frames (b with gravity split out, as the oracle uses it):
-
-    ==============  =============  ==============  =============  ==============
-    w_e / V_e       k=3 rest       k=3 bent        k=6 rest       k=6 bent
-    ==============  =============  ==============  =============  ==============
-    mu / 2          0.0065         0.021           0.015          0.049
-    mu              **0.0048**     **0.018**       **0.0086**     **0.042**
-    2 mu            0.0093         0.032           0.020          0.060
-    mu + lam        0.018          0.058           0.036          0.095
-    2 mu + lam      0.025          0.077           0.046          0.118
-    ==============  =============  ==============  =============  ==============
-
-    mu also wins with Rayleigh damping (0.03, 0.02). Stiffer (E = 1e7, k = 4, exact
-    A_p): in the A-norm of the error, which CG minimises, mu / 2 to mu stay best
-    (2 mu + lam is 1.4-1.9x worse); the 2-norm residual then prefers more weight
-    (nu = 0.45, bent: 0.82 with 2 mu + lam, 1.20 with mu): alpha minimises the
-    energy norm, so one iteration may even increase the 2-norm residual of stiff
-    systems. V mu is the shear part mu grad u : grad v of the linearised tangent,
-    the vector Laplacian of [MK23].
+    **Weights.** w_e = V_e mu_e, the shear part mu grad u : grad v of the linearised tangent
+    (the vector Laplacian of [MK23]): of the candidates mu / 2, mu, 2 mu, mu + lam and
+    2 mu + lam it gives the smallest prediction residual, undamped and damped.
 
     **ichol.** Threshold IC after RCM rather than IC(0): on the bent cantilever it
     predicts about as well as an exact A_p solve, where IC(0) is clearly worse and
@@ -247,6 +229,15 @@ class Preconditioner:
         return Z.ravel()
 
     __call__ = apply
+
+
+def system_operator(mdiag, H, coefficients):
+    """p -> A p = c_M M p + c_K H p from the lumped mass diagonal and the assembled H; A is never formed.
+
+    ``coefficients`` are (c_M, c_K) of :func:`~skfem_affine.integrators.problem.system_coefficients`.
+    """
+    cm, ck = coefficients
+    return lambda p: cm * mdiag * p + ck * (H @ p)
 
 
 def predict(apply_A, b, precond, gravity_dv=None):

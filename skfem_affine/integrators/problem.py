@@ -1,0 +1,236 @@
+r"""One frame as data: the model of a run, the linearized step (eq. 1-2) and a reducer's answer.
+
+A frame of the linearized backward Euler integrator solves, on the free DOFs,
+
+.. math::
+    A\,\Delta\dot x = b, \qquad A = c_M M + c_K H, \qquad
+    b = h\big(f - \alpha M \dot x - (\beta + h) H \dot x\big),
+
+with :math:`c_M = 1 + h\alpha`, :math:`c_K = h\beta + h^2` (Rayleigh damping
+D = -(alpha M + beta H), H = -df/dx the stiffness, f the internal force plus gravity).
+:func:`system_coefficients` is the one place these coefficients are derived.
+
+* :class:`Model`: what is fixed over a run (system, h, damping, gravity, scene size).
+* :class:`StepProblem`: one frame, built by the integrator at x_t and handed to the reducer
+  and to contact; it never refers back to the simulation.
+* :class:`StepResult`: what a reducer returns: the velocity change (or the positions of a
+  Newton integrator), the factorised :class:`Operator` that contact's Delassus operator needs,
+  the frame's mapping, clusters and statistics.
+"""
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.sparse as sp
+
+# Per-frame timing keys of ``sim.stats`` (seconds); a reducer's stats add to the integrator's.
+PHASES = ("assembly", "prediction", "clustering", "map_assembly", "reduced_assembly",
+          "factorization", "solve", "line_search", "contact")
+
+
+@dataclass(frozen=True)
+class Rayleigh:
+    """Rayleigh damping D = -(alpha M + beta H) with H = -K the stiffness (alpha, beta >= 0)."""
+
+    alpha: float = 0.0
+    beta: float = 0.0
+
+    def __post_init__(self):
+        for name in ("alpha", "beta"):
+            val = getattr(self, name)
+            if not np.isfinite(val) or val < 0:
+                raise ValueError(f"Rayleigh {name} must be finite and >= 0, got {val}")
+
+
+def system_coefficients(dt, damping=None):
+    """(c_M, c_K) of A = c_M M + c_K H (eq. 1): c_M = 1 + h alpha, c_K = h beta + h^2.
+
+    ``damping`` is a :class:`Rayleigh` or None (undamped).
+    """
+    h = float(dt)
+    alpha, beta = (0.0, 0.0) if damping is None else (damping.alpha, damping.beta)
+    return 1.0 + h * alpha, h * beta + h * h
+
+
+@dataclass(frozen=True)
+class Model:
+    """What is fixed over a run, shared by the integrator, the reducer and contact.
+
+    Attributes
+    ----------
+    system : ElasticSystem
+        The bodies, their mass, pattern and free DOFs.
+    dt : float
+        Time step h (s).
+    damping : Rayleigh
+    gravity : (3,) array
+        Gravitational acceleration.
+    f_gravity : (3n,) array
+        Gravity force M g on all DOFs.
+    project_hessian : bool
+        Whether element Hessians are projected to PSD.
+    size : float
+        Diagonal of the rest bounding box (the scale of tolerances).
+    """
+
+    system: object
+    dt: float
+    damping: Rayleigh
+    gravity: np.ndarray
+    f_gravity: np.ndarray
+    project_hessian: bool
+    size: float
+
+    @property
+    def coefficients(self):
+        """(c_M, c_K) of A = c_M M + c_K H (:func:`system_coefficients`)."""
+        return system_coefficients(self.dt, self.damping)
+
+    def evaluate(self, x):
+        """Forces, dP/dF, element blocks and H at positions x (n, 3) (:meth:`ElasticSystem.evaluate`)."""
+        return self.system.evaluate(x, project=self.project_hessian)
+
+
+@dataclass
+class StepProblem:
+    """One linearized backward Euler frame (eq. 1-2) at (x_t, v_t), as data.
+
+    Attributes
+    ----------
+    model : Model
+    x, v : (n, 3) arrays
+        Positions and velocities at t.
+    frame : int
+        The frame being computed (t + 1).
+    data : FrameData
+        The elastic evaluation at x_t; ``data.f`` includes gravity.
+    Hmat : CSR matrix
+        The stiffness H on the free DOFs.
+    contact_impulse : (n_free,) array or 0.0
+        J^T lambda_pred, contact impulses the prediction oracle takes as explicit forces (sec. 3.4).
+    contacts : ContactSet or None
+        The contacts found at x_t.
+    """
+
+    model: Model
+    x: np.ndarray
+    v: np.ndarray
+    frame: int
+    data: object
+    Hmat: sp.csr_matrix
+    contact_impulse: object = 0.0
+    contacts: object = None
+    _b: np.ndarray = field(default=None, init=False, repr=False)
+
+    @classmethod
+    def at(cls, model, x, v, frame=0, data=None, rec=None, **kwargs):
+        """Evaluate the frame at (x, v) (``data``: a :class:`FrameData` already evaluated at x).
+
+        Adds gravity to ``data.f`` and assembles H; the time goes to ``rec["assembly"]``.
+        """
+        t0 = time.perf_counter()
+        data = model.evaluate(x) if data is None else data
+        data.f = data.f + model.f_gravity
+        Hmat = model.system.pattern.matrix(data.H)
+        if rec is not None:
+            rec["assembly"] = rec.get("assembly", 0.0) + time.perf_counter() - t0
+        return cls(model, x, v, frame, data, Hmat, **kwargs)
+
+    @property
+    def system(self):
+        return self.model.system
+
+    def rhs(self, v):
+        """b = h (f - alpha M v - (beta + h) H v) on the free DOFs (eq. 2), v (n, 3) all vertices."""
+        m = self.model
+        h, d, sysm = m.dt, m.damping, m.system
+        vf = v.reshape(-1)[sysm.free]
+        return h * (self.data.f[sysm.free] - d.alpha * (sysm.Mff @ vf) - (d.beta + h) * (self.Hmat @ vf))
+
+    @property
+    def b(self):
+        """The right-hand side at v_t (eq. 2), computed once."""
+        if self._b is None:
+            self._b = self.rhs(self.v)
+        return self._b
+
+    def matrix(self):
+        """A = c_M M + c_K H on the free DOFs (eq. 1), CSR."""
+        cm, ck = self.model.coefficients
+        sysm = self.model.system
+        return sysm.pattern.matrix(cm * sysm.mass_data + ck * self.data.H)
+
+
+class Operator:
+    """The factorised system of a frame, as contact's Delassus operator needs it (sec. 3.3).
+
+    Parameters
+    ----------
+    solver : solver object
+        Has factorised ``matrix``.
+    matrix : sparse matrix
+        A (full space) or A_r = G^T A G (reduced). With ``upper=True`` the upper triangle is
+        given and :attr:`matrix` returns the whole symmetric matrix, built on first use.
+    G : sparse matrix, optional
+        The frame's mapping (free DOFs x reduced DOFs); None in full space.
+    """
+
+    def __init__(self, solver, matrix, G=None, upper=False):
+        self.solver, self.G = solver, G
+        self._matrix, self._upper = matrix, bool(upper)
+        # solvers without the attribute (user objects) are taken as direct
+        self.iterative = bool(getattr(solver, "iterative", False))
+
+    @property
+    def matrix(self):
+        """The factorised symmetric matrix (whole, not one triangle)."""
+        if self._upper:
+            U = self._matrix
+            self._matrix, self._upper = (U + sp.triu(U, k=1, format="csr").T).tocsr(), False
+        return self._matrix
+
+    @property
+    def shape(self):
+        return self._matrix.shape
+
+
+@dataclass
+class StepResult:
+    """What a reducer returns for one frame.
+
+    Attributes
+    ----------
+    dv : (n_free,) array or None
+        Velocity change of the free DOFs (linearized integrator).
+    x : (3n,) array or None
+        Positions at t + 1 (Newton integrators).
+    operator : Operator or None
+        The factorised system contact resolves with.
+    mapping : Mapping or None
+        The frame's reduction (:class:`~skfem_affine.reducers.affine.mapping.Mapping`); its
+        :meth:`positions` integrates the positions of its bodies.
+    clusters : (m,) int array or None
+        Per element: -1 elastic, else its body.
+    stats : dict
+        Merged into the frame's record of ``sim.stats`` (timings in :data:`PHASES` add up).
+    """
+
+    dv: np.ndarray = None
+    x: np.ndarray = None
+    operator: Operator = None
+    mapping: object = None
+    clusters: np.ndarray = None
+    stats: dict = field(default_factory=dict)
+
+    def positions(self, x, v, dt):
+        """x_{t+1} from x_t and v_{t+1} (n, 3): x + h v, or the mapping's own update."""
+        if self.mapping is not None:
+            return self.mapping.positions(x, v, dt)
+        return x + dt * v
+
+
+def merge_stats(rec, stats):
+    """Merge a reducer's statistics into the frame record: timings add up, the rest is set."""
+    for key, val in stats.items():
+        rec[key] = rec.get(key, 0.0) + val if key in PHASES else val
+    return rec

@@ -1,0 +1,69 @@
+"""Adaptive affinification (paper sec. 3, Algorithm 1-2): elements with alike deformation rates
+become affine bodies of 12 DOFs for one frame."""
+import numpy as np
+
+from skfem_affine.reducers.affine import clustering
+from skfem_affine.reducers.affine import mapping as reduction
+from skfem_affine.reducers.affine.clustered import ClusteringReducer, check_threshold, forced_fraction
+
+
+class Affinification(ClusteringReducer):
+    """Adaptive affinification (paper sec. 3, Algorithm 1-2).
+
+    Parameters
+    ----------
+    tau_a : float
+        Threshold on the deformation-rate distance (eq. 6) to turn elastic elements affine.
+    tau_e : float
+        More permissive threshold for elements that were affine to stay affine.
+    min_fraction : float
+        Resource limiting (sec. 3.5): at least this fraction of the elements is forced into
+        clusters. ``min_affine_fraction`` is its older name.
+    seeding : {"random", "index", "temporal"}
+    preconditioner : {"ichol", "amg"}
+        Factorisation of A_p (eq. 14) used by the one-iteration PCG oracle.
+    seed : int
+        Seed of the random seeding (reproducible runs).
+    solver : str, optional
+        Solver of the reduced system (default: the fastest direct solver).
+    min_body_elements : int
+        Clusters of fewer elements are dissolved (>= 2: a single element is never a body).
+
+    The thresholds come first and positionally; the arguments shared with
+    :class:`~skfem_affine.Rigidification` follow, keyword-only, in the same order.
+    """
+
+    name = "affinification"
+    kind = reduction.AFFINE
+
+    def __init__(self, tau_a=1e-4, tau_e=2e-4, *, min_fraction=None, seeding="random", preconditioner="ichol",
+                 seed=0, solver=None, min_body_elements=2, min_affine_fraction=None):
+        self.tau_a = check_threshold(tau_a, "tau_a")
+        if int(min_body_elements) < 2:
+            raise ValueError(f"min_body_elements must be >= 2 (singletons are always dissolved), got {min_body_elements}")
+        self.min_body_elements = int(min_body_elements)
+        super().__init__(tau_e, min_fraction=forced_fraction(min_fraction, min_affine_fraction, "min_affine_fraction"),
+                         seeding=seeding, preconditioner=preconditioner, seed=seed, solver=solver)
+
+    def __repr__(self):
+        return (f"Affinification(tau_a={self.tau_a:g}, tau_e={self.tau_e:g}, min_fraction={self.min_fraction:g}, "
+                f"seeding={self.seeding!r}, preconditioner={self.preconditioner_kind!r})")
+
+    def _labels(self, problem, v_pred):
+        """Deformation rates (eq. 4; predicted velocities for previously affine elements) and BFS."""
+        sysm = problem.system
+        Fdot = sysm.deformation_gradients(problem.v)
+        if np.any(self.was_reduced):
+            np.copyto(Fdot, sysm.deformation_gradients(v_pred), where=self.was_reduced[:, None, None])
+        forced = clustering.forced_set(Fdot, self.adjacency, self.min_fraction) if self.min_fraction > 0 else None
+        labels, seeds = clustering.cluster_deformation_rates(
+            Fdot, self.adjacency, sysm.t, sysm.n, self.tau_a, self.tau_e, was_affine=self.was_reduced,
+            excluded=self.excluded, forced=forced, seeds=self._seeds(sysm.m), return_seeds=True,
+            min_size=self.min_body_elements)
+        self.previous_seeds = seeds
+        return labels
+
+    def _mapping(self, problem, vcluster, n_bodies):
+        """Gamma_i = [I_3, I_3 (x) r_i^T], r_i from the body's rest centre of mass (eq. 8)."""
+        sysm = problem.system
+        return reduction.affine_mapping(sysm.free, vcluster, sysm.p0, sysm.lumped_mass, n_bodies)

@@ -1,0 +1,97 @@
+"""The reducer protocol: the one place where the methods differ (paper Algorithm 1).
+
+A reducer decides, frame by frame, in which subspace the step is solved. It is attached once
+to the :class:`~skfem_affine.integrators.problem.Model` of a run, then asked to solve each
+frame. It never sees the :class:`~skfem_affine.Simulation`: everything it may use comes in the
+problem, and everything the integrator and contact need goes back in the
+:class:`~skfem_affine.integrators.problem.StepResult`.
+
+A minimal reducer (see ``examples/custom_reducer.py`` for one that builds affine bodies)::
+
+    class Full(Reducer):
+        name = "my-full"
+        integrators = ("linearized",)
+
+        def _setup(self, model):
+            self.solver = make_solver("direct")
+
+        def solve(self, problem):
+            A = problem.matrix()
+            self.solver.factorize(A)
+            return StepResult(dv=self.solver.solve(problem.b), operator=Operator(self.solver, A))
+"""
+import abc
+import time
+
+
+class Reducer(abc.ABC):
+    """Base of every reducer.
+
+    Attributes
+    ----------
+    name : str
+        Label in tables and plots.
+    integrators : tuple of str
+        The integrators the reducer runs under: ``"linearized"`` (it is given a
+        :class:`~skfem_affine.integrators.problem.StepProblem`) and/or ``"implicit_euler"``,
+        ``"bdf2"`` (it is given an incremental potential,
+        :class:`~skfem_affine.integrators.newton.IncrementalPotential`). The simulation refuses
+        any other combination with a ValueError.
+    iterates_linearized : bool
+        Whether the reducer supports the linearized integrator's ``newton_iters > 1`` (a full
+        Newton solve of implicit Euler); only the full space does.
+    setup_time : float
+        Seconds spent in :meth:`attach` (set by it).
+    """
+
+    name = "reducer"
+    integrators = ("linearized",)
+    iterates_linearized = False
+    setup_time = 0.0
+
+    def attach(self, model):
+        """Rest-state set-up, once per run, before the first frame.
+
+        Parameters
+        ----------
+        model : Model
+            The system, time step, damping, gravity and scene size of the run.
+
+        Subclasses extend :meth:`_setup` (timed into :attr:`setup_time`) rather than this method.
+        """
+        t0 = time.perf_counter()
+        self.model = model
+        self._setup(model)
+        self.setup_time = time.perf_counter() - t0
+
+    def _setup(self, model):
+        """Per-run set-up of the subclass (caches, preconditioners, solvers)."""
+
+    @abc.abstractmethod
+    def solve(self, problem):
+        """Solve one frame.
+
+        Parameters
+        ----------
+        problem : StepProblem or IncrementalPotential
+            Under ``"linearized"``, the frame's linear system (eq. 1-2) at x_t with the
+            contacts and the oracle's contact impulses; under a Newton integrator, the incremental
+            potential of the step.
+
+        Returns
+        -------
+        StepResult
+            ``dv`` (free-DOF velocity change) under ``"linearized"``, ``x`` (flat positions)
+            under a Newton integrator; ``operator`` when contact must resolve with the frame's
+            factorisation; ``mapping`` and ``clusters`` of a reduced frame; ``stats`` for the
+            frame's record.
+        """
+
+    def check_integrator(self, integrator, newton_iters=1):
+        """Raise a ValueError unless this reducer runs under ``integrator`` (with ``newton_iters``)."""
+        if integrator not in self.integrators:
+            raise ValueError(f"{type(self).__name__} runs with integrator in {self.integrators}, "
+                             f"not integrator={integrator!r}")
+        if integrator == "linearized" and newton_iters > 1 and not self.iterates_linearized:
+            raise ValueError(f"{type(self).__name__} solves the linearized step once: newton_iters must be 1 "
+                             f"with a reducer, got newton_iters={newton_iters}")
