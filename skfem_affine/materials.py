@@ -9,7 +9,7 @@ Each material gives, for deformation gradients ``F`` of shape ``(m, 3, 3)``,
 
 Parameters ``E`` and ``nu`` may be scalars or ``(m,)`` arrays (one value per
 element), so a heterogeneous body is evaluated in one call per material kind.
-Lame parameters come from :func:`lame`, the one place they are computed.
+Lame parameters come from :func:`lame_parameters`, the one place they are computed.
 Each material is also available as scikit-fem forms, :meth:`Material.forms`.
 
 Models (paper sec. 4, [SGK18]):
@@ -31,8 +31,12 @@ _EPS[0, 2, 1] = _EPS[2, 1, 0] = _EPS[1, 0, 2] = -1.0
 _I3 = np.eye(3)
 
 
-def lame(E, nu):
-    """Lame parameters (mu, lam) from Young's modulus and Poisson ratio, validated."""
+def lame_parameters(E, nu):
+    """Lame parameters ``(lam, mu)`` from Young's modulus and Poisson ratio, validated.
+
+    The order is scikit-fem's (:func:`skfem.models.elasticity.lame_parameters`), so the two
+    can be swapped for one another.
+    """
     E = np.asarray(E, dtype=float)
     nu = np.asarray(nu, dtype=float)
     if not (np.all(np.isfinite(E)) and np.all(np.isfinite(nu))):
@@ -43,7 +47,7 @@ def lame(E, nu):
         raise ValueError(f"Poisson ratio nu must lie in (-1, 0.5), got nu in [{nu.min():g}, {nu.max():g}]")
     mu = E / (2.0 * (1.0 + nu))
     lam = E * nu / ((1.0 + nu) * (1.0 - 2.0 * nu))
-    return mu, lam
+    return lam, mu
 
 
 def determinant(F):
@@ -116,7 +120,7 @@ class Material:
     def __init__(self, E, nu):
         self.E = np.asarray(E, dtype=float)
         self.nu = np.asarray(nu, dtype=float)
-        self.mu, self.lam = lame(self.E, self.nu)
+        self.lam, self.mu = lame_parameters(self.E, self.nu)
 
     def __repr__(self):
         def fmt(a):
