@@ -23,11 +23,14 @@ import argparse
 import json
 import os
 import time
+import types
 
 import numpy as np
 
 import skfem_affine as sa
-from skfem_affine.reducers.subspace import reducer as subspace
+from skfem_affine.contact.barrier import barrier_of
+from skfem_affine.integrators.potential import IncrementalPotential
+from skfem_affine.reducers.subspace import linalg
 
 
 def scene(k, kind="cantilever", **kw):
@@ -58,9 +61,17 @@ def run(sim, frames, reference=None):
             "newton": mean("newton_iters"), "pcg": mean("pcg_iters"), "phases": st.phase_totals()}, xs
 
 
+def model_of(sim):
+    """The run's fixed data (the attributes of a Model) read off a Simulation."""
+    return types.SimpleNamespace(system=sim.system, dt=sim.dt, damping=sim.damping, gravity=sim.gravity,
+                                 f_gravity=sim.f_gravity, project_hessian=sim.project_hessian, size=sim.size)
+
+
 def linear_solves(sim, solver):
     """Times of the Schur solve of eq. 19 and of the full Newton system at the same iterate x_t."""
-    ip = sim.stepper.potential()
+    model, s = model_of(sim), sim.state
+    # one Newton iterate from x_t: the reducer's coupled system at the iterate of the full system
+    ip = IncrementalPotential(model, s.x, s.v, barrier=barrier_of(model, sim.colliders), tol=1e-3, max_iters=1)
     A = ip.hessian(ip.start.H, ip.x_t)
     g = ip.gradient(ip.x_t, ip.start.f)
     direct = sa.solvers.make_solver(solver)
@@ -69,14 +80,13 @@ def linear_solves(sim, solver):
     direct.solve(-g)
     t_direct = time.perf_counter() - t0
     t0 = time.perf_counter()
-    _, it_cg = subspace.pcg(lambda p: A @ p, -g, subspace.block_jacobi(A), 1e-5, 20000)
+    _, it_cg = linalg.pcg(lambda p: A @ p, -g, linalg.block_jacobi(A), 1e-5, 20000)
     t_cg = time.perf_counter() - t0
     red = sim.reducer
-    red.max_newton = 1  # one more step, one iterate: the coupled system at the same x_t
-    sim.step()
+    red.solve(ip)
     Hq, C, Hx, gq, gx = red.last_system
     t0 = time.perf_counter()
-    _, _, it_schur, _ = subspace.schur_solve(Hq, C, Hx, gq, gx, 1e-5, 20000)
+    _, _, it_schur, _ = linalg.schur_solve(Hq, C, Hx, gq, gx, 1e-5, 20000)
     t_schur = time.perf_counter() - t0
     nnz_ours = Hq.size + 2 * C.size + Hx.nnz
     return {"schur_s": t_schur, "direct_s": t_direct, "bjcg_s": t_cg, "schur_iters": it_schur, "bjcg_iters": it_cg,
@@ -109,8 +119,8 @@ def main(argv=None):
         methods = [("full Newton", base)]
         for eps in args.eps:
             red = sa.AdaptiveSubspace(basis=sa.SkinningEigenmodes(n=args.modes), eps_nodal=eps, eps_modal=eps,
-                                      subdomains=args.subdomains, newton_tol=1e-3)
-            sim = scene(k, args.scene, integrator="implicit_euler", reducer=red)
+                                      subdomains=args.subdomains)
+            sim = scene(k, args.scene, integrator="implicit_euler", newton_tol=1e-3, reducer=red)
             res, _ = run(sim, n, ref)
             res["setup_s"] = red.setup_time
             methods.append((f"subspace eps={eps:g}", res))
