@@ -169,7 +169,8 @@ def linearized_newton(model, x, v, solver, tol, max_iters, rec, start=None):
     """
     # E = h^2 Phi(v) + const with x = x_t + h v (potential.py): the same minimiser. The loop's
     # criterion ||d||_inf / h <= tol' * size with tol' = tol / h is ||d||_inf <= tol * size.
-    problem = IncrementalPotential(model, x, v, start=start, tol=positive(tol, "newton_tol") / model.dt, max_iters=max_iters)
+    problem = IncrementalPotential(model, x, v, start=start, tol=positive(tol, "newton_tol") / model.dt,
+                                   max_iters=max_iters)
     direction = FullSpaceDirection(problem, solver)
     x1, _ = newton(problem, direction, rec)
     free = model.system.free
