@@ -111,6 +111,7 @@ def test_bad_collider():
         barrier.Barrier(model_of(sim), [object()])
     with pytest.raises(ValueError, match="dhat"):
         barrier.Barrier(model_of(sim), [Plane((0, 0, 0), (0, 0, 1))], dhat=0.0)
+    assert barrier.barrier_of(model_of(sim), []) is None and barrier.barrier_of(model_of(sim), None) is None
 
 
 def test_a_cube_sliding_rigidly_down_a_frictionless_ramp_gets_no_enrichment():
