@@ -179,6 +179,8 @@ def test_bad_newton_settings_are_refused():
         newton.IncrementalPotential(model_of(sim), sim.state.x, sim.state.v, max_iters=0)
     with pytest.raises(ValueError, match="newton_tol"):
         newton.IncrementalPotential(model_of(sim), sim.state.x, sim.state.v, tol=0.0)
+    with pytest.raises(ValueError, match="stop_on"):
+        newton.newton(newton.IncrementalPotential(model_of(sim), sim.state.x, sim.state.v), None, {}, stop_on="energy")
 
 
 def test_newton_settings_live_in_one_place():

@@ -53,7 +53,7 @@ def _add(rec, key, seconds):
     rec[key] = rec.get(key, 0.0) + seconds
 
 
-def newton(problem, direction, rec, after_step=None, blocks=True):
+def newton(problem, direction, rec, after_step=None, blocks=True, stop_on="direction"):
     """THE Newton loop: minimise ``problem``'s E from x_t; returns ``(x, converged)``.
 
     Parameters
@@ -75,7 +75,13 @@ def newton(problem, direction, rec, after_step=None, blocks=True):
         Whether each iterate's evaluation includes the element blocks and H (full Newton), or
         only F, P and f (the direction assembles the blocks it needs). The evaluation at x_t is
         reused when the problem has it.
+    stop_on : {"direction", "step"}
+        What the tolerance bounds: the Newton direction d (the Newton integrators, Li et al.), or
+        the step alpha d the line search took (the linearized integrator's ``newton_tol``, a bound
+        on the position change of an iteration).
     """
+    if stop_on not in ("direction", "step"):
+        raise ValueError(f"stop_on must be 'direction' or 'step', got {stop_on!r}")
     x = problem.x_t.copy()
     data = problem.start if (blocks or problem.has_start) else None
     e = problem.energy(x)
@@ -95,7 +101,7 @@ def newton(problem, direction, rec, after_step=None, blocks=True):
         data = None
         _add(rec, "line_search", time.perf_counter() - t0)
         rec["newton_iters"] = it + 1
-        ok = converged(problem, d)
+        ok = converged(problem, d if stop_on == "direction" else alpha * d)
         if ok or alpha == 0.0:
             break
     rec["newton_converged"] = ok
@@ -149,7 +155,7 @@ def linearized_newton(model, x, v, solver, tol, max_iters, rec, start=None):
         The state at time t.
     solver : solver of :mod:`skfem_affine.solvers`
     tol : float
-        Stop when the largest position change of a Newton step, ``||d||_inf``, is at most
+        Stop when the largest position change of an iteration, ``||alpha d||_inf``, is at most
         ``tol`` times the scene size (the linearized integrator's ``newton_tol``).
     max_iters : int
         Iteration cap (``newton_iters``); with 1 the result is the linearized step
@@ -168,11 +174,11 @@ def linearized_newton(model, x, v, solver, tol, max_iters, rec, start=None):
         H lagged at x_t), which contact's Delassus operator needs.
     """
     # E = h^2 Phi(v) + const with x = x_t + h v (potential.py): the same minimiser. The loop's
-    # criterion ||d||_inf / h <= tol' * size with tol' = tol / h is ||d||_inf <= tol * size.
+    # criterion ||alpha d||_inf / h <= tol' * size with tol' = tol / h is ||alpha d||_inf <= tol * size.
     problem = IncrementalPotential(model, x, v, start=start, tol=positive(tol, "newton_tol") / model.dt,
                                    max_iters=max_iters)
     direction = FullSpaceDirection(problem, solver)
-    x1, _ = newton(problem, direction, rec)
+    x1, _ = newton(problem, direction, rec, stop_on="step")
     free = model.system.free
     return problem.velocity(x1)[free] - np.asarray(v, float).reshape(-1)[free], direction.matrix
 
