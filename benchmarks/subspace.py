@@ -25,14 +25,17 @@ import json
 import os
 import sys
 import time
+import types
 
 import numpy as np
 
 # measure the checkout this script sits in, not whatever skfem_affine is installed
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 import skfem_affine as sa  # noqa: E402
+from skfem_affine.contact.barrier import barrier_of  # noqa: E402
+from skfem_affine.integrators.potential import IncrementalPotential  # noqa: E402
 from skfem_affine.lab import runners  # noqa: E402
-from skfem_affine.reducers.subspace import reducer as subspace  # noqa: E402
+from skfem_affine.reducers.subspace import linalg  # noqa: E402
 
 
 def scene(k, kind="cantilever", **kw):
@@ -72,9 +75,17 @@ def run_interleaved(sims, frames):
     return out
 
 
+def model_of(sim):
+    """The run's fixed data (the attributes of a Model) read off a Simulation."""
+    return types.SimpleNamespace(system=sim.system, dt=sim.dt, damping=sim.damping, gravity=sim.gravity,
+                                 f_gravity=sim.f_gravity, project_hessian=sim.project_hessian, size=sim.size)
+
+
 def linear_solves(sim, solver):
     """Times of the Schur solve of eq. 19 and of the full Newton system at the same iterate x_t."""
-    ip = sim.stepper.potential()
+    model, s = model_of(sim), sim.state
+    # one Newton iterate from x_t: the reducer's coupled system at the iterate of the full system
+    ip = IncrementalPotential(model, s.x, s.v, barrier=barrier_of(model, sim.colliders), tol=1e-3, max_iters=1)
     A = ip.hessian(ip.start.H, ip.x_t)
     g = ip.gradient(ip.x_t, ip.start.f)
     direct = sa.solvers.make_solver(solver)
@@ -83,14 +94,13 @@ def linear_solves(sim, solver):
     direct.solve(-g)
     t_direct = time.perf_counter() - t0
     t0 = time.perf_counter()
-    _, it_cg = subspace.pcg(lambda p: A @ p, -g, subspace.block_jacobi(A), 1e-5, 20000)
+    _, it_cg = linalg.pcg(lambda p: A @ p, -g, linalg.block_jacobi(A), 1e-5, 20000)
     t_cg = time.perf_counter() - t0
     red = sim.reducer
-    red.max_newton = 1  # one more step, one iterate: the coupled system at the same x_t
-    sim.step()
+    red.solve(ip)
     Hq, C, Hx, gq, gx = red.last_system
     t0 = time.perf_counter()
-    _, _, it_schur, _ = subspace.schur_solve(Hq, C, Hx, gq, gx, 1e-5, 20000)
+    _, _, it_schur, _ = linalg.schur_solve(Hq, C, Hx, gq, gx, 1e-5, 20000)
     t_schur = time.perf_counter() - t0
     nnz_ours = Hq.size + 2 * C.size + Hx.nnz
     return {"schur_s": t_schur, "direct_s": t_direct, "bjcg_s": t_cg, "schur_iters": it_schur, "bjcg_iters": it_cg,
@@ -122,8 +132,9 @@ def main(argv=None):
         sims, reducers = {"full Newton": full}, {}
         for eps in args.eps:
             red = sa.AdaptiveSubspace(basis=sa.SkinningEigenmodes(n=args.modes), eps_nodal=eps, eps_modal=eps,
-                                      subdomains=args.subdomains, newton_tol=1e-3)
-            sims[f"subspace eps={eps:g}"] = scene(k, args.scene, integrator="implicit_euler", reducer=red)
+                                      subdomains=args.subdomains)
+            sims[f"subspace eps={eps:g}"] = scene(k, args.scene, integrator="implicit_euler", newton_tol=1e-3,
+                                                  reducer=red)
             reducers[eps] = red
         ta, te = map(float, args.tau.split(","))
         sims[f"affinification {args.tau}"] = scene(k, args.scene, solver=args.solver,

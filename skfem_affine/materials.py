@@ -9,7 +9,7 @@ Each material gives, for deformation gradients ``F`` of shape ``(m, 3, 3)``,
 
 Parameters ``E`` and ``nu`` may be scalars or ``(m,)`` arrays (one value per
 element), so a heterogeneous body is evaluated in one call per material kind.
-Lame parameters come from :func:`lame`, the one place they are computed.
+Lame parameters come from :func:`lame_parameters`, the one place they are computed.
 Each material is also available as scikit-fem forms, :meth:`Material.forms`.
 
 Models (paper sec. 4, [SGK18]):
@@ -32,8 +32,11 @@ _EPS[0, 2, 1] = _EPS[2, 1, 0] = _EPS[1, 0, 2] = -1.0
 _I3 = np.eye(3)
 
 
-def lame(E, nu):
-    """Lame parameters (mu, lam) from Young's modulus and Poisson ratio, validated.
+def lame_parameters(E, nu):
+    """Lame parameters ``(lam, mu)`` from Young's modulus and Poisson ratio, validated.
+
+    The order is scikit-fem's (:func:`skfem.models.elasticity.lame_parameters`), so the two
+    can be swapped for one another.
 
     ``E`` and ``nu`` are real numbers or 1-D arrays of them (one value per element; two arrays
     must have the same length), E > 0 and -1 < nu < 0.5, all finite. Anything else raises a
@@ -53,7 +56,7 @@ def lame(E, nu):
         lam = E * nu / ((1.0 + nu) * (1.0 - 2.0 * nu))
     if not (np.all(np.isfinite(mu)) and np.all(np.isfinite(lam))):
         raise ValueError("E and nu give non-finite Lame parameters (E too large, or nu too close to 0.5 or -1)")
-    return mu, lam
+    return lam, mu
 
 
 def determinant(F):
@@ -124,7 +127,7 @@ class Material:
     _code = GENERIC
 
     def __init__(self, E, nu):
-        self.mu, self.lam = lame(E, nu)
+        self.lam, self.mu = lame_parameters(E, nu)
         self.E = np.asarray(E, dtype=float)
         self.nu = np.asarray(nu, dtype=float)
 

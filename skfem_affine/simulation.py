@@ -23,12 +23,13 @@ from skfem_affine.body import ElasticBody
 from skfem_affine.checks import positive
 from skfem_affine.contact import pgs
 from skfem_affine.contact.colliders import check_colliders
+from skfem_affine.contact.barrier import barrier_of
 from skfem_affine.integrators import newton
 from skfem_affine.integrators.linearized import LinearizedEuler
+from skfem_affine.integrators.newton_integrator import NewtonIntegrator
 from skfem_affine.integrators.problem import PHASES, Model, Rayleigh, StepProblem, StepResult
 from skfem_affine.reducers.base import Reducer
 from skfem_affine.reducers.full import FullSpace, factorize_and_solve
-from skfem_affine.reducers.subspace.reducer import AdaptiveSubspace
 from skfem_affine.solvers import SolverError, make_solver
 
 INTEGRATORS = ("linearized",) + newton.SCHEMES
@@ -153,6 +154,12 @@ class Simulation:
             raise TypeError("damping must be a Rayleigh(alpha, beta) or None")
         self.damping = damping or Rayleigh()
         linearized = integrator == "linearized"
+        if reducer is not None and not isinstance(reducer, Reducer):
+            raise TypeError(f"reducer must be None or a reducer such as sa.Affinification(...) "
+                            f"(a skfem_affine.reducers.base.Reducer), got {type(reducer).__name__}")
+        # one place for the Newton settings: a reducer's own (AdaptiveSubspace(newton_tol=...)) are
+        # adopted when the simulation's are not given, and must agree with them when both are
+        newton_tol, newton_iters = newton.resolve_newton_settings(newton_tol, newton_iters, reducer)
         newton_iters = (1 if linearized else 50) if newton_iters is None else newton_iters
         newton_tol = (1e-9 if linearized else 1e-6) if newton_tol is None else newton_tol
         if int(newton_iters) < 1:
@@ -174,8 +181,7 @@ class Simulation:
             if contact not in (None, False):
                 raise ValueError("PGS contact runs with integrator='linearized'; the Newton integrators "
                                  "use the IPC barrier against the colliders")
-            self.contact, self.colliders = None, check_colliders(colliders)
-            self.contact_model = "ipc-barrier" if self.colliders else "none"
+            self.contact = None
         if self.contact is not None and isinstance(solver, str) and solver == "auto":
             solver = "direct"
         self.solver = make_solver(solver)
@@ -184,29 +190,38 @@ class Simulation:
         v0 = np.concatenate([b.velocity for b in bodies])
         self.state = State(x0, v0)
         self.stats = Stats()
-        self.stepper = None
-        if isinstance(reducer, AdaptiveSubspace) and not isinstance(reducer, Reducer):
-            # the subspace reducer of the Newton integrators, until it follows the Reducer protocol
-            # (integrators/newton.py's NewtonIntegrator takes over at merge)
-            if linearized:
-                raise ValueError("AdaptiveSubspace runs with integrator='implicit_euler' or 'bdf2', "
-                                 "not integrator='linearized'")
-            self.integrator = _TimeStepperShim(self, integrator)
-            reducer.attach(self)
-            return
-        if reducer is not None and not isinstance(reducer, Reducer):
-            raise TypeError(f"reducer must be None or a reducer such as sa.Affinification(...) "
-                            f"(a skfem_affine.reducers.base.Reducer), got {type(reducer).__name__}")
         active = FullSpace(self.solver) if reducer is None else reducer
         active.check_integrator(integrator, self.newton_iters)
         if linearized:
             self.integrator = LinearizedEuler(self.model, active, self.solver, self.contact, self.newton_iters,
                                               self.newton_tol)
         else:
-            self.integrator = _TimeStepperShim(self, integrator)
+            self.integrator = NewtonIntegrator(self.model, integrator, active, self.solver, None,
+                                               tol=self.newton_tol, max_iters=self.newton_iters)
+            self.colliders = colliders  # the barrier of the colliders (property setter)
         active.attach(self.model)
 
     # ------------------------------------------------------------------ public
+    @property
+    def colliders(self):
+        """The static colliders (a list; empty without any).
+
+        Under the Newton integrators they may be replaced between steps: the IPC barrier is
+        rebuilt for the new list.
+        """
+        return self._colliders
+
+    @colliders.setter
+    def colliders(self, colliders):
+        colliders = check_colliders(colliders)
+        if isinstance(getattr(self, "integrator", None), NewtonIntegrator):
+            self.integrator.barrier = barrier_of(self.model, colliders)
+            self.contact_model = "ipc-barrier" if colliders else "none"
+        elif hasattr(self, "_colliders"):
+            raise ValueError("the colliders of a simulation with integrator='linearized' are fixed at "
+                             "construction (its contact state is built for them)")
+        self._colliders = colliders
+
     def run(self, frames):
         """Advance ``frames`` steps, yielding a copy of the state after each one."""
         frames = int(frames)
@@ -257,18 +272,3 @@ class Simulation:
     def solve(self, A, b, rec):
         """Factorize and solve A x = b in full space with the simulation's solver (statistics into ``rec``)."""
         return factorize_and_solve(self.solver, A, b, rec)
-
-
-class _TimeStepperShim:
-    """The Newton integrators through :class:`skfem_affine.integrators.newton.TimeStepper`.
-
-    Stands in for ``NewtonIntegrator(model, scheme, reducer, solver, barrier)`` of the
-    integrators' contract until that class is merged; the stepper is ``sim.stepper``.
-    """
-
-    def __init__(self, sim, scheme):
-        sim.stepper = self.stepper = newton.TimeStepper(sim, scheme, sim.newton_iters, sim.newton_tol)
-
-    def step(self, state, rec):
-        x, v = self.stepper.step(rec)
-        return x, v, StepResult(x=x.reshape(-1), stats={})

@@ -137,3 +137,15 @@ def test_forms_match_vectorised_assembly(cls):
     f2, H = fast.forces_and_stiffness(x, project=False, full=True)
     assert np.linalg.norm(f - f2) <= 1e-10 * np.linalg.norm(f)
     assert abs(K - H).max() <= 1e-10 * abs(K).max()
+
+
+def test_lame_parameters_come_in_scikit_fem_order():
+    from skfem.models.elasticity import lame_parameters as skfem_lame
+    from skfem_affine.materials import lame_parameters
+    lam, mu = lame_parameters(1e5, 0.3)
+    assert np.allclose((lam, mu), skfem_lame(1e5, 0.3), rtol=1e-15)
+    assert mu == pytest.approx(1e5 / 2.6) and lam > mu  # nu = 0.3: lam = 1.5 mu
+    m = sa.NeoHookean(E=1e5, nu=0.3)
+    assert (m.lam, m.mu) == (lam, mu)
+    with pytest.raises(ValueError, match="Poisson"):
+        lame_parameters(1e5, 0.5)

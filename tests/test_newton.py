@@ -2,8 +2,19 @@
 import numpy as np
 import pytest
 
+import types
+
 import skfem_affine as sa
 from skfem_affine.integrators import newton
+from skfem_affine.integrators.newton_integrator import NewtonIntegrator
+from skfem_affine.simulation import State
+from skfem_affine.solvers import make_solver
+
+
+def model_of(sim):
+    """The run's fixed data read off a Simulation (the attributes a Model carries)."""
+    return types.SimpleNamespace(system=sim.system, dt=sim.dt, damping=sim.damping, gravity=sim.gravity,
+                                 f_gravity=sim.f_gravity, project_hessian=sim.project_hessian, size=sim.size)
 
 
 def beam(**kw):
@@ -52,11 +63,15 @@ def test_first_newton_iterate_is_the_linearized_step():
 def test_converged_step_is_stationary_for_the_potential(scheme):
     """grad E(x_{t+1}) = 0: M a = f (a = (x - x~)/(alpha h^2)), i.e. the scheme's momentum balance."""
     sim = beam(resolution=2, integrator=scheme, newton_tol=1e-10)
+    integrator = NewtonIntegrator(model_of(sim), scheme, None, make_solver("direct"), None, tol=1e-10)
+    state = sim.state
     for _ in range(3):
-        sim.step()
-    ip = sim.stepper.potential()
-    x = ip.x_t.copy()
-    x = newton.newton_solve(ip, 1e-10, 50, sim.solve, {})
+        x, v, _ = integrator.step(state, {})
+        state = State(x, v, state.frame + 1)
+    ip = integrator.potential(state)
+    assert ip.scheme == scheme
+    x, ok = newton.newton_solve(ip, make_solver("direct"), {})
+    assert ok
     f, _ = sim.system.forces_and_stiffness(x.reshape(-1, 3), tangent=False)
     g = ip.gradient(x, f)
     assert np.linalg.norm(g) <= 1e-8 * np.linalg.norm(ip.weight * (f + sim.f_gravity)[sim.system.free])
@@ -93,3 +108,91 @@ def test_bad_integrator_and_reducer_combinations():
         beam(integrator="rk4")
     with pytest.raises(ValueError, match="linearized"):
         beam(integrator="bdf2", reducer=sa.Affinification(tau_a=0.1, tau_e=0.2))
+
+
+def test_linearized_newton_first_iterate_is_the_linear_step_and_it_converges_to_the_iterated_option():
+    damping = sa.Rayleigh(alpha=0.2, beta=0.01)
+    lin = beam(resolution=2, damping=damping)
+    model, s = model_of(lin), lin.state
+    rec = {}
+    dv1, A = newton.linearized_newton(model, s.x, s.v, make_solver("direct"), 1e-9, 1, rec)
+    lin.step()
+    free = lin.system.free
+    expect = (lin.state.v - s.v).reshape(-1)[free]
+    assert np.abs(dv1 - expect).max() <= 1e-10 * np.abs(expect).max()
+    assert rec["newton_iters"] == 1 and A.shape == (free.size, free.size)
+    # converged: the same step as the iterated linearized option and as the implicit Euler integrator
+    it = beam(resolution=2, damping=damping, newton_iters=50, newton_tol=1e-12)
+    ie = beam(resolution=2, damping=damping, integrator="implicit_euler", newton_tol=1e-10)
+    for _ in range(3):
+        s = it.state
+        rec = {}
+        dv, _ = newton.linearized_newton(model, s.x, s.v, make_solver("direct"), 1e-12, 50, rec)
+        it.step(), ie.step()
+        assert rec["newton_converged"] and rec["newton_iters"] > 1
+        for other in (it, ie):
+            ref = (other.state.v - s.v).reshape(-1)[free]
+            assert np.abs(dv - ref).max() <= 1e-7 * np.abs(ref).max()
+
+
+def test_the_loop_calls_the_direction_and_after_step_once_per_iteration():
+    sim = beam(resolution=2, integrator="implicit_euler")
+    ip = newton.IncrementalPotential(model_of(sim), sim.state.x, sim.state.v, tol=1e-10, max_iters=20)
+    full = newton.FullSpaceDirection(ip, make_solver("direct"))
+    calls, steps = [], []
+
+    def direction(x, g, data, rec, e):
+        assert e == pytest.approx(ip.energy(x), rel=1e-12) and data.H is not None
+        calls.append(x.copy())
+        return full(x, g, data, rec, e)
+
+    rec = {}
+    x, ok = newton.newton(ip, direction, rec, after_step=lambda x, alpha: steps.append((x.copy(), alpha)))
+    assert ok and rec["newton_converged"] and len(calls) == len(steps) == rec["newton_iters"] > 1
+    assert np.array_equal(calls[0], ip.x_t) and np.array_equal(steps[-1][0], x)
+    assert all(0 < a <= 1 for _, a in steps)
+    x2, _ = newton.newton_solve(newton.IncrementalPotential(model_of(sim), sim.state.x, sim.state.v, tol=1e-10,
+                                                            max_iters=20), make_solver("direct"), {})
+    assert np.array_equal(x, x2)
+
+
+def test_newton_integrator_restarts_bdf2_with_implicit_euler_after_an_outside_change():
+    sim = beam(integrator="bdf2")
+    integ = NewtonIntegrator(model_of(sim), "bdf2", None, make_solver("direct"), None)
+    state, schemes = sim.state, []
+    for _ in range(2):
+        rec = {}
+        x, v, result = integ.step(state, rec)
+        schemes.append(rec["integrator"])
+        assert result.x.shape == (x.size,) and rec["newton_converged"]
+        state = State(x, v, state.frame + 1)
+    rec = {}
+    integ.step(State(state.x, np.zeros_like(state.v), state.frame + 5), rec)  # not the state it stepped to
+    assert schemes == ["implicit_euler", "bdf2"] and rec["integrator"] == "implicit_euler"
+    with pytest.raises(ValueError, match="integrator"):
+        NewtonIntegrator(model_of(sim), "rk4", None, None, None)
+
+
+def test_bad_newton_settings_are_refused():
+    sim = beam()
+    with pytest.raises(ValueError, match="max_iters"):
+        newton.IncrementalPotential(model_of(sim), sim.state.x, sim.state.v, max_iters=0)
+    with pytest.raises(ValueError, match="newton_tol"):
+        newton.IncrementalPotential(model_of(sim), sim.state.x, sim.state.v, tol=0.0)
+    with pytest.raises(ValueError, match="stop_on"):
+        newton.newton(newton.IncrementalPotential(model_of(sim), sim.state.x, sim.state.v), None, {}, stop_on="energy")
+
+
+def test_newton_settings_live_in_one_place():
+    resolve = newton.resolve_newton_settings
+    assert resolve(None, None, None) == (None, None)
+    assert resolve(1e-5, 7, None) == (1e-5, 7)
+    red = sa.AdaptiveSubspace
+    assert resolve(None, None, red()) == (1e-3, 50)  # neither given: the reducer's defaults
+    assert resolve(1e-5, 7, red()) == (1e-5, 7)  # the Simulation's win over the reducer's defaults
+    assert resolve(None, None, red(newton_tol=1e-4, max_newton=9)) == (1e-4, 9)  # old code: adopted
+    assert resolve(1e-4, None, red(newton_tol=1e-4, max_newton=9)) == (1e-4, 9)  # the same value twice is fine
+    with pytest.raises(ValueError, match="newton_tol"):
+        resolve(1e-6, None, red(newton_tol=1e-4))
+    with pytest.raises(ValueError, match="newton_iters.*max_newton"):
+        resolve(None, 20, red(max_newton=9))

@@ -4,9 +4,18 @@ import pytest
 import scipy.linalg as sla
 import scipy.sparse as sp
 
+import types
+
 import skfem_affine as sa
-from skfem_affine.reducers.subspace import reducer as subspace
+from skfem_affine.integrators.potential import IncrementalPotential
+from skfem_affine.reducers.subspace import linalg
 from skfem_affine.reducers.subspace import oracle as so
+
+
+def model_of(sim):
+    """The run's fixed data read off a Simulation (the attributes a Model carries)."""
+    return types.SimpleNamespace(system=sim.system, dt=sim.dt, damping=sim.damping, gravity=sim.gravity,
+                                 f_gravity=sim.f_gravity, project_hessian=sim.project_hessian, size=sim.size)
 
 
 def reducer(**kw):
@@ -68,7 +77,7 @@ def test_schur_solve_equals_a_direct_solve_of_eq_19():
     K = random_spd(rng, a + ne)
     Hq, C, Hx = K[:a, :a], K[:a, a:], sp.csr_matrix(K[a:, a:])
     g = rng.normal(size=a + ne)
-    dq, dx, iters, _ = subspace.schur_solve(Hq, C, Hx, g[:a], g[a:], tol=1e-12)
+    dq, dx, iters, _ = linalg.schur_solve(Hq, C, Hx, g[:a], g[a:], tol=1e-12)
     direct = np.linalg.solve(K, -g)
     assert np.allclose(np.concatenate([dq, dx]), direct, rtol=0, atol=1e-9 * np.abs(direct).max())
     assert 0 < iters <= ne
@@ -76,7 +85,7 @@ def test_schur_solve_equals_a_direct_solve_of_eq_19():
 
 def test_schur_solve_refuses_an_indefinite_modal_block():
     with pytest.raises(sa.solvers.SolverError, match="positive definite"):
-        subspace.schur_solve(-np.eye(2), np.zeros((2, 0)), sp.csr_matrix((0, 0)), np.ones(2), np.zeros(0))
+        linalg.schur_solve(-np.eye(2), np.zeros((2, 0)), sp.csr_matrix((0, 0)), np.ones(2), np.zeros(0))
 
 
 def test_schur_solve_on_a_simulated_frame_matches_the_direct_solve_to_the_pcg_tolerance():
@@ -89,7 +98,7 @@ def test_schur_solve_on_a_simulated_frame_matches_the_direct_solve_to_the_pcg_to
     K = np.block([[Hq, C], [C.T, Hx.toarray()]])
     g = np.concatenate([gq, gx])
     direct = np.linalg.solve(K, -g)
-    dq, dx, iters, _ = subspace.schur_solve(Hq, C, Hx, gq, gx, tol=1e-5)
+    dq, dx, iters, _ = linalg.schur_solve(Hq, C, Hx, gq, gx, tol=1e-5)
     err = np.linalg.norm(np.concatenate([dq, dx]) - direct) / np.linalg.norm(direct)
     assert err <= 1e-5 * np.linalg.cond(K) and err < 1e-2
     # the Schur complement system itself is solved to the tolerance
@@ -107,7 +116,7 @@ def test_bfgs_update_keeps_spd_and_satisfies_the_secant_equation():
     Y[3] = -Y[3]  # curvature condition fails here: no update
     valid = np.array([True, True, True, True, False])
     before = H.copy()
-    subspace.bfgs_update(H, s, Y, valid)
+    linalg.bfgs_update(H, s, Y, valid)
     for l in range(3):
         assert np.allclose(H[l] @ s, Y[l])
         assert np.allclose(H[l], H[l].T) and np.linalg.eigvalsh(H[l]).min() > 0
@@ -223,12 +232,12 @@ def test_masked_inertia_sandwich_equals_the_direct_product():
     UMU = red.U.T @ (Meff @ red.U)
     cols = np.array([1, 3, 4, 6])
     Ua = red.U[:, cols]
-    assert np.allclose(red._sandwich(UMU, cols, extra, Ua), Ua.T @ ((Meff + extra) @ Ua))
+    assert np.allclose(linalg.masked_sandwich(UMU, cols, extra, Ua), Ua.T @ ((Meff + extra) @ Ua))
     S = np.array([3, 4, 5, 20, 21, 22])
     B = Ua.copy()
     B[S] = 0
     Mk = (Meff + extra).tocsr()
-    assert np.allclose(red._sandwich(UMU, cols, extra, Ua, Mk, S), B.T @ (Mk @ B))
+    assert np.allclose(linalg.masked_sandwich(UMU, cols, extra, Ua, Mk, S), B.T @ (Mk @ B))
 
 
 def test_two_bodies_each_get_their_own_modes_and_match_full_space():
@@ -251,7 +260,7 @@ def test_two_bodies_each_get_their_own_modes_and_match_full_space():
 def test_nodal_energy_shares_sum_to_the_incremental_potential(damping):
     """Eq. 7: the per-node shares add up to E (up to a constant), so sum_i dE_i = dE."""
     sim = beam(resolution=1, damping=damping, mass="consistent")
-    ip = sim.stepper.potential()
+    ip = IncrementalPotential(model_of(sim), sim.state.x, sim.state.v)
     rng = np.random.default_rng(6)
     diffs = []
     for _ in range(3):
@@ -292,3 +301,15 @@ def test_masked_exact_sum_equals_the_dense_product():
     expect = red.sub.exact(data.He, which, B).sum(axis=0)
     assert np.allclose(red.sub.exact_sum(data.He, which, U, masked), expect, atol=1e-10 * np.abs(expect).max())
     assert np.allclose(red.sub.exact_sum(data.He, which, U), red.sub.exact(data.He, which, U).sum(axis=0))
+
+
+def test_zero_iteration_caps_and_a_wrong_problem_are_refused():
+    with pytest.raises(ValueError, match="pcg_maxiter"):
+        sa.AdaptiveSubspace(pcg_maxiter=0)
+    with pytest.raises(ValueError, match="max_newton"):
+        sa.AdaptiveSubspace(max_newton=0)
+    red = reducer()
+    beam(red)
+    with pytest.raises(ValueError, match="implicit_euler"):
+        red.solve(object())
+    assert sa.AdaptiveSubspace.integrators == ("implicit_euler", "bdf2")

@@ -2,8 +2,10 @@ r"""IPC log-barrier contact against static colliders, for the Newton integrators
 
 A collider is any object with ``query(points (k, 3)) -> (distance (k,), normal (k, 3))``:
 the signed distance of each point to the collider and the unit normal pointing from the collider
-towards the point (the distance's gradient). The simulation's colliders are read from
-``sim.colliders`` (a list; empty or absent: no contact).
+towards the point (the distance's gradient). This is the contact model of the Newton integrators
+(``integrator="implicit_euler" | "bdf2"``): frictionless, entering the incremental potential
+(:mod:`skfem_affine.integrators.potential`); the linearized integrator resolves the same colliders
+by PGS with friction instead (:mod:`skfem_affine.contact.pgs`).
 
 The barrier energy over the free vertices i and colliders c (Li et al. 2020) is
 
@@ -14,8 +16,12 @@ infinite for :math:`d \le 0`, so that a line search that keeps E finite never le
 cross a collider. Gradient :math:`\kappa b'(d) n`; Hessian :math:`\kappa b''(d) n n^T`
 (b'' > 0: positive semi-definite), which drops the collider-curvature term
 :math:`\kappa b'(d) \nabla^2 d` (exact for planes). Defaults: :math:`\hat d` = 1e-3 of the scene
-size, :math:`\kappa` = 100 m_avg 9.81 / :math:`\hat d` (m_avg the mean vertex mass): a body
-resting under gravity settles inside the barrier's range (measured: at about 0.7-0.9 dhat).
+size, :math:`\kappa` = 100 m_avg 9.81 / :math:`\hat d` (m_avg the mean vertex mass), so that the
+barrier's stiffness scales with a vertex's weight and a body resting under gravity settles inside
+the barrier's range (docs/subspace.md, "Contact").
+
+The barrier is built once per run from the model (``model.system``, ``model.size``) and the
+colliders; it holds no simulation.
 """
 import numpy as np
 
@@ -34,16 +40,28 @@ def barrier(d, dhat):
     return b, b1, b2
 
 
-class Contact:
-    """The barrier B(x) of one simulation: energy, gradient and Hessian blocks on the free DOFs."""
+class Barrier:
+    """The barrier B(x) of one run: energy, gradient and Hessian blocks on the free DOFs.
 
-    def __init__(self, sim, colliders, dhat=None, kappa=None):
-        sysm = sim.system
+    Parameters
+    ----------
+    model : Model
+        The run's fixed data; ``model.system`` and ``model.size`` are read.
+    colliders : list of colliders
+        Objects with ``query(points) -> (distance, normal)``.
+    dhat : float, optional
+        Barrier range (default 1e-3 of ``model.size``).
+    kappa : float, optional
+        Barrier stiffness (default 100 m_avg 9.81 / dhat).
+    """
+
+    def __init__(self, model, colliders, dhat=None, kappa=None):
+        sysm = model.system
         self.colliders = list(colliders)
         for c in self.colliders:
             if not callable(getattr(c, "query", None)):
                 raise TypeError(f"a collider needs query(points) -> (distance, normal), got {type(c).__name__}")
-        self.dhat = 1e-3 * sim.size if dhat is None else float(dhat)
+        self.dhat = 1e-3 * model.size if dhat is None else float(dhat)
         if not self.dhat > 0:
             raise ValueError(f"barrier distance dhat must be > 0, got {dhat}")
         m_avg = float(sysm.lumped_mass.mean())
@@ -108,9 +126,9 @@ class Contact:
         return max(alpha, 0.0)
 
 
-def contact_of(sim, dhat=None, kappa=None):
-    """The simulation's :class:`Contact`, or None when it has no colliders."""
-    colliders = getattr(sim, "colliders", None) or []
+def barrier_of(model, colliders, dhat=None, kappa=None):
+    """The :class:`Barrier` of ``colliders`` (a list, possibly empty or None), or None without colliders."""
+    colliders = list(colliders or [])
     if not colliders:
         return None
-    return Contact(sim, colliders, dhat, kappa)
+    return Barrier(model, colliders, dhat, kappa)

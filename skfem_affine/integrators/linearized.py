@@ -13,12 +13,8 @@ search on the incremental potential
 whose minimiser is the converged implicit Euler step (the reference solve); its first
 iterate is the linearized step.
 """
-import time
-
-import numpy as np
-
+from skfem_affine.integrators.newton import linearized_newton
 from skfem_affine.integrators.problem import Operator, StepProblem, StepResult, merge_stats
-from skfem_affine.reducers.full import factorize_and_solve
 
 
 class LinearizedEuler:
@@ -69,52 +65,10 @@ class LinearizedEuler:
         return result.positions(state.x, v, model.dt), v, result
 
     # ------------------------------------------------------------------ newton_iters > 1
-    def _potential(self, state, v, H0):
-        """Incremental potential Phi(v) (module docstring); v on free DOFs."""
-        m = self.model
-        sysm, h, d = m.system, m.dt, m.damping
-        x = state.x.copy()
-        x.reshape(-1)[sysm.free] += h * v
-        dv = v - state.v.reshape(-1)[sysm.free]
-        fg = m.f_gravity[sysm.free]
-        return (0.5 * dv @ (sysm.Mff @ dv) + sysm.strain_energy(x) - h * fg @ v
-                + 0.5 * h * v @ (d.alpha * (sysm.Mff @ v) + d.beta * (H0 @ v)))
-
     def _newton(self, state):
-        """Newton on Phi from v = 0 (x = x_t): the first iterate is the linearized step."""
-        m = self.model
-        sysm, h, d = m.system, m.dt, m.damping
-        cm, _ = m.coefficients
+        """Newton to the converged implicit Euler step (the one Newton loop of
+        :func:`skfem_affine.integrators.newton.linearized_newton`); its first iterate is the linearized step."""
         stats = {}
-        free = sysm.free
-        vt = state.v.reshape(-1)[free]
-        v = np.zeros_like(vt)
-        H0 = None
-        phi = None
-        for it in range(self.newton_iters):
-            x = state.x.copy()
-            x.reshape(-1)[free] += h * v
-            t0 = time.perf_counter()
-            f, H = sysm.forces_and_stiffness(x, project=m.project_hessian)
-            f += m.f_gravity
-            if H0 is None:
-                H0data, H0 = H, sysm.pattern.matrix(H)
-            grad = sysm.Mff @ (v - vt) - h * f[free] + h * (d.alpha * (sysm.Mff @ v) + d.beta * (H0 @ v))
-            # the Hessian of Phi: c_M M + h^2 H(x) + h beta H_t (damping lagged at x_t)
-            A = sysm.pattern.matrix(cm * sysm.mass_data + h * h * H + h * d.beta * H0data)
-            stats["assembly"] = stats.get("assembly", 0.0) + time.perf_counter() - t0
-            step = factorize_and_solve(self.solver, A, -grad, stats)
-            phi = self._potential(state, v, H0) if phi is None else phi
-            alpha = 1.0
-            slope = grad @ step
-            while True:
-                trial = v + alpha * step
-                phi_trial = self._potential(state, trial, H0)
-                if phi_trial <= phi + 1e-4 * alpha * slope or alpha < 1e-6:
-                    break
-                alpha *= 0.5
-            v, phi = trial, phi_trial
-            stats["newton_iters"] = it + 1
-            if h * alpha * np.abs(step).max() <= self.newton_tol * m.size:
-                break
-        return StepResult(dv=v - vt, operator=Operator(self.solver, A), stats=stats)
+        dv, A = linearized_newton(self.model, state.x, state.v, self.solver, self.newton_tol, self.newton_iters,
+                                  stats)
+        return StepResult(dv=dv, operator=Operator(self.solver, A), stats=stats)

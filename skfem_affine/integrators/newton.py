@@ -1,255 +1,228 @@
-r"""Full-space Newton on the incremental potential (adaptive-subspace paper, sec. 3.1, eq. 1-3).
+r"""The one Newton loop with a backtracking line search, and its full-space uses.
 
-Each time step minimises
+:func:`newton` minimises an :class:`~skfem_affine.integrators.potential.IncrementalPotential`
+E from x_t. Each iteration at x evaluates the elastic energy, takes the gradient g = grad E(x),
+asks a ``direction`` for the step d on the free DOFs, and takes the backtracking (Armijo) line
+search on E(x + alpha d); it stops when :math:`\|d\|_\infty / h \le` ``tol`` times the scene
+size (the criterion of Li et al., scaled by the bounding-box diagonal as in IPC), when the line
+search finds no decrease, or after ``max_iters`` iterations. Every Newton user runs this loop and
+differs only in its direction:
 
-.. math:: E(x) = \tfrac12 \|x - \tilde x\|_M^2 + a h^2 \big(\Psi(x) - f_{ext}^T x + D(x)\big)
-          \qquad \text{(eq. 1-2)},
+* :func:`newton_solve`: full space, :math:`d = -\nabla^2E^{-1}\nabla E` by a direct solve
+  (element Hessians projected to PSD); the Newton integrators without a reducer;
+* :func:`linearized_newton`: the same on the implicit-Euler potential, for the linearized
+  integrator's ``newton_iters > 1`` option (its first iterate is the linearized step);
+* :class:`~skfem_affine.reducers.subspace.reducer.AdaptiveSubspace`: the step of the adaptive
+  space (modes plus enriched nodes) with its oracle.
 
-with the predictor :math:`\tilde x`, weight :math:`a` and velocity update of the scheme:
-
-* implicit Euler (eq. 3): :math:`\tilde x = x_t + h v_t`, :math:`a = 1`,
-  :math:`v_{t+1} = (x_{t+1} - x_t)/h`;
-* BDF2 (the paper's footnote 9): :math:`a = 4/9`,
-  :math:`\tilde x = \tfrac13(4x_t - x_{t-1}) + \tfrac{2h}{9}(4v_t - v_{t-1})`,
-  :math:`v_{t+1} = \tfrac{3}{2h}\big(x_{t+1} - \tfrac13(4x_t - x_{t-1})\big)`
-  (algebraically the footnote's :math:`\tfrac13(4v_t - v_{t-1}) + \tfrac{2h}3 a_{t+1}`).
-  The first step, which has no :math:`x_{t-1}`, is implicit Euler.
-
-Both velocities have the form :math:`v = (x - \hat x)/(c h)` (c = 1, resp. 2/3). Rayleigh damping
-(not in the paper; the package's ``Rayleigh(alpha, beta)``) enters as the dissipation potential
-:math:`D(x) = \frac{1}{2ch}(x - \hat x)^T (\alpha M + \beta H_t)(x - \hat x)`, whose gradient
-:math:`a h^2 (\alpha M + \beta H_t) v` is the damping force with the stiffness lagged at
-:math:`x_t`. For implicit Euler this is exactly the potential of the package's
-``newton_iters`` option, so both converge to the same step.
-
-Newton starts from :math:`x_t` (so its first iterate is the linearized step), takes the
-direction :math:`d = -\nabla^2E^{-1}\nabla E` (element Hessians projected to PSD), a backtracking
-(Armijo) line search on E, and stops when :math:`\|d\|_\infty / h \le` ``tol`` times the scene
-size (the criterion of Li et al., scaled by the bounding-box diagonal as in IPC).
+Newton starts from :math:`x_t`, so with the full-space direction its first iterate is the
+linearized backward Euler step.
 """
 import time
 
 import numpy as np
 
-from skfem_affine.contact.barrier import contact_of
-
-SCHEMES = ("implicit_euler", "bdf2")
-
-
-def vdot(a, b):
-    """a . b for 1-D arrays without a BLAS call (OpenBLAS's thread hand-off costs ~10 ms per dot
-    on a loaded 2-core machine, measured; einsum's loop costs microseconds)."""
-    return float(np.einsum("i,i->", a, b))
+from skfem_affine.checks import positive
+from skfem_affine.integrators.potential import SCHEMES, IncrementalPotential, vdot  # noqa: F401 (re-exported)
 
 
-class IncrementalPotential:
-    """E(x) of one time step (eq. 2) with its gradient and Hessian on the free DOFs.
-
-    Positions ``x`` are flat (3n,) arrays over all DOFs; fixed DOFs stay at ``x_t``.
-    ``x_prev, v_prev`` (the state before ``x_t``) select BDF2; None gives implicit Euler.
-    ``start`` is the :class:`~skfem_affine.assembly.FrameData` at ``x_t`` (built if None).
-    """
-
-    def __init__(self, sim, x_t, v_t, x_prev=None, v_prev=None, start=None, contact=None):
-        sysm = sim.system
-        self.sim, self.system, self.free, self.h = sim, sysm, sysm.free, sim.dt
-        h = self.h
-        x_t, v_t = np.asarray(x_t, float).reshape(-1), np.asarray(v_t, float).reshape(-1)
-        if x_prev is None:
-            self.scheme, self.a, self.c = "implicit_euler", 1.0, 1.0
-            self.x_hat = x_t.copy()
-            self.x_tilde = x_t + h * v_t
-        else:
-            x_prev, v_prev = np.asarray(x_prev, float).reshape(-1), np.asarray(v_prev, float).reshape(-1)
-            self.scheme, self.a, self.c = "bdf2", 4.0 / 9.0, 2.0 / 3.0
-            self.x_hat = (4.0 * x_t - x_prev) / 3.0
-            self.x_tilde = self.x_hat + 2.0 * h / 9.0 * (4.0 * v_t - v_prev)
-        self.x_t = x_t
-        self.f_ext = sim.f_gravity
-        self.contact = contact  # barrier.Contact or None (eq. 2's B(x))
-        self._start = start
-        d = sim.damping
-        self.weight = self.a * h * h  # a h^2 in front of the potentials (eq. 2)
-        # (alpha M + beta H_t) / (c h), the damping "mass", on the pattern of the free DOFs
-        Ht = self.start.H if d.beta else 0.0
-        self.damping_data = (d.alpha * sysm.mass_data + d.beta * Ht) / (self.c * h)
-        self.damping_matrix = sysm.pattern.matrix(self.damping_data) if (d.alpha or d.beta) else None
-
-    @property
-    def has_start(self):
-        return self._start is not None
-
-    @property
-    def start(self):
-        """:class:`~skfem_affine.assembly.FrameData` at x_t (forces, element blocks, H), built on first use."""
-        if self._start is None:
-            self._start = self.system.evaluate(self.x_t.reshape(-1, 3), project=self.sim.project_hessian)
-        return self._start
-
-    # ------------------------------------------------------------------ eq. 2
-    def energy(self, x):
-        """E(x) (eq. 2); inf where the elastic energy is not finite."""
-        free, sysm = self.free, self.system
-        r = (x - self.x_tilde)[free]
-        val = 0.5 * vdot(r, sysm.Mff @ r)
-        psi = sysm.strain_energy(x.reshape(-1, 3))
-        pot = psi - vdot(self.f_ext, x)
-        if self.damping_matrix is not None:
-            z = (x - self.x_hat)[free]
-            pot += 0.5 * vdot(z, self.damping_matrix @ z)
-        if self.contact is not None:
-            pot += self.contact.energy(x)
-        val += self.weight * pot
-        return float(val) if np.isfinite(val) else np.inf
-
-    def gradient(self, x, f_int):
-        """grad E on the free DOFs: M (x - x~) + a h^2 (-f_int - f_ext + (alpha M + beta H_t) v)."""
-        free = self.free
-        g = self.system.Mff @ (x - self.x_tilde)[free] - self.weight * (f_int + self.f_ext)[free]
-        if self.damping_matrix is not None:
-            g += self.weight * (self.damping_matrix @ (x - self.x_hat)[free])
-        if self.contact is not None:
-            g += self.weight * self.contact.gradient(x)
-        return g
-
-    def hessian_data(self, H, x=None):
-        """Data of grad^2 E = M + a h^2 (H + (alpha M + beta H_t)/(c h) + grad^2 B(x)) on the free-DOF pattern.
-
-        The barrier term is included when ``x`` is given.
-        """
-        data = self.system.mass_data + self.weight * (H + self.damping_data)
-        if x is not None and self.contact is not None:
-            data += self.weight * self.contact.hessian_data(x)
-        return data
-
-    def contact_data(self, x):
-        """a h^2 grad^2 B(x) on the free-DOF pattern, or None without colliders."""
-        return None if self.contact is None else self.weight * self.contact.hessian_data(x)
-
-    def hessian(self, H, x=None):
-        return self.system.pattern.matrix(self.hessian_data(H, x))
-
-    def max_step(self, x, d):
-        """Largest step fraction along d (free DOFs) that keeps vertices off the colliders (<= 1)."""
-        if self.contact is None:
-            return 1.0
-        full = np.zeros_like(x)
-        full[self.free] = d
-        return self.contact.max_step(x, full)
-
-    def velocity(self, x):
-        """v_{t+1} = (x - x_hat) / (c h) (eq. 3, footnote 9)."""
-        return (x - self.x_hat) / (self.c * self.h)
-
-    def with_step(self, x, d):
-        """x + d with d on the free DOFs."""
-        y = x.copy()
-        y[self.free] += d
-        return y
-
-
-def line_search(ip, x, d, g, e0=None, c1=1e-4, min_step=1e-10):
+def line_search(problem, x, d, g, e0=None, c1=1e-4, min_step=1e-10):
     """Backtracking (Armijo) line search on E(x + alpha d); returns ``(alpha, E(x + alpha d))``.
 
+    Starts from the largest step that keeps vertices off the colliders (at most 1).
     ``alpha = 0`` when no decrease is found above ``min_step`` (d is then no descent direction
     at round-off level).
     """
-    e0 = ip.energy(x) if e0 is None else e0
+    e0 = problem.energy(x) if e0 is None else e0
     slope = vdot(g, d)
-    alpha = ip.max_step(x, d)
+    alpha = problem.max_step(x, d)
     while alpha >= min_step:
-        e = ip.energy(ip.with_step(x, alpha * d))
+        e = problem.energy(problem.with_step(x, alpha * d))
         if e <= e0 + c1 * alpha * min(slope, 0.0):
             return alpha, e
         alpha *= 0.5
     return 0.0, e0
 
 
-def converged(ip, d, tol):
-    """Termination ||d||_inf / h <= tol * scene size (Li et al.; sec. 3.10)."""
-    return np.abs(d).max(initial=0.0) / ip.h <= tol * ip.sim.size
+def converged(problem, d):
+    """Termination ||d||_inf / h <= problem.tol * scene size (Li et al.; sec. 3.10)."""
+    return np.abs(d).max(initial=0.0) / problem.h <= problem.tol * problem.model.size
 
 
-def newton_solve(ip, tol, max_iters, solve, rec):
-    """Minimise E (eq. 1) by Newton from x_t in full space; returns x_{t+1} (flat).
+def _add(rec, key, seconds):
+    rec[key] = rec.get(key, 0.0) + seconds
 
-    ``solve(A, b, rec)`` is the simulation's linear solver. Records ``newton_iters``,
-    ``newton_converged``, ``assembly`` and ``line_search`` times in ``rec``.
+
+def newton(problem, direction, rec, after_step=None, blocks=True, stop_on="direction"):
+    """THE Newton loop: minimise ``problem``'s E from x_t; returns ``(x, converged)``.
+
+    Parameters
+    ----------
+    problem : IncrementalPotential
+        E with its gradient, the line search's ``energy``/``max_step``/``with_step``, and the
+        settings ``tol`` and ``max_iters``.
+    direction : callable
+        ``direction(x, g, data, rec, e) -> d``: the step on the free DOFs at iterate x (flat),
+        with g = grad E(x), ``data`` the elastic evaluation at x (:meth:`IncrementalPotential.evaluate`),
+        ``e`` = E(x). It records its own phase times in ``rec``.
+    rec : dict
+        The frame's record: ``assembly`` (evaluation and gradient) and ``line_search`` times are
+        added, ``newton_iters`` and ``newton_converged`` set.
+    after_step : callable, optional
+        ``after_step(x, alpha)`` after each accepted step, with the new iterate and step length
+        (a reduced method updates its coordinates and secant data here).
+    blocks : bool
+        Whether each iterate's evaluation includes the element blocks and H (full Newton), or
+        only F, P and f (the direction assembles the blocks it needs). The evaluation at x_t is
+        reused when the problem has it.
+    stop_on : {"direction", "step"}
+        What the tolerance bounds: the Newton direction d (the Newton integrators, Li et al.), or
+        the step alpha d the line search took (the linearized integrator's ``newton_tol``, a bound
+        on the position change of an iteration).
     """
-    sim = ip.sim
-    x, data = ip.x_t.copy(), ip.start
-    e = ip.energy(x)
+    if stop_on not in ("direction", "step"):
+        raise ValueError(f"stop_on must be 'direction' or 'step', got {stop_on!r}")
+    x = problem.x_t.copy()
+    data = problem.start if (blocks or problem.has_start) else None
+    e = problem.energy(x)
     ok = False
-    for it in range(max_iters):
+    for it in range(problem.max_iters):
         t0 = time.perf_counter()
         if data is None:
-            data = sim.system.evaluate(x.reshape(-1, 3), project=sim.project_hessian)
-        g = ip.gradient(x, data.f)
-        A = ip.hessian(data.H, x)
-        rec["assembly"] = rec.get("assembly", 0.0) + time.perf_counter() - t0
-        d = solve(A, -g, rec)
+            data = problem.evaluate(x, blocks)
+        g = problem.gradient(x, data.f)
+        _add(rec, "assembly", time.perf_counter() - t0)
+        d = direction(x, g, data, rec, e)
         t0 = time.perf_counter()
-        alpha, e = line_search(ip, x, d, g, e)
-        rec["line_search"] = rec.get("line_search", 0.0) + time.perf_counter() - t0
-        x = ip.with_step(x, alpha * d)
+        alpha, e = line_search(problem, x, d, g, e)
+        x = problem.with_step(x, alpha * d)
+        if after_step is not None:
+            after_step(x, alpha)
         data = None
+        _add(rec, "line_search", time.perf_counter() - t0)
         rec["newton_iters"] = it + 1
-        if converged(ip, d, tol) or alpha == 0.0:
-            ok = converged(ip, d, tol)
+        ok = converged(problem, d if stop_on == "direction" else alpha * d)
+        if ok or alpha == 0.0:
             break
     rec["newton_converged"] = ok
+    return x, ok
+
+
+def direct_solve(solver, A, b, rec):
+    """Factorise A with ``solver`` and solve A x = b, recording ``factorization``/``solve`` times,
+    ``dofs``, ``solver`` and the solver's ``iterations`` in ``rec``."""
+    t0 = time.perf_counter()
+    solver.factorize(A)
+    t1 = time.perf_counter()
+    x = solver.solve(b)
+    t2 = time.perf_counter()
+    _add(rec, "factorization", t1 - t0)
+    _add(rec, "solve", t2 - t1)
+    rec["dofs"] = A.shape[0]
+    rec["solver"] = solver.name
+    rec["iterations"] = rec.get("iterations", 0) + solver.last_iterations
     return x
 
 
-def full_space_residual(ip, x):
+class FullSpaceDirection:
+    """The full-space Newton direction d = -grad^2E^-1 grad E by ``solver`` (a direct or CG solver
+    of :mod:`skfem_affine.solvers`); ``matrix`` is the last Hessian it factorised."""
+
+    def __init__(self, problem, solver):
+        self.problem, self.solver, self.matrix = problem, solver, None
+
+    def __call__(self, x, g, data, rec, e):
+        t0 = time.perf_counter()
+        A = self.problem.hessian(data.H, x)
+        _add(rec, "assembly", time.perf_counter() - t0)
+        self.matrix = A
+        return direct_solve(self.solver, A, -g, rec)
+
+
+def newton_solve(problem, solver, rec):
+    """Minimise E (eq. 1) by full-space Newton from x_t; returns ``(x_{t+1} (flat), converged)``."""
+    return newton(problem, FullSpaceDirection(problem, solver), rec)
+
+
+def linearized_newton(model, x, v, solver, tol, max_iters, rec, start=None):
+    """Newton on the implicit-Euler potential from the linearized state: the linearized
+    integrator's ``newton_iters > 1`` option.
+
+    Parameters
+    ----------
+    model : Model
+    x, v : (n, 3) arrays
+        The state at time t.
+    solver : solver of :mod:`skfem_affine.solvers`
+    tol : float
+        Stop when the largest position change of an iteration, ``||alpha d||_inf``, is at most
+        ``tol`` times the scene size (the linearized integrator's ``newton_tol``).
+    max_iters : int
+        Iteration cap (``newton_iters``); with 1 the result is the linearized step
+        (when the line search takes the full step).
+    rec : dict
+        The frame's record (as :func:`newton`).
+    start : FrameData, optional
+        The evaluation at x (reused if given).
+
+    Returns
+    -------
+    dv : array
+        The velocity change on the free DOFs, v_{t+1} - v_t.
+    matrix : scipy.sparse matrix
+        The last Hessian factorised by ``solver``: A of eq. 1 at the last iterate (the damping's
+        H lagged at x_t), which contact's Delassus operator needs.
+    """
+    # E = h^2 Phi(v) + const with x = x_t + h v (potential.py): the same minimiser. The loop's
+    # criterion ||alpha d||_inf / h <= tol' * size with tol' = tol / h is ||alpha d||_inf <= tol * size.
+    problem = IncrementalPotential(model, x, v, start=start, tol=positive(tol, "newton_tol") / model.dt,
+                                   max_iters=max_iters)
+    direction = FullSpaceDirection(problem, solver)
+    x1, _ = newton(problem, direction, rec, stop_on="step")
+    free = model.system.free
+    return problem.velocity(x1)[free] - np.asarray(v, float).reshape(-1)[free], direction.matrix
+
+
+def full_space_residual(problem, x):
     """The full-space Newton decrement ||grad^2E^-1 grad E||_inf / h at x (the accuracy of a reduced step)."""
     import scipy.sparse.linalg as spla
-    sim = ip.sim
-    data = sim.system.evaluate(x.reshape(-1, 3), project=sim.project_hessian)
-    d = spla.spsolve(ip.hessian(data.H, x).tocsc(), ip.gradient(x, data.f))
-    return float(np.abs(d).max() / ip.h)
+    data = problem.evaluate(x)
+    d = spla.spsolve(problem.hessian(data.H, x).tocsc(), problem.gradient(x, data.f))
+    return float(np.abs(d).max() / problem.h)
 
 
-class TimeStepper:
-    """Implicit Euler or BDF2 steps for a :class:`~skfem_affine.Simulation` (``integrator=``).
+def resolve_newton_settings(sim_tol, sim_iters, reducer=None):
+    """The Newton settings ``(tol, max_iters)`` of a run, from the Simulation's and the reducer's.
 
-    Keeps (x_{t-1}, v_{t-1}) for BDF2; a state changed from outside restarts with implicit Euler.
-    A reducer with ``minimize(ip, rec) -> x_{t+1}`` (e.g. :class:`AdaptiveSubspace`) replaces
-    the full-space Newton solve.
+    The Simulation's ``newton_tol`` / ``newton_iters`` are the one place the settings live. A
+    reducer that still takes its own Newton keywords (``AdaptiveSubspace(newton_tol=...,
+    max_newton=...)``) hands them over when the Simulation's were not given; given in both places
+    they must agree, else ValueError. When neither gives a value, the reducer's recommended default
+    (``default_newton_tol``, ``default_max_newton``) is used; None remains when nobody has one (the
+    integrator's default then applies).
+
+    Parameters
+    ----------
+    sim_tol, sim_iters : float, int or None
+        The Simulation's arguments as the user gave them (None: not given).
+    reducer : object or None
+
+    Returns
+    -------
+    (tol, max_iters), each None when nobody set it.
     """
-
-    def __init__(self, sim, scheme, max_iters, tol):
-        if scheme not in SCHEMES:
-            raise ValueError(f"integrator must be 'linearized' or one of {SCHEMES}, got {scheme!r}")
-        if sim.reducer is not None and not hasattr(sim.reducer, "minimize"):
-            raise ValueError(f"{type(sim.reducer).__name__} runs with integrator='linearized'; "
-                             f"integrator={scheme!r} needs a reducer such as AdaptiveSubspace")
-        self.sim, self.scheme, self.max_iters, self.tol = sim, scheme, int(max_iters), float(tol)
-        self.history = None  # (frame, x_prev, v_prev)
-        self.contact, self._colliders = None, ()
-
-    def potential(self):
-        s = self.sim.state
-        prev = (None, None)
-        if self.scheme == "bdf2" and self.history is not None and self.history[0] == s.frame - 1:
-            prev = self.history[1:]
-        colliders = tuple(getattr(self.sim, "colliders", None) or ())
-        if tuple(map(id, colliders)) != tuple(map(id, self._colliders)):  # built once per collider set
-            self.contact, self._colliders = contact_of(self.sim), colliders
-        return IncrementalPotential(self.sim, s.x, s.v, *prev, contact=self.contact)
-
-    def step(self, rec):
-        """One step; returns (x, v) as (n, 3) arrays."""
-        sim, s = self.sim, self.sim.state
-        t0 = time.perf_counter()
-        ip = self.potential()
-        rec["assembly"] = rec.get("assembly", 0.0) + time.perf_counter() - t0
-        rec["integrator"] = ip.scheme
-        minimize = getattr(sim.reducer, "minimize", None)
-        if minimize is not None:
-            x = minimize(ip, rec)
+    out = []
+    for sim_value, key, default, sim_name in ((sim_tol, "newton_tol", "default_newton_tol", "newton_tol"),
+                                              (sim_iters, "max_newton", "default_max_newton", "newton_iters")):
+        red_value = getattr(reducer, key, None)
+        if sim_value is not None and red_value is not None and sim_value != red_value:
+            raise ValueError(f"Simulation({sim_name}={sim_value!r}) and {type(reducer).__name__}({key}={red_value!r}) "
+                             f"disagree; give the Newton settings once, as Simulation({sim_name}=...)")
+        for value in (sim_value, red_value, getattr(reducer, default, None)):
+            if value is not None:
+                out.append(value)
+                break
         else:
-            x = newton_solve(ip, self.tol, self.max_iters, sim.solve, rec)
-        v = ip.velocity(x)  # zero on fixed DOFs, which stay at x_t
-        self.history = (s.frame, s.x.copy(), s.v.copy())
-        return x.reshape(-1, 3), v.reshape(-1, 3)
+            out.append(None)
+    return tuple(out)
+

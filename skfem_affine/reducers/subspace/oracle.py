@@ -95,8 +95,8 @@ def nodal_shares(ip, x, elem_energy):
         z = (x - ip.x_hat)[free]
         dof[free] += 0.5 * w * z * (ip.damping_matrix @ z)
     share = dof.reshape(n, 3).sum(axis=1)
-    if ip.contact is not None:
-        share += w * ip.contact.vertex_energy(x)
+    if ip.barrier is not None:
+        share += w * ip.barrier.vertex_energy(x)
     share += w * np.bincount(sysm.t.ravel(), weights=np.repeat(elem_energy[None, :] / 4.0, 4, 0).ravel(),
                              minlength=n)
     return share
@@ -154,7 +154,7 @@ class ModalQueries:
     def _measure_all(self, grad_full, dE, n_scale, m_scale):
         nb, n = len(self.blocks), grad_full.size // 3
         safe = np.where(self.colnorm_sq > 0, self.colnorm_sq, 1.0)
-        coef = np.einsum("i,ic->c", grad_full, self.U) / safe  # no BLAS gemv: see newton.vdot
+        coef = np.einsum("i,ic->c", grad_full, self.U) / safe  # no BLAS gemv: see potential.vdot
         proj = np.einsum("ikbc,bc->ikb", self.U.reshape(n, 3, nb, -1), coef.reshape(nb, -1))  # g_j (eq. 16)
         error = (np.sqrt(np.einsum("icb,icb->ib", proj, proj)) / n_scale[:, None]).max(axis=0)  # eq. 14
         ok = self.ubar_sq > 0

@@ -1,0 +1,71 @@
+"""The Newton integrators: implicit Euler and BDF2 on the incremental potential (eq. 1-3).
+
+One step builds the :class:`~skfem_affine.integrators.potential.IncrementalPotential` of the
+state (BDF2 from the second step on, with the state before), hands it to the reducer (which runs
+:func:`skfem_affine.integrators.newton.newton` with its direction) or, without a reducer, to the
+full-space :func:`~skfem_affine.integrators.newton.newton_solve`, and returns the new positions
+and the scheme's velocities. Contact is the IPC barrier in the potential
+(:mod:`skfem_affine.contact.barrier`).
+"""
+import time
+
+from skfem_affine.integrators.newton import newton_solve
+from skfem_affine.integrators.potential import SCHEMES, IncrementalPotential
+from skfem_affine.integrators.problem import StepResult, merge_stats
+
+
+class NewtonIntegrator:
+    """Implicit Euler or BDF2 steps by Newton on the incremental potential.
+
+    Parameters
+    ----------
+    model : Model
+        The run's fixed data (``system``, ``dt``, ``damping``, ``f_gravity``, ``size``,
+        ``project_hessian``).
+    scheme : {"implicit_euler", "bdf2"}
+    reducer : Reducer or None
+        ``reducer.solve(potential) -> StepResult`` with ``x`` set; None: full-space Newton.
+    solver : solver of :mod:`skfem_affine.solvers`
+        The full-space Newton solve's linear solver (unused with a reducer).
+    barrier : Barrier or None
+        The colliders' IPC barrier (:func:`skfem_affine.contact.barrier.barrier_of`).
+    tol, max_iters : float, int
+        The Newton settings (the Simulation's ``newton_tol``, ``newton_iters``).
+
+    BDF2 needs the state before the current one: the integrator keeps (x_{t-1}, v_{t-1}) of the
+    state it last stepped from, and a state that does not follow it (the first one, or one
+    changed from outside) starts with an implicit Euler step.
+    """
+
+    def __init__(self, model, scheme, reducer, solver, barrier, tol=1e-6, max_iters=50):
+        if scheme not in SCHEMES:
+            raise ValueError(f"integrator must be 'linearized' or one of {SCHEMES}, got {scheme!r}")
+        self.model, self.scheme, self.reducer, self.solver, self.barrier = model, scheme, reducer, solver, barrier
+        self.tol, self.max_iters = tol, max_iters
+        self.history = None  # (frame, x_prev, v_prev)
+
+    def potential(self, state):
+        """The :class:`IncrementalPotential` of one step from ``state``."""
+        prev = (None, None)
+        if self.scheme == "bdf2" and self.history is not None and self.history[0] == state.frame - 1:
+            prev = self.history[1:]
+        return IncrementalPotential(self.model, state.x, state.v, *prev, barrier=self.barrier,
+                                    tol=self.tol, max_iters=self.max_iters)
+
+    def step(self, state, rec):
+        """One step from ``state``; returns ``(x, v, result)`` with (n, 3) arrays and the StepResult."""
+        t0 = time.perf_counter()
+        problem = self.potential(state)
+        rec["assembly"] = rec.get("assembly", 0.0) + time.perf_counter() - t0
+        rec["integrator"] = problem.scheme
+        if self.reducer is None:
+            stats = {}
+            x, _ = newton_solve(problem, self.solver, stats)
+            result = StepResult(x=x, stats=stats)
+        else:
+            result = self.reducer.solve(problem)
+        merge_stats(rec, result.stats)
+        v = problem.velocity(result.x)  # zero on fixed DOFs, which stay at x_t
+        self.history = (state.frame, state.x.copy(), state.v.copy())
+        return result.x.reshape(-1, 3), v.reshape(-1, 3), result
+
