@@ -155,12 +155,16 @@ def cmd_run(args):
         runners.warm_up(spec, ("full", method))
         _say(args, f"reference: full space, {spec.label} ...")
         reference, _ = runners.reference_run(spec, args.frames, progress)
-    writer = io.SeriesWriter(os.path.join(out, "paraview", method.name)) if not args.no_paraview else None
+    series = None
     every = max(1, args.every)
 
-    def write(sim, state):
-        if writer is not None and (state.frame % every == 0):
-            writer.write(sim, state)
+    def write(sim, state, last=False):
+        nonlocal series
+        if args.no_paraview or (state.frame % every and not last):
+            return
+        if series is None:
+            series = io.Series(os.path.join(out, "paraview", method.name), sim)
+        series.write(state)
 
     frames = reference.frames if reference is not None else args.frames
     result = runners.run(spec, method, frames, args.tau_a, args.tau_e, reference=reference,
@@ -168,8 +172,8 @@ def cmd_run(args):
                          keep_every=every, keep_frames=[args.frame] if args.frame is not None else (),
                          progress=progress, on_state=write)
     s = result.summary
-    if writer is not None and result.records and (len(result.records) % every):
-        writer.write(result.sim, result.sim.state)
+    if result.records and (len(result.records) % every):
+        write(result.sim, result.sim.state, last=True)
     runners.write_table(result.records, os.path.join(out, f"{method.name}_frames.csv"))
     picture = plots.clusters_picture([(method.name, result.sim, plots.pick_state(result.states, args.frame))],
                                      os.path.join(out, f"{method.name}_clusters.png"))
@@ -181,7 +185,7 @@ def cmd_run(args):
         _say(args, _table([s]))
     _say(args, f"wrote {out}/: {method.name}_frames.csv, {os.path.basename(picture)}"
                + (f", {os.path.basename(gif)}" if gif else "")
-               + (f", {os.path.relpath(writer.pvd, out)} (ParaView)" if writer else ""))
+               + (f", {os.path.relpath(series.pvd, out)} (ParaView)" if series else ""))
     _emit(args, _summary_json(s, {"status": s["status"], "out": out}))
     return 0 if s["status"] == "ok" else 1
 
@@ -195,7 +199,7 @@ def compare_outputs(args, spec, runs, out):
     written += [os.path.basename(p) for p in plots.compare_plots(runs, out, frame=args.frame, stem="compare")]
     if not args.no_paraview:
         for name, run in runs.items():
-            io.write_states(os.path.join(out, "paraview", name), run.sim, run.states)
+            io.write_series(os.path.join(out, "paraview", name), run.sim, states=run.states)
         written.append("paraview/<method>.pvd")
     if args.gif:
         for name, run in runs.items():
