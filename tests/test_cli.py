@@ -200,3 +200,13 @@ def test_demo(tmp_path, capsys):
            "rigidification" in out
     names = set(os.listdir(tmp_path / "demo"))
     assert {"compare_clusters.png", "compare_speedup.png", "affinification.gif", "paraview"} <= names
+
+
+def test_scaling_needs_a_resolution_parameter(tmp_path, capsys):
+    f = tmp_path / "fixed.py"
+    f.write_text("import skfem_affine as sa\n"
+                 "def scene(reducer=None, dt=0.01):\n"
+                 "    return sa.scenes.free_body(resolution=1, reducer=reducer, dt=dt)\n")
+    assert main(["scaling", str(f), "--resolutions", "1", "2", "--out", str(tmp_path / "out")]) == 2
+    assert "has no resolution parameter to scale" in error_line(capsys)
+    assert not os.path.exists(tmp_path / "out")

@@ -97,10 +97,10 @@ def _scene_text(spec):
     return f"{spec.label} ({kwargs})" if kwargs else spec.label
 
 
-def _frames(args, spec):
-    """The frames to run: ``--frames``, else ``--set frames=``, else the scene's own default."""
-    if args.frames is not None:
-        return args.frames
+def _frames(frames, spec):
+    """The frames to run: ``frames`` (``--frames``), else ``--set frames=``, else the scene's own default."""
+    if frames is not None:
+        return frames
     kwargs = dict(spec.kwargs)
     if "frames" in kwargs:
         return int(kwargs["frames"])
@@ -194,7 +194,7 @@ def cmd_run(args):
     """One method on one scene, optionally against the full-space reference."""
     spec = _spec(args)
     method = runners.get_method(args.method)
-    frames = _frames(args, spec)
+    frames = _frames(args.frames, spec)
     out = _folder(args, spec)
     progress = _progress(args)
     reference = None
@@ -284,7 +284,7 @@ def cmd_compare(args):
     methods = tuple(dict.fromkeys(["full"] + [runners.get_method(m).name for m in args.methods]))
     args.methods = list(methods)
     taus = _compare_taus(args)
-    frames = _frames(args, spec)
+    frames = _frames(args.frames, spec)
     out = _folder(args, spec)
     t0 = time.perf_counter()
     shown = [_method_text(runners.get_method(m), *taus.get(m, (None, None))) for m in methods]
@@ -317,7 +317,7 @@ def cmd_sweep(args):
         raise ValueError(f"--tau-range takes LO HI with LO <= HI, got {lo:g} {hi:g}")
     if args.scheduler:
         _check_scheduler(args.scheduler)
-    frames = _frames(args, spec)
+    frames = _frames(args.frames, spec)
     out = _folder(args, spec)
     table = args.table or os.path.join(out, f"{method.name}.{args.format}")
     t0 = time.perf_counter()
@@ -353,13 +353,14 @@ def cmd_scaling(args):
     """The scene at increasing resolution: full and reduced time, speedup, error (Table 2)."""
     spec = _spec(args)
     method = runners.get_method(args.method)
-    if "resolution" not in inspect.signature(spec.factory()).parameters:
+    params = inspect.signature(spec.factory()).parameters
+    if "resolution" not in params and not any(p.kind == p.VAR_KEYWORD for p in params.values()):
         raise ValueError(f"scene {args.scene!r} has no resolution parameter to scale")
     if args.frames and len(args.frames) not in (1, len(args.resolutions)):
         raise ValueError(f"--frames takes one number or one per resolution ({len(args.resolutions)}), "
                          f"got {len(args.frames)}")
     out = _folder(args, spec)
-    frames = args.frames if args.frames else [_frames(argparse.Namespace(frames=None), spec)]
+    frames = args.frames if args.frames else [_frames(None, spec)]
     frames = frames[0] if len(frames) == 1 else frames
     _say(args, f"scaling: {_scene_text(spec)}, resolutions {', '.join(map(str, args.resolutions))}, "
                f"{frames if isinstance(frames, int) else ', '.join(map(str, frames))} frames: "
