@@ -3,7 +3,10 @@
 Subcommands: ``demo``, ``run``, ``compare``, ``sweep``, ``scaling``, ``scenes``. A scene is a name
 from :data:`skfem_affine.scenes.SCENES` or the path of a Python file defining ``scene(**kwargs)``
 that returns a Simulation. With ``--json`` exactly one JSON object is printed on stdout (nothing
-else); progress bars appear on a terminal only.
+else); progress bars appear on a terminal only. Files go into ``OUT/COMMAND/SCENE/`` (``OUT/demo/``
+for the demo). A mistake in the command (a bad option or number, an unknown scene, a scene file
+that raises, a scheduler nobody answers at) is one line on stderr and exit code 2, with no
+traceback; a traceback means a bug of the package.
 """
 import argparse
 import ast
@@ -83,7 +86,10 @@ def _spec(args):
 
 def _folder(args, spec):
     """``OUT/COMMAND/SCENE/`` (``OUT/demo/`` for the demo), created."""
-    out = os.path.join(args.out, "demo") if args.command == "demo" else os.path.join(args.out, args.command, spec.label)
+    if args.command == "demo":
+        out = os.path.join(args.out, "demo")
+    else:
+        out = os.path.join(args.out, args.command, spec.label)
     os.makedirs(out, exist_ok=True)
     return out
 
@@ -492,8 +498,8 @@ def parser():
     methods = ", ".join(f"{m.name} (default taus {m.taus[0]}, {m.taus[1]})" if m.taus[0] is not None else m.name
                         for m in runners.METHODS.values())
     top = _Parser(prog="skfem-affine", description="Fast adaptive elastodynamics for scikit-fem: "
-                                  "simulate scenes and measure the speed/accuracy trade of affinification.",
-                                  epilog="Run `skfem-affine COMMAND --help` for each command's options.")
+                  "simulate scenes and measure the speed/accuracy trade of affinification.",
+                  epilog="Run `skfem-affine COMMAND --help` for each command's options.")
     sub = top.add_subparsers(dest="command", metavar="COMMAND")
 
     p = sub.add_parser("demo", help="the cantilever in full space, affinification and rigidification: "
