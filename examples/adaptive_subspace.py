@@ -46,6 +46,8 @@ def compare(resolution=2, frames=20, thresholds=(0.0, 1e-3, 0.5), modes=4):
 results = compare()
 
 if __name__ == "__main__":
+    import os
+
     import matplotlib.pyplot as plt
 
     for eps, r in results.items():
@@ -58,5 +60,6 @@ if __name__ == "__main__":
     plt.ylabel("enriched node ratio")
     plt.legend()
     plt.title("Cantilever: nodal enrichment per step")
-    plt.savefig("adaptive_subspace_enrichment.png", dpi=120)
-    print("wrote adaptive_subspace_enrichment.png")
+    os.makedirs(os.path.join("out", "adaptive_subspace"), exist_ok=True)
+    plt.savefig(os.path.join("out", "adaptive_subspace", "enrichment.png"), dpi=120)
+    print("wrote out/adaptive_subspace/enrichment.png")

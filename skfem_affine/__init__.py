@@ -11,6 +11,7 @@ The package is laid out by idea: the elastic core (:mod:`materials`, :mod:`kinem
 :mod:`body`, :mod:`assembly`, :mod:`solvers`), :mod:`integrators`, :mod:`reducers`
 (``affine/`` and ``subspace/``), :mod:`contact`, and the measuring tools in :mod:`lab`.
 """
+from skfem_affine import _compile_notice  # noqa: F401 (one stderr line when the kernels compile)
 from skfem_affine import assembly, kinematics, materials, solvers
 from skfem_affine.body import ElasticBody
 from skfem_affine.contact import colliders
