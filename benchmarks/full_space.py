@@ -35,13 +35,13 @@ def timed(fn, repeat=1):
 
 def bench_size(k, frames, solvers):
     row = {"resolution": k}
-    sim = sa.scenes.cantilever(resolution=k, solver="superlu")
+    sim = sa.scenes.cantilever(resolution=k, solver="superlu", E=1e5, damping=None)
     row.update(tets=sim.system.m, vertices=sim.system.n, dofs=int(sim.system.free.size))
     mesh = sim.bodies[0].mesh
     basis = skfem.Basis(mesh, skfem.ElementVector(skfem.ElementTetP1()))
     row["asm_skfem"], _ = timed(lambda: skfem.asm(linear_elasticity(*lame_parameters(1e5, 0.35)), basis))
     # bend the beam so that the tangent is not the rest one
-    warm = sa.scenes.cantilever(resolution=k, solver="amg")
+    warm = sa.scenes.cantilever(resolution=k, solver="amg", E=1e5, damping=None)
     for _ in warm.run(20):
         pass
     x, v = warm.state.x, warm.state.v
@@ -52,7 +52,7 @@ def bench_size(k, frames, solvers):
             continue  # minutes per frame: not worth measuring
         solver = sa.solvers.make_solver(name)
         fresh, _ = timed(lambda: (solver.factorize(A), solver.solve(b)))
-        sim = sa.scenes.cantilever(resolution=k, solver=name)
+        sim = sa.scenes.cantilever(resolution=k, solver=name, E=1e5, damping=None)
         sim.state = warm.state.copy()
         for _ in sim.run(frames):
             pass

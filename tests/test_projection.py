@@ -176,7 +176,7 @@ def test_svd_of_interleaved_lanes(sweeps):
 @pytest.mark.skipif(not hasattr(os, "fork"), reason="needs os.fork")
 def test_element_pass_works_in_a_forked_child():
     """The element pass's helper threads do not survive a fork: the child must make its own."""
-    sim = sa.scenes.cantilever(resolution=2)
+    sim = sa.scenes.cantilever(resolution=2, E=1e5, damping=None)
     sim.step()  # the parent's helper threads exist now
     pid = os.fork()
     if pid == 0:  # child: a hang here would stall the test, an exception gives exit code 1
