@@ -98,13 +98,14 @@ def octopus(mesh_dir, frames):
     """octopus.mesh scaled by 10 (y up, 10 m across) into a bowl of radius 8, a tentacle tugged mid-run.
 
     E = 4e3, nu = 0.34; density 10, Rayleigh alpha = 1e-4, beta = 0.1 and friction 0.5 as the
-    rigidification code's octopus in a bowl (its bowl is a mesh; our analytic bowl's radius is ours).
+    rigidification code's octopus in a bowl (its bowl is a mesh; our analytic bowl's radius is ours);
+    the tug is a tenth of the body's weight.
     """
     path = os.path.join(mesh_dir, "octopus.mesh")
     return lambda reducer: sa.scenes.octopus(mesh=path, up=1, size=10.0, bowl_radius=8.0, height=2.5,
                                              material=sa.NeoHookean(E=4e3, nu=0.34), density=10.0,
                                              damping=sa.Rayleigh(1e-4, 0.1), contact=sa.PGS(friction=0.5),
-                                             dt=0.01, frames=frames, reducer=reducer)
+                                             tug=0.1, dt=0.01, frames=frames, reducer=reducer)
 
 
 def toothbrush(mesh_dir):

@@ -2,7 +2,7 @@
 
 :class:`Pull` is a force on a set of vertices during a time window (the octopus
 scene's tug on a tentacle, paper Fig. 11). :func:`attach_force` makes a
-simulation apply any ``force(t) -> (n, 3)`` from then on.
+simulation apply any ``force(t, sim) -> (n, 3)`` from then on.
 
 The simulation takes one constant external force vector, ``sim.f_gravity``
 (gravity's weight on every free DOF), in every integrator and reducer. So that
@@ -20,13 +20,17 @@ import numpy as np
 
 
 class Pull:
-    """A constant force ``force`` (N, total, shared equally) on ``vertices`` for ``start <= t < stop``.
+    """A constant total force ``force`` (N) on ``vertices`` for ``start <= t < stop``.
+
+    The force is shared in proportion to the vertices' lumped masses, as a body force on
+    that region: every pulled vertex gets the same acceleration, so a light vertex on
+    a fine part of the mesh is not flung away.
 
     Parameters
     ----------
     vertices : array of vertex indices (of the whole simulation) or boolean mask
     force : (3,) array
-        Total force (N) spread evenly over the vertices.
+        Total force (N) on the vertices.
     start, stop : float
         The time window (s).
     """
@@ -49,21 +53,24 @@ class Pull:
         return (f"Pull({self.vertices.size} vertices, force={self.force.tolist()}, "
                 f"start={self.start:g}, stop={self.stop:g})")
 
-    def __call__(self, t, n):
-        """(n, 3) nodal forces at time ``t`` for a simulation of ``n`` vertices."""
-        f = np.zeros((n, 3))
+    def __call__(self, t, sim):
+        """(n, 3) nodal forces of simulation ``sim`` at time ``t``."""
+        mass = sim.system.lumped_mass
+        f = np.zeros((mass.size, 3))
         if self.start <= t < self.stop:
-            np.add.at(f, self.vertices, self.force / self.vertices.size)
+            share = np.zeros(mass.size)
+            np.add.at(share, self.vertices, mass[self.vertices])
+            f += (share / share.sum())[:, None] * self.force
         return f
 
 
 def attach_force(sim, force):
-    """Make ``sim`` apply ``force(t, n) -> (n, 3)`` (N per vertex) at every later step; returns ``sim``.
+    """Make ``sim`` apply ``force(t, sim) -> (n, 3)`` (N per vertex) at every later step; returns ``sim``.
 
     ``force`` may be a :class:`Pull`. Forces on fixed vertices have no effect.
     """
     if not callable(force):
-        raise TypeError(f"force must be callable as force(t, n) -> (n, 3), e.g. a Pull, got {type(force).__name__}")
+        raise TypeError(f"force must be callable as force(t, sim) -> (n, 3), e.g. a Pull, got {type(force).__name__}")
     n = sim.system.n
     if isinstance(force, Pull) and force.vertices.max() >= n:
         raise ValueError(f"Pull vertices out of range [0, {n}): max {force.vertices.max()}")
@@ -73,9 +80,9 @@ def attach_force(sim, force):
     load = np.zeros(weight.shape)
 
     def step_with_force():
-        f = np.asarray(force(sim.state.time, n), dtype=float)
+        f = np.asarray(force(sim.state.time, sim), dtype=float)
         if f.shape != (n, 3) or not np.all(np.isfinite(f)):
-            raise ValueError(f"force(t, n) must return a finite ({n}, 3) array, got shape {f.shape}")
+            raise ValueError(f"force(t, sim) must return a finite ({n}, 3) array, got shape {f.shape}")
         load[:] = f.reshape(-1)
         sim.f_gravity[:] = weight + load
         return step()

@@ -460,8 +460,8 @@ def tentacle_tip(mesh, fraction=0.2):
     return np.flatnonzero(np.linalg.norm(p - p[:, [tip]], axis=0) <= fraction * span)
 
 
-def octopus(resolution=1, mesh=None, height=0.25, bowl_radius=0.5, size=None, up=2, pull="tentacle", frames=300,
-            **kwargs):
+def octopus(resolution=1, mesh=None, height=0.25, bowl_radius=0.5, size=None, up=2, pull="tentacle", tug=0.25,
+            frames=300, **kwargs):
     """A soft octopus dropped into a bowl, one tentacle tugged mid-run (paper Fig. 11, Table 1 "Octopus").
 
     Procedural by default (:func:`octopus_mesh`: a head on four arms, about 0.5 m across),
@@ -470,7 +470,7 @@ def octopus(resolution=1, mesh=None, height=0.25, bowl_radius=0.5, size=None, up
     extent scaled to ``size`` when given. The body
     starts with its bottom ``height`` above the bowl's lowest point. ``pull``: "tentacle"
     (default) tugs the tip of one tentacle (:func:`tentacle_tip`) up and outwards with
-    half the body's weight from 40 % to 55 % of the run; a
+    ``tug`` times the body's weight from 40 % to 55 % of the run; a
     :class:`~skfem_affine.lab.loads.Pull` of your own; or None. The tug runs through
     :func:`~skfem_affine.lab.loads.attach_force` (``sim.external_force``). Defaults:
     Neo-Hookean E = 5e4, nu = 0.34, density 1000, h = 0.01, friction 0.3 (the paper
@@ -498,9 +498,9 @@ def octopus(resolution=1, mesh=None, height=0.25, bowl_radius=0.5, size=None, up
         tip = tentacle_tip(m)
         out = m.p[:2, tip].mean(axis=1) - 0.5 * (m.p[:2].max(axis=1) + m.p[:2].min(axis=1))
         direction = np.array([*(out / max(np.linalg.norm(out), 1e-300)), 2.0]) / np.sqrt(5.0)
-        weight = float(np.linalg.norm(sim.f_gravity.reshape(-1, 3).sum(axis=0)))
+        weight = float(sim.system.lumped_mass.sum()) * float(np.linalg.norm(sim.gravity))
         T = frames * sim.dt
-        pull = Pull(tip, 0.5 * weight * direction, 0.4 * T, 0.55 * T)
+        pull = Pull(tip, float(tug) * weight * direction, 0.4 * T, 0.55 * T)
     if pull is not None:
         if not isinstance(pull, Pull):
             raise TypeError(f"pull must be 'tentacle', a Pull or None, got {type(pull).__name__}")
