@@ -467,8 +467,8 @@ def octopus(resolution=1, mesh=None, height=0.25, bowl_radius=0.5, size=None, up
     Procedural by default (:func:`octopus_mesh`: a head on four arms, about 0.5 m across),
     or ``mesh``: a skfem.MeshTet or a mesh file (e.g. the paper's ``octopus.mesh``, in its
     own units; ``up`` names its upward axis, 1 for the paper's), its longest horizontal
-    extent scaled to ``size`` when given. The body
-    starts with its bottom ``height`` above the bowl's lowest point. ``pull``: "tentacle"
+    extent scaled to ``size`` when given. The body starts with its bottom ``height``
+    above the bowl's lowest point. ``pull``: "tentacle"
     (default) tugs the tip of one tentacle (:func:`tentacle_tip`) up and outwards with
     ``tug`` times the body's weight from 40 % to 55 % of the run; a
     :class:`~skfem_affine.lab.loads.Pull` of your own; or None. The tug runs through
