@@ -29,7 +29,7 @@ def compare(resolution=3, frames=100, tau_a=0.1, tau_e=0.2):
                "rigidification": sa.Rigidification(tau_r=1e-2, tau_e=2e-2)}
     out, reference = {}, None
     for name, reducer in methods.items():
-        sim = sa.scenes.cantilever(resolution=resolution, reducer=reducer)
+        sim = sa.scenes.cantilever(resolution=resolution, reducer=reducer, E=1e5, damping=None)
         xs = [s.x for s in sim.run(frames)]
         if reference is None:
             reference = xs

@@ -28,7 +28,7 @@ def test_cluster_colors_and_picked_state():
 
 
 def test_pictures_are_written(tmp_path):
-    sim = sa.scenes.cantilever(resolution=1, reducer=sa.Affinification(tau_a=1.0, tau_e=2.0))
+    sim = sa.scenes.cantilever(resolution=1, reducer=sa.Affinification(tau_a=1.0, tau_e=2.0), E=1e5, damping=None)
     states = [sim.state.copy()] + [s for s in sim.run(4)]
     png = plots.clusters_picture([("affinification", sim, states[-1])], str(tmp_path / "c.png"))
     gif = plots.animation("affinification", sim, states, str(tmp_path / "a.gif"))
