@@ -79,10 +79,15 @@ class IPC:
         Contact between non-adjacent surface primitives of the same body.
     body_contact : bool
         Contact between different bodies.
+    ccd : {"additive", "tight_inclusion"}
+        ipctk's narrow-phase CCD between surfaces: additive CCD (Li et al. 2021, conservative
+        advancement on the distance; fast on parallel faces, the common case of stacked and
+        resting bodies) or Tight-Inclusion (Wang et al. 2021, interval root finding; can take
+        seconds per query on parallel faces approaching each other).
     ccd_tolerance : float
         Tight-Inclusion CCD tolerance (relative time of impact).
     ccd_max_iterations : int
-        Tight-Inclusion CCD iteration cap (a capped query returns a conservative step).
+        CCD iteration cap (a capped query returns a conservative step).
     ccd_rescaling : float
         Fraction in (0, 1] of the time of impact taken as the largest step (ipctk's
         conservative rescaling; the remaining gap keeps the barrier finite).
@@ -94,9 +99,10 @@ class IPC:
     epsv: float = None
     self_contact: bool = True
     body_contact: bool = True
+    ccd: str = "additive"
     ccd_tolerance: float = 1e-6
-    ccd_max_iterations: int = 10_000_000
-    ccd_rescaling: float = 0.8
+    ccd_max_iterations: int = 1_000_000
+    ccd_rescaling: float = 0.9
 
     def __post_init__(self):
         for name in ("dhat", "kappa", "epsv"):
@@ -108,6 +114,8 @@ class IPC:
             raise ValueError(f"IPC ccd_rescaling must lie in (0, 1], got {self.ccd_rescaling!r}")
         if not isinstance(self.ccd_max_iterations, (int, np.integer)) or self.ccd_max_iterations < 1:
             raise ValueError(f"IPC ccd_max_iterations must be an integer >= 1, got {self.ccd_max_iterations!r}")
+        if self.ccd not in ("additive", "tight_inclusion"):
+            raise ValueError(f"IPC ccd must be 'additive' or 'tight_inclusion', got {self.ccd!r}")
         for name in ("self_contact", "body_contact"):
             if not isinstance(getattr(self, name), (bool, np.bool_)):
                 raise ValueError(f"IPC {name} must be True or False, got {getattr(self, name)!r}")
@@ -203,8 +211,11 @@ class IPCContact:
         self.body_of_vertex = body
         self.barrier = ipctk.BarrierPotential(self.dhat, self.kappa, True)
         self.friction = ipctk.FrictionPotential(self.epsv)
-        self.ccd = ipctk.TightInclusionCCD(settings.ccd_tolerance, int(settings.ccd_max_iterations),
-                                           settings.ccd_rescaling)
+        if settings.ccd == "additive":
+            self.ccd = ipctk.AdditiveCCD(int(settings.ccd_max_iterations), settings.ccd_rescaling)
+        else:
+            self.ccd = ipctk.TightInclusionCCD(settings.ccd_tolerance, int(settings.ccd_max_iterations),
+                                               settings.ccd_rescaling)
 
         # collision-mesh DOF -> free DOF (-1: fixed)
         dof_map = np.full(3 * sysm.n, -1, dtype=np.int64)
@@ -388,7 +399,7 @@ class IPCContact:
     def max_step(self, x, dx):
         """Largest alpha in [0, 1] such that x + t dx is intersection-free for t in [0, alpha].
 
-        ipctk's CCD (Tight Inclusion) on the collision mesh; against the colliders, each
+        ipctk's CCD (``IPC.ccd``) on the collision mesh; against the colliders, each
         vertex's exact time of impact on a plane and conservative advancement on the other
         signed distances. The time of impact is scaled by ``ccd_rescaling``.
         """
