@@ -76,9 +76,10 @@ class IPC:
         Friction smoothing velocity (m/s): below it friction is a stiff spring (static
         friction creeps at most at about ``epsv``); default 1e-3 of the scene size per second.
     self_contact : bool
-        Contact between non-adjacent surface primitives of the same body.
+        Contact between non-adjacent surface primitives of the same body (of the same
+        connected surface component).
     body_contact : bool
-        Contact between different bodies.
+        Contact between different bodies (different connected surface components).
     ccd : {"additive", "tight_inclusion"}
         ipctk's narrow-phase CCD between surfaces: additive CCD (Li et al. 2021, conservative
         advancement on the distance; fast on parallel faces, the common case of stacked and
@@ -203,12 +204,11 @@ class IPCContact:
             faces, edges = np.zeros((0, 3), np.int32), np.zeros((0, 2), np.int32)  # colliders only
         rest = np.asfortranarray(sysm.p0[self.surface])
         self.mesh = ipctk.CollisionMesh(rest, np.asfortranarray(edges), np.asfortranarray(faces))
-        body = np.repeat(np.arange(len(sysm.bodies)), np.diff(sysm.vertex_offsets))[self.surface]
-        if settings.self_contact and not settings.body_contact and len(sysm.bodies) > 1:
-            self.mesh.can_collide = ipctk.CollisionFilter(lambda i, j: body[i] == body[j])
-        elif settings.body_contact and not settings.self_contact:
-            self.mesh.can_collide = ipctk.CollisionFilter(lambda i, j: body[i] != body[j])
-        self.body_of_vertex = body
+        # "body" is a connected component of the surface (ipctk's compiled filter; a Python
+        # filter takes the GIL in ipctk's parallel broad phase)
+        if settings.body_contact != settings.self_contact:
+            within = ipctk.make_connected_components_filter(np.asfortranarray(faces))
+            self.mesh.can_collide = within if settings.body_contact else ~within
         self.barrier = ipctk.BarrierPotential(self.dhat, self.kappa, True)
         self.friction = ipctk.FrictionPotential(self.epsv)
         if settings.ccd == "additive":
@@ -222,6 +222,7 @@ class IPCContact:
         dof_map[sysm.free] = np.arange(sysm.free.size)
         cdofs = dof_map[(3 * self.surface[:, None] + np.arange(3)).ravel()]
         keep = np.flatnonzero(cdofs >= 0)
+        self.cdofs = cdofs
         self.nfree = sysm.free.size
         self.select = sp.csr_matrix((np.ones(keep.size), (cdofs[keep], keep)),
                                     shape=(self.nfree, 3 * self.surface.size))  # free <- collision DOFs
@@ -343,36 +344,42 @@ class IPCContact:
         """
         V = self.vertices(x)
         psd = ipctk.PSDProjectionMethod.CLAMP if project else ipctk.PSDProjectionMethod.NONE
-        H = self.barrier.hessian(self._collisions(x), self.mesh, V, psd)
-        n = V.shape[0]
-        blocks, verts = [], []
+        rows, cols, vals = [], [], []
+
+        def add_sparse(M, scale=1.0):
+            M = M.tocoo()
+            rows.append(M.row), cols.append(M.col), vals.append(scale * M.data)
+
+        def add_blocks(verts, blocks):  # 3 x 3 blocks on single vertices
+            r = np.broadcast_to(3 * verts[:, None, None] + np.arange(3)[None, :, None], blocks.shape)
+            rows.append(r.ravel()), cols.append(np.swapaxes(r, 1, 2).ravel()), vals.append(blocks.ravel())
+
+        cc = self._collisions(x)
+        if len(cc):
+            add_sparse(self.barrier.hessian(cc, self.mesh, V, psd))
         for d, nrm in self._sdf(V):
             e2 = physical_barrier(d, self.dhat, self.kappa)[2]
             if project:
                 e2 = np.maximum(e2, 0.0)
             act = np.flatnonzero(e2 != 0)
-            blocks.append(e2[act, None, None] * nrm[act, :, None] * nrm[act, None, :])
-            verts.append(act)
+            add_blocks(act, e2[act, None, None] * nrm[act, :, None] * nrm[act, None, :])
         if self.lagged is not None:
             ch = self.lagged[1] * self.h
             U = self._velocities(x)
-            H = H + self.friction.hessian(self.lagged[2], self.mesh, U, psd) / ch
+            if len(self.lagged[2]):
+                add_sparse(self.friction.hessian(self.lagged[2], self.mesh, U, psd), 1.0 / ch)
             for act, ml, u, y, nrm in self._sdf_friction(U):
                 _, f1y, f2 = smooth_friction(y, self.epsv)
                 P = np.eye(3)[None] - nrm[:, :, None] * nrm[:, None, :]
                 t = np.divide(u, y[:, None], out=np.zeros_like(u), where=y[:, None] > 0)
                 # f1/y on the tangent plane, f2 along the slip: both >= 0 (PSD as it stands)
                 Hv = f1y[:, None, None] * P + (f2 - f1y)[:, None, None] * t[:, :, None] * t[:, None, :]
-                blocks.append((ml / ch)[:, None, None] * Hv)
-                verts.append(act)
-        if blocks:
-            vb = np.concatenate(verts)
-            r = 3 * vb[:, None, None] + np.arange(3)[None, :, None]
-            cidx = 3 * vb[:, None, None] + np.arange(3)[None, None, :]
-            r, cidx = np.broadcast_arrays(r, cidx)
-            H = H + sp.csr_matrix((np.concatenate(blocks).ravel(), (r.ravel(), cidx.ravel())), shape=(3 * n, 3 * n))
-        S = self.select
-        return (S @ sp.csr_matrix(H) @ S.T).tocsr()
+                add_blocks(act, (ml / ch)[:, None, None] * Hv)
+        if not rows:
+            return sp.csr_matrix((self.nfree, self.nfree))
+        r, c = self.cdofs[np.concatenate(rows)], self.cdofs[np.concatenate(cols)]
+        keep = (r >= 0) & (c >= 0)   # fixed DOFs dropped
+        return sp.csr_matrix((np.concatenate(vals)[keep], (r[keep], c[keep])), shape=(self.nfree, self.nfree))
 
     def hessian_data(self, x):
         """Zeros on the free-DOF pattern: the contact Hessian is :meth:`hessian` (it leaves the pattern)."""
