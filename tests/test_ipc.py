@@ -108,6 +108,26 @@ def test_max_step_stops_before_a_crossing():
     assert contact.max_step(x, np.zeros_like(x)) == 1.0
 
 
+def test_body_and_self_contact_flags():
+    """Without body contact the cubes pass through each other; self contact alone keeps a body's own surface."""
+    sim = sa.Simulation([cube((0, 0, 0.3)), cube((0, 0, 0.9))], dt=0.01, integrator="implicit_euler")
+    x = sim.state.x.reshape(-1).copy()
+    n0 = sim.bodies[0].mesh.p.shape[1]
+    through = np.zeros((x.size // 3, 3))
+    through[n0:, 2] = -0.2                     # the upper cube 0.1 into the lower one
+    fold = np.zeros((x.size // 3, 3))
+    top = np.flatnonzero(sim.state.x[:n0, 2] > 0.5 - 1e-9)
+    fold[top, 2] = -0.6                       # the lower cube's top face through its bottom face
+    steps = {}
+    for body, own in [(True, True), (False, True), (True, False), (False, False)]:
+        c = ipc.IPCContact(sim, [], ipc.IPC(body_contact=body, self_contact=own))
+        steps[body, own] = (c.max_step(x, through.reshape(-1)), c.max_step(x, fold.reshape(-1)))
+    assert steps[True, True][0] < 0.5 and steps[True, True][1] < 0.9
+    assert steps[False, True][0] == 1.0 and steps[False, True][1] < 0.9
+    assert steps[True, False][0] < 0.5 and steps[True, False][1] == 1.0
+    assert steps[False, False] == (1.0, 1.0)
+
+
 # ---------------------------------------------------------------------------- (b) friction
 def incline(mu, theta=np.radians(20), frames=40):
     g = 9.81
@@ -125,7 +145,7 @@ def test_block_on_an_incline_slides_with_g_sin_minus_mu_cos(mu):
     xs, _, _ = incline(mu, theta)
     acc = np.diff(xs, 2)[10:] / h ** 2           # after the block has settled on the barrier
     expected = 9.81 * (np.sin(theta) - mu * np.cos(theta))
-    assert np.mean(acc) == pytest.approx(expected, rel=0.03)
+    assert np.mean(acc) == pytest.approx(expected, rel=0.01)  # measured within 0.1 %
 
 
 def test_block_on_an_incline_sticks_when_mu_exceeds_tan_theta():
