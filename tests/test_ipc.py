@@ -190,6 +190,12 @@ def test_settings_are_validated_by_name():
         ipc.IPCContact(sim, [object()])
     c = ipc.IPCContact(sim, [], ipc.IPC(dhat=1e-3, kappa=50.0, friction=0.4, epsv=1e-2))
     assert (c.dhat, c.kappa, c.mu, c.epsv) == (1e-3, 50.0, 0.4, 1e-2)
+    with pytest.raises(ValueError, match="dt"):
+        ipc.IPCContact(sim.system, [])                      # a bare ElasticSystem needs dt
+    with pytest.raises(TypeError, match="ElasticSystem"):
+        ipc.IPCContact(object(), [])
+    c = ipc.IPCContact(sim.system, [], dt=0.01)
+    assert (c.h, c.size) == (0.01, pytest.approx(sim.size))
 
 
 # ---------------------------------------------------------------------------- (d) derivatives

@@ -164,11 +164,16 @@ class IPCContact:
 
     Parameters
     ----------
-    model : Simulation or object with ``system``, ``dt`` and ``size``
-        ``system`` is the :class:`~skfem_affine.assembly.ElasticSystem`.
+    model : Simulation, object with ``system``, ``dt`` and ``size``, or ElasticSystem
+        ``system`` is the :class:`~skfem_affine.assembly.ElasticSystem`; given the system
+        itself, pass ``dt``; the size is then its bounding-box diagonal.
     colliders : list of colliders
         Static obstacles (``query(points) -> (distance, normal)``), through their signed distances.
     settings : IPC, optional
+    x0 : array (n, 3) or (3n,), optional
+        The start state checked for intersections (default the rest positions).
+    dt : float, optional
+        The time step, when ``model`` has none.
 
     Raises
     ------
@@ -177,13 +182,20 @@ class IPCContact:
         intersection-free start.
     """
 
-    def __init__(self, model, colliders=(), settings=None, x0=None):
+    def __init__(self, model, colliders=(), settings=None, x0=None, dt=None):
         settings = IPC() if settings is None else settings
         if not isinstance(settings, IPC):
             raise TypeError(f"settings must be sa.IPC(...), got {type(settings).__name__}")
-        sysm = model.system
-        self.settings, self.system, self.h = settings, sysm, float(model.dt)
-        self.size = float(model.size)
+        sysm = getattr(model, "system", model)
+        if not (hasattr(sysm, "pattern") and hasattr(sysm, "bodies")):
+            raise TypeError(f"model must be a Simulation (or have .system) or an ElasticSystem, "
+                            f"got {type(model).__name__}")
+        dt = getattr(model, "dt", None) if dt is None else dt
+        if dt is None or not (np.isscalar(dt) and np.isfinite(dt) and dt > 0):
+            raise ValueError(f"IPC contact needs the time step: dt must be a finite number > 0, got {dt!r}")
+        self.settings, self.system, self.h = settings, sysm, float(dt)
+        size = getattr(model, "size", None)
+        self.size = float(np.linalg.norm(np.ptp(sysm.p0, axis=0)) if size is None else size)
         self.colliders = check_colliders(colliders)
         self.sdfs = self.colliders
         self.dhat = 1e-3 * self.size if settings.dhat is None else settings.dhat
