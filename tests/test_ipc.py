@@ -17,8 +17,8 @@ from skfem_affine.integrators import newton
 class IPCPotential(newton.IncrementalPotential):
     """The incremental potential with IPC contact: E + a h^2 C(x), C's Hessian added as a matrix."""
 
-    def __init__(self, sim, x_t, v_t, contact):
-        super().__init__(sim, x_t, v_t, contact=contact)
+    def __init__(self, sim, x_t, v_t, contact, x_prev=None, v_prev=None):
+        super().__init__(sim, x_t, v_t, x_prev, v_prev, contact=contact)
         contact.begin_step(self.x_t, self.x_hat, self.c)
 
     def hessian(self, H, x=None):
@@ -34,18 +34,20 @@ def cube(center, size=0.5, cells=2, velocity=(0, 0, 0), E=1e5, fixed=None):
                           velocity=np.asarray(velocity, float))
 
 
-def run(sim, contact, frames, tol=1e-4, check=None, potential=IPCPotential):
-    """Implicit Euler steps by full Newton; ``check(x_t, x_{t+1})`` after each step."""
+def run(sim, contact, frames, tol=1e-4, check=None, potential=IPCPotential, bdf2=False):
+    """Implicit Euler (or BDF2) steps by full Newton; ``check(x_t, x_{t+1})`` after each step."""
     x, v = sim.state.x.reshape(-1).copy(), sim.state.v.reshape(-1).copy()
+    prev = (None, None)
     recs = []
     for _ in range(frames):
-        ip = potential(sim, x, v, contact)
+        ip = potential(sim, x, v, contact, *prev)
         rec = {}
         x1 = newton.newton_solve(ip, tol, 50, sim.solve, rec)
-        v = ip.velocity(x1)
+        v1 = ip.velocity(x1)
         if check is not None:
             check(x, x1)
-        x = x1
+        prev = (x, v) if bdf2 else prev
+        x, v = x1, v1
         recs.append(rec)
     return x, v, recs
 
@@ -129,20 +131,21 @@ def test_body_and_self_contact_flags():
 
 
 # ---------------------------------------------------------------------------- (b) friction
-def incline(mu, theta=np.radians(20), frames=40):
+def incline(mu, theta=np.radians(20), frames=40, bdf2=False):
     g = 9.81
     sim = sa.Simulation(cube((0, 0, 0.25), E=1e6), dt=0.01, integrator="implicit_euler",
                         gravity=(g * np.sin(theta), 0, -g * np.cos(theta)))  # the incline is the plane z = 0
     contact = ipc.IPCContact(sim, [sa.Plane((0, 0, -0.5e-3 * sim.size), (0, 0, 1))], ipc.IPC(friction=mu))
     xs = []
-    run(sim, contact, frames, tol=1e-5, check=lambda x0, x1: xs.append(x1.reshape(-1, 3)[:, 0].mean()))
+    run(sim, contact, frames, tol=1e-5, check=lambda x0, x1: xs.append(x1.reshape(-1, 3)[:, 0].mean()), bdf2=bdf2)
     return np.array(xs), sim, contact
 
 
-@pytest.mark.parametrize("mu", [0.1, 0.25])
-def test_block_on_an_incline_slides_with_g_sin_minus_mu_cos(mu):
+@pytest.mark.parametrize("mu, bdf2", [(0.1, False), (0.25, False), (0.25, True)])
+def test_block_on_an_incline_slides_with_g_sin_minus_mu_cos(mu, bdf2):
+    """BDF2 too: the friction potential follows the scheme's velocity (x - x_hat) / (c h)."""
     theta, h = np.radians(20), 0.01
-    xs, _, _ = incline(mu, theta)
+    xs, _, _ = incline(mu, theta, bdf2=bdf2)
     acc = np.diff(xs, 2)[10:] / h ** 2           # after the block has settled on the barrier
     expected = 9.81 * (np.sin(theta) - mu * np.cos(theta))
     assert np.mean(acc) == pytest.approx(expected, rel=0.01)  # measured within 0.1 %
