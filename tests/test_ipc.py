@@ -130,6 +130,18 @@ def test_body_and_self_contact_flags():
     assert steps[False, False] == (1.0, 1.0)
 
 
+def test_collider_contact_stays_on_the_elastic_pattern():
+    sim = sa.Simulation(cube((0, 0, 0.25), fixed=[0]), dt=0.01, integrator="implicit_euler")
+    contact = ipc.IPCContact(sim, [sa.Plane((0, 0, -1e-4), (0, 0, 1))], ipc.IPC(friction=0.5))
+    x = sim.state.x.reshape(-1).copy()
+    contact.begin_step(x)
+    x[sim.system.free] += 1e-4
+    data, rest = contact.hessian_parts(x)
+    H = contact.hessian(x)
+    assert rest is None and H.nnz > 0
+    assert abs(sim.system.pattern.matrix(data) - H).max() < 1e-12 * abs(H).max()
+
+
 # ---------------------------------------------------------------------------- (b) friction
 def incline(mu, theta=np.radians(20), frames=40, bdf2=False):
     g = 9.81
@@ -252,6 +264,9 @@ def test_contact_gradient_and_hessian_match_finite_differences(with_sphere):
     Hp = H @ p
     fd = (contact.gradient(xp) - contact.gradient(xm)) / (2 * eps)
     assert np.linalg.norm(fd - Hp) < (1e-4 if with_sphere else 1e-6) * np.linalg.norm(Hp)
+    # split on the elastic pattern and off it: the same matrix; body contact leaves the pattern
+    data, rest = contact.hessian_parts(x, project=False)
+    assert rest is not None and abs(sim.system.pattern.matrix(data) + rest - H).max() < 1e-9 * abs(H).max()
     # the projected Hessian is symmetric PSD
     Hpsd = contact.hessian(x).toarray()
     assert np.allclose(Hpsd, Hpsd.T) and np.linalg.eigvalsh(Hpsd).min() > -1e-8 * np.abs(Hpsd).max()

@@ -235,6 +235,7 @@ class IPCContact:
         cdofs = dof_map[(3 * self.surface[:, None] + np.arange(3)).ravel()]
         keep = np.flatnonzero(cdofs >= 0)
         self.cdofs = cdofs
+        self._pattern_keys = None  # sorted row * nfree + col of the free-DOF pattern
         self.nfree = sysm.free.size
         self.select = sp.csr_matrix((np.ones(keep.size), (cdofs[keep], keep)),
                                     shape=(self.nfree, 3 * self.surface.size))  # free <- collision DOFs
@@ -354,6 +355,11 @@ class IPCContact:
         ``project``: ipctk's per-collision PSD projection (clamped eigenvalues), and the SDF
         barrier's negative curvature clamped to 0; False gives the exact Hessian (tests).
         """
+        r, c, v = self._hessian_coo(x, project)
+        return sp.csr_matrix((v, (r, c)), shape=(self.nfree, self.nfree))
+
+    def _hessian_coo(self, x, project):
+        """The contact Hessian's entries (rows, cols, values) on the free DOFs (duplicates summed later)."""
         V = self.vertices(x)
         psd = ipctk.PSDProjectionMethod.CLAMP if project else ipctk.PSDProjectionMethod.NONE
         rows, cols, vals = [], [], []
@@ -388,13 +394,38 @@ class IPCContact:
                 Hv = f1y[:, None, None] * P + (f2 - f1y)[:, None, None] * t[:, :, None] * t[:, None, :]
                 add_blocks(act, (ml / ch)[:, None, None] * Hv)
         if not rows:
-            return sp.csr_matrix((self.nfree, self.nfree))
+            return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0)
         r, c = self.cdofs[np.concatenate(rows)], self.cdofs[np.concatenate(cols)]
         keep = (r >= 0) & (c >= 0)   # fixed DOFs dropped
-        return sp.csr_matrix((np.concatenate(vals)[keep], (r[keep], c[keep])), shape=(self.nfree, self.nfree))
+        return r[keep], c[keep], np.concatenate(vals)[keep]
+
+    def hessian_parts(self, x, project=True):
+        """:meth:`hessian` split as ``(data, rest)``: its entries on the free-DOF pattern
+        ``system.pattern`` as a data array, and the rest (couplings of vertices that are not mesh
+        neighbours) as a CSR matrix, or None when there is none.
+
+        ``pattern.matrix(elastic + w * data) + w * rest`` keeps the matrix pattern of the elastic
+        Hessian whenever contact couples only mesh neighbours (colliders, no body contact), so a
+        direct solver reuses its analysis.
+        """
+        r, c, v = self._hessian_coo(x, project)
+        pat = self.system.pattern
+        if self._pattern_keys is None:
+            self._pattern_keys = pat.rows.astype(np.int64) * self.nfree + pat.indices
+        key = r * self.nfree + c
+        pos = np.minimum(np.searchsorted(self._pattern_keys, key), pat.nnz - 1)
+        on = self._pattern_keys[pos] == key
+        data = np.bincount(pos[on], weights=v[on], minlength=pat.nnz)
+        off = ~on
+        rest = None
+        if np.any(off):
+            rest = sp.csr_matrix((v[off], (r[off], c[off])), shape=(self.nfree, self.nfree))
+        return data, rest
 
     def hessian_data(self, x):
-        """Zeros on the free-DOF pattern: the contact Hessian is :meth:`hessian` (it leaves the pattern)."""
+        """Zeros on the free-DOF pattern: the contact Hessian is :meth:`hessian` or
+        :meth:`hessian_parts` (it leaves the pattern), so a potential that adds ``hessian_data``
+        and ``hessian`` counts it once."""
         return np.zeros(self.system.pattern.nnz)
 
     def vertex_energy(self, x):
