@@ -197,7 +197,6 @@ class IPCContact:
         size = getattr(model, "size", None)
         self.size = float(np.linalg.norm(np.ptp(sysm.p0, axis=0)) if size is None else size)
         self.colliders = check_colliders(colliders)
-        self.sdfs = self.colliders
         self.dhat = 1e-3 * self.size if settings.dhat is None else settings.dhat
         m_avg = float(sysm.lumped_mass.mean())
         self.kappa = 100.0 * m_avg * 9.81 if settings.kappa is None else settings.kappa
@@ -205,7 +204,7 @@ class IPCContact:
         self.epsv = 1e-3 * self.size if settings.epsv is None else settings.epsv
 
         # collision mesh: boundary surface of every body, on its own vertex numbering
-        tris, owner = boundary_surface(sysm)
+        tris, _ = boundary_surface(sysm)
         self.surface = np.unique(tris)                                   # global vertex ids
         local = np.full(sysm.n, -1, dtype=np.int64)
         local[self.surface] = np.arange(self.surface.size)
@@ -260,7 +259,7 @@ class IPCContact:
         return cc
 
     def _sdf(self, V):
-        for c in self.sdfs:
+        for c in self.colliders:
             d, nrm = c.query(V)
             yield np.asarray(d, float), np.asarray(nrm, float)
 
@@ -313,14 +312,14 @@ class IPCContact:
         return np.asfortranarray(((x - x_hat) / (c * self.h)).reshape(-1, 3)[self.surface])
 
     def _sdf_friction(self, U):
-        """Per active SDF contact: vertex, mu lambda, tangential velocity u, its norm, projector."""
+        """Per collider: active vertices, mu lambda, tangential velocity u, its norm, lagged normal."""
         for act, lam, nrm in self.lagged[3]:
             u = U[act] - np.einsum("ij,ij->i", U[act], nrm)[:, None] * nrm
             yield act, self.mu * lam, u, np.linalg.norm(u, axis=1), nrm
 
     # ------------------------------------------------------------------ potential
     def energy(self, x):
-        """Barrier plus friction energy C(x); inf when x touches or crosses."""
+        """Barrier plus friction energy C(x); inf at a zero gap (and inside a collider)."""
         V = self.vertices(x)
         e = float(self.barrier(self._collisions(x), self.mesh, V))
         for d, _ in self._sdf(V):
@@ -459,7 +458,7 @@ class IPCContact:
         if self.mesh.num_faces:
             alpha = float(ipctk.compute_collision_free_stepsize(self.mesh, V0, np.asfortranarray(V0 + dV),
                                                                 0.0, None, self.ccd))
-        for c in self.sdfs:
+        for c in self.colliders:
             alpha = min(alpha, self._collider_step(c, V0, dV))
         return alpha
 
@@ -474,7 +473,8 @@ class IPCContact:
                 return 1.0
             return min(1.0, float(np.min(rescale * d0[closing] / -rate[closing])))
         step = np.linalg.norm(dV, axis=1)
-        idx = np.flatnonzero(step > rescale * d0)  # a 1-Lipschitz distance: the others cannot get closer than (1 - rescale) d0
+        # the distance is 1-Lipschitz: a vertex moving less than rescale d0 keeps (1 - rescale) d0
+        idx = np.flatnonzero(step > rescale * d0)
         if idx.size == 0:
             return 1.0
         d0, P, D, L = d0[idx], V0[idx], dV[idx], step[idx]
