@@ -16,6 +16,7 @@ from skfem_affine import assembly, kinematics, materials, solvers
 from skfem_affine.body import ElasticBody
 from skfem_affine.contact import colliders
 from skfem_affine.contact.colliders import Bowl, Box, Capsule, Plane, SDFCollider, Sphere
+from skfem_affine.contact.ipc import IPC
 from skfem_affine.contact.pgs import PGS
 from skfem_affine.materials import Corotational, Material, NeoHookean, StVK
 from skfem_affine.reducers.affine.affinification import Affinification
@@ -31,5 +32,5 @@ __version__ = "0.1.0"
 __all__ = ["ElasticBody", "Simulation", "SimulationDiverged", "State", "Stats", "Rayleigh",
            "Material", "StVK", "Corotational", "NeoHookean", "Affinification", "Rigidification",
            "AdaptiveSubspace", "AffineModes", "LinearModes", "SkinningEigenmodes", "bases",
-           "Plane", "Sphere", "Box", "Capsule", "Bowl", "SDFCollider", "PGS", "colliders",
+           "Plane", "Sphere", "Box", "Capsule", "Bowl", "SDFCollider", "PGS", "IPC", "colliders",
            "assembly", "io", "kinematics", "materials", "metrics", "runners", "scenes", "solvers"]
