@@ -196,7 +196,7 @@ def test_demo(tmp_path, capsys):
     assert main(["demo", "--resolution", "1", "--frames", "10", "--out", str(tmp_path)]) == 0
     out = capsys.readouterr().out
     assert "speedup" in out and "affinification" in out and "rigidification" in out
-    assert "demo: cantilever (resolution=1), 10 frames: full, affinification (tau_a=0.3, tau_e=0.6), " \
+    assert "demo: cantilever (resolution=1), 10 frames: full, affinification (tau_a=0.03, tau_e=0.06), " \
            "rigidification" in out
     names = set(os.listdir(tmp_path / "demo"))
     assert {"compare_clusters.png", "compare_speedup.png", "affinification.gif", "paraview"} <= names
