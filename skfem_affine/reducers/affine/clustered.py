@@ -222,16 +222,19 @@ class ClusteringReducer(Reducer):
         if self.timer is not None:
             self.min_fraction = self.timer.fraction
         mode = pays.plan() if pays is not None else "reduced"
-        if mode == "full":
+        if eb is not None and mode != "full" and self._new_contacts(problem):
+            mode = "impact"
+        if mode in ("full", "impact"):
             stats = {}
             dv, op, seconds = self._full(problem, stats)
-            pays.full_solved(seconds)
+            if pays is not None:
+                pays.full_solved(seconds)
             if eb is not None:
                 eb.decay(h)
             self.was_reduced = np.zeros(sysm.m, dtype=bool)
             self.labels = np.full(sysm.m, -1, dtype=np.int64)
             stats.update(dofs=op.shape[0], solver=self.full_solver.name, n_clusters=0, elastic_dofs=op.shape[0],
-                         reduced_fraction=0.0, reduced=False, shadow=False)
+                         reduced_fraction=0.0, reduced=False, shadow=False, impact=mode == "impact")
             self._record(stats)
             return StepResult(dv=dv, operator=op, clusters=self.labels, stats=stats)
         if eb is not None:
@@ -269,6 +272,26 @@ class ClusteringReducer(Reducer):
             pays.decide(self.shadow_every, probed=mode == "probe")
         self._record(stats)
         return result
+
+    @staticmethod
+    def _new_contacts(problem):
+        """Whether a contact of the frame has no predicted impulse: the oracle cannot foresee the impact.
+
+        Such a frame is solved in full space under an error budget: the reduced step's error is
+        estimated before contact is resolved, so a body reduced whole through an impact would
+        carry the impact's error unseen.
+        """
+        cs = problem.contacts
+        if cs is None or not cs.size:
+            return False
+        sysm = problem.system
+        imp = np.zeros(3 * sysm.n)
+        imp[sysm.free] = problem.contact_impulse
+        touched = np.abs(imp.reshape(-1, 3)).sum(axis=1) > 0
+        free = np.zeros(sysm.n, dtype=bool)
+        free[sysm.free // 3] = True
+        vertices = cs.vertex[free[cs.vertex]]
+        return bool(np.any(~touched[vertices]))
 
     def _record(self, stats):
         """The controllers' state in the frame's statistics."""
