@@ -157,7 +157,7 @@ class ErrorBudget:
 
 
 class ShadowClock:
-    """Every ``every``-th reduced frame is a shadow frame (also solved in full space); the first one is.
+    """Every ``every``-th reduced frame is a shadow frame (also solved in full space); the ``first`` ones are.
 
     Parameters
     ----------
@@ -165,14 +165,19 @@ class ShadowClock:
         Reduced frames per shadow frame (>= 1).
     """
 
-    def __init__(self, every=10):
+    def __init__(self, every=10, first=2):
         self.every = int(every)
         if self.every < 1:
             raise ValueError(f"shadow_every must be >= 1, got {every}")
         self.since = self.every
+        self.first = int(first)  # the first frames are all shadows: the first full solve pays the analysis
 
     def due(self):
         """Whether the coming reduced frame is a shadow frame (counts it)."""
+        if self.first > 0:
+            self.first -= 1
+            self.since = 1
+            return True
         if self.since >= self.every:
             self.since = 1
             return True
@@ -238,12 +243,13 @@ class PaysOff:
         Weight of the newest measurement in the running costs.
     """
 
-    def __init__(self, probe_every=20, probe_max=160, keep_dofs=0.95, patience=10, margin=0.05, smoothing=0.3):
+    def __init__(self, probe_every=20, probe_max=160, keep_dofs=0.95, patience=5, margin=0.05, smoothing=0.3):
         self.probe_every, self.probe_max, self.patience = int(probe_every), int(probe_max), int(patience)
         self.keep_dofs, self.margin, self.smoothing = float(keep_dofs), float(margin), float(smoothing)
         self.full_cost = 0.0   # s per full solve (matrix, factorisation, solve)
         self.reduced_cost = 0.0  # s per reduced frame (oracle to solve, the error proxy)
         self.full_samples = 0
+        self.full_seen = 0     # full solves timed; the first (with the solver's symbolic analysis) is not a sample
         self.reduced_samples = 0
         self.dof_ratio = 0.0
         self.kept_all = 0      # reduced frames in a row that kept at least keep_dofs of the DOFs
@@ -255,6 +261,9 @@ class PaysOff:
         return new if n == 0 else (1 - self.smoothing) * old + self.smoothing * new
 
     def full_solved(self, seconds):
+        self.full_seen += 1
+        if self.full_seen == 1:
+            return
         self.full_cost = self._mix(self.full_cost, seconds, self.full_samples)
         self.full_samples += 1
 
@@ -288,7 +297,7 @@ class PaysOff:
 
     def decide(self, shadow_every=None, probed=False):
         """After a reduced frame or a probe: stay reduced, or go to full space until the next probe."""
-        warm = self.reduced_samples >= self.patience and self.full_samples >= 2
+        warm = self.reduced_samples >= self.patience and self.full_samples >= 1
         if probed:
             if self.pays(shadow_every, self.margin):
                 self.in_full, self.period = False, self.probe_every
