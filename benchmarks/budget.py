@@ -9,13 +9,15 @@ process (``runners.interleaved``), errors against the full-space run stepped wit
    fixed thresholds (tau_a in ``--taus``, tau_e = 2 tau_a) whose error meets the same budget;
 2. ``--time-budget``: on the last mesh, a budget of half the full frame's mean wall time, the
    fraction of frames after ``--warm`` frames that met it;
-3. ``--never-slower``: default ``sa.Affinification()`` against full space at each scene.
+3. ``--never-slower``: default ``sa.Affinification()`` against full space at each scene;
+4. ``--tables estimate``: the largest error estimate against the measured error, per budget.
 
 Usage (the issue's table; run on a quiet machine)::
 
     python benchmarks/budget.py --meshes ../shared/meshes/beam1264.mesh ../shared/meshes/beam5232.mesh \\
         --resolution 6 --frames 200
     python benchmarks/budget.py --tiny     # a seconds-long check that the script runs
+    python benchmarks/budget.py --tables estimate --resolution 4 --drop 2 --frames 150   # docs/budget.md
 """
 import argparse
 import json
@@ -84,6 +86,23 @@ def budget_table(args, scenes):
     return rows
 
 
+def estimate_table(args, scenes):
+    """The estimator against the measured error: never_slower=False, so that small scenes reduce at all."""
+    rows = []
+    for scene, factory in scenes.items():
+        reducers = {f"budget {b:g}": sa.Affinification(target_error=b, never_slower=False) for b in args.budgets}
+        res, runs = measured(factory, reducers, args.frames)
+        free = runs["full"].sim.system.free.size
+        for b in args.budgets:
+            err, _, recs = res[f"budget {b:g}"]
+            rows.append({"scene": scene, "budget": b, "achieved": err,
+                         "estimated": max(r.get("estimated_error", 0.0) for r in recs),
+                         "mean_reduced_dofs": float(np.mean([r.get("reduced_dofs", r["dofs"]) for r in recs])),
+                         "free_dofs": int(free), "mean_tau_a": float(np.mean([r["tau_a"] for r in recs]))})
+            print(json.dumps(rows[-1]), flush=True)
+    return rows
+
+
 def time_budget_table(args, scenes):
     scene, factory = list(scenes.items())[0] if not args.meshes else \
         (os.path.splitext(os.path.basename(args.meshes[-1]))[0], scene_factories(args)[
@@ -125,7 +144,8 @@ def main(argv=None):
     p.add_argument("--budgets", type=float, nargs="+", default=[0.003, 0.01, 0.03])
     p.add_argument("--taus", type=float, nargs="+", default=[0.01, 0.03, 0.1, 0.3, 1.0])
     p.add_argument("--tables", nargs="+", default=["budgets", "time", "never-slower"],
-                   choices=["budgets", "time", "never-slower"])
+                   choices=["budgets", "estimate", "time", "never-slower"],
+                   help="estimate: the estimator against the measured error, without the fall-back")
     p.add_argument("--tiny", action="store_true", help="tiny scenes and few frames: check that the script runs")
     args = p.parse_args(argv)
     if args.tiny:
@@ -135,6 +155,8 @@ def main(argv=None):
     out = {}
     if "budgets" in args.tables:
         out["budgets"] = budget_table(args, scenes)
+    if "estimate" in args.tables:
+        out["estimate"] = estimate_table(args, scenes)
     if "time" in args.tables:
         out["time"] = time_budget_table(args, scenes)
     if "never-slower" in args.tables:

@@ -102,6 +102,7 @@ class ErrorBudget:
         self.calibration = 1.0
         self.calibrated = 0  # shadow frames that measured a nonzero proxy
         self.local_rate = 0.0
+        self.stable = False  # the latest shadow frame confirmed the calibration
 
     @property
     def goal(self):
@@ -119,8 +120,10 @@ class ErrorBudget:
         """
         if measured is None:
             return self.calibration * proxy
+        self.stable = False
         if proxy > 0 and measured > 0:
             ratio = measured / proxy
+            self.stable = bool(self.calibrated) and 0.7 <= ratio / self.calibration <= 1.4
             # the larger of the newest ratio and a slowly forgotten history: a safe side estimate
             self.calibration = ratio if not self.calibrated else max(ratio, math.sqrt(self.calibration * ratio))
             self.calibrated += 1
@@ -165,12 +168,18 @@ class ShadowClock:
         Reduced frames per shadow frame (>= 1).
     """
 
-    def __init__(self, every=10, first=2):
+    def __init__(self, every=10, first=2, longest=4):
         self.every = int(every)
         if self.every < 1:
             raise ValueError(f"shadow_every must be >= 1, got {every}")
+        self.shortest, self.longest = self.every, self.every * int(longest)
         self.since = self.every
         self.first = int(first)  # the first frames are all shadows: the first full solve pays the analysis
+
+    def settled(self, stable):
+        """After a shadow frame: a calibration that held (``stable``) doubles the period, up to
+        ``longest`` times ``every``; one that moved brings it back to ``every``."""
+        self.every = min(2 * self.every, self.longest) if stable else self.shortest
 
     def due(self):
         """Whether the coming reduced frame is a shadow frame (counts it)."""

@@ -20,7 +20,7 @@ With an error budget, a time budget or ``never_slower`` (:mod:`skfem_affine.redu
 the frame is first planned: solved in full space (reduction does not pay), or reduced, with
 the thresholds and forced fraction the controllers chose; a reduced frame then estimates its
 error (one preconditioned CG step on the full-space residual) and, every ``shadow_every``
-reduced frames, is also solved in full space (a *shadow* frame: the full solution is returned,
+reduced frames (up to four times that while the estimate's calibration holds), is also solved in full space (a *shadow* frame: the full solution is returned,
 the difference calibrates the estimate and the full solve's time tells whether reduction pays).
 """
 import time
@@ -110,7 +110,8 @@ class ClusteringReducer(Reducer):
     never_slower : bool
         Solve frames in full space while reduction does not pay.
     shadow_every : int
-        Reduced frames per shadow frame (error budget, never slower).
+        Reduced frames per shadow frame (error budget, never slower); the period doubles, up to
+        4 shadow_every, while shadow frames confirm the error estimate's calibration.
     memory : float
         Memory time T (s) of the error estimate.
     """
@@ -263,13 +264,15 @@ class ClusteringReducer(Reducer):
             result = StepResult(dv=dv, operator=op, clusters=np.full(sysm.m, -1, dtype=np.int64), stats=stats)
         if eb is not None:
             delta = eb.local(proxy, measured)
+            if shadow and self.shadows is not None:
+                self.shadows.settled(eb.stable and eb.estimate < eb.goal)
             eb.advance(delta, h, model.size, introduced=not shadow)
             stats["local_error"] = delta / model.size
             reducible = 1.0 - float(np.mean(self.excluded)) if sysm.m else 0.0
             eb.adapt(saturated=stats["reduced_fraction"] >= reducible - 1e-9)
         if pays is not None:
             pays.reduced_solved(reduced_seconds, stats["reduced_dofs"] / max(sysm.free.size, 1))
-            pays.decide(self.shadow_every, probed=mode == "probe")
+            pays.decide(self.shadows.every, probed=mode == "probe")
         self._record(stats)
         return result
 
