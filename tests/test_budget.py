@@ -153,3 +153,21 @@ def test_fallback_to_full_space_on_a_scene_where_nothing_reduces():
     assert not any(flags[7:]) and red.reducer.pays.in_full
     np.testing.assert_allclose(red.state.x, full.state.x, rtol=0, atol=1e-12 * full.size)
     np.testing.assert_allclose(red.state.v, full.state.v, rtol=0, atol=1e-10)
+
+
+def test_controller_state_is_plain_numbers_and_restores_a_run():
+    def make():
+        return sa.scenes.cantilever(resolution=2, reducer=sa.Affinification(target_error=0.01, time_budget=1.0),
+                                    solver="direct")
+    a = make()
+    for _ in a.run(6):
+        pass
+    state = a.reducer.controller_state()
+    assert set(state) == {"error_budget", "timer", "pays", "shadows", "thresholds"}
+    flat = [v for d in state.values() for v in d.values()]
+    assert all(isinstance(v, (int, float, bool)) for v in flat)
+    b = make()
+    b.reducer.restore_controller_state(state)
+    assert b.reducer.controller_state() == state and b.reducer.tau_a == a.reducer.tau_a
+    with pytest.raises(ValueError, match="no controller"):
+        sa.scenes.cantilever(resolution=2, reducer=sa.Affinification(0.1, 0.2)).reducer.restore_controller_state(state)

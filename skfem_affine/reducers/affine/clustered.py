@@ -181,6 +181,29 @@ class ClusteringReducer(Reducer):
             spec = self.solver_spec if self.solver_spec is None or isinstance(self.solver_spec, str) else "direct"
             self.full_solver = make_solver(spec if spec is not None else "direct")
 
+    #: The controllers' attribute names; their state is plain numbers (checkpoints save it).
+    CONTROLLERS = ("error_budget", "timer", "pays", "shadows")
+
+    def controller_state(self):
+        """The budgets' state as plain numbers: {controller: {attribute: value}} plus the thresholds.
+
+        With :meth:`restore_controller_state`, what a checkpoint saves to resume a controlled run.
+        """
+        state = {name: dict(vars(obj)) for name in self.CONTROLLERS
+                 if (obj := getattr(self, name, None)) is not None}
+        state["thresholds"] = {self.threshold: float(getattr(self, self.threshold)), "tau_e": float(self.tau_e),
+                               "min_fraction": float(self.min_fraction)}
+        return state
+
+    def restore_controller_state(self, state):
+        """Set the state :meth:`controller_state` returned (after :meth:`attach`)."""
+        for name, values in state.items():
+            target = self if name == "thresholds" else getattr(self, name, None)
+            if target is None:
+                raise ValueError(f"this reducer has no controller {name!r} to restore")
+            for key, value in values.items():
+                setattr(target, key, value)
+
     def _set_thresholds(self, tau):
         """The error budget's threshold: ``tau`` to become reduced, 2 tau to stay."""
         setattr(self, self.threshold, float(tau))
