@@ -202,8 +202,10 @@ def compare_outputs(args, spec, runs, out):
     written = ["frames.csv", "summary.csv"]
     written += [os.path.basename(p) for p in plots.compare_plots(runs, out, frame=args.frame, stem="compare")]
     points = trade.points_from_runs(runs)
+    budgets = sorted({r.sim.reducer.target_error for r in runs.values()
+                      if getattr(r.sim.reducer, "target_error", None) is not None})
     if points:
-        written.append(os.path.basename(plots.trade_plot(points, os.path.join(out, "trade.png"),
+        written.append(os.path.basename(plots.trade_plot(points, os.path.join(out, "trade.png"), budgets=budgets,
                                                          title=f"{spec.label}: speed against accuracy")))
     if not args.no_paraview:
         for name, run in runs.items():

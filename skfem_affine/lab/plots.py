@@ -433,11 +433,15 @@ def trade_plot(points, path, budgets=(), title=None):
     if front:
         xs = [max(p["error"], 1e-12) for p in front]
         ys = [p["speedup"] for p in front]
-        ax.step(xs, ys, where="post", color="k", lw=1.0, alpha=0.6, label="Pareto front", zorder=2)
+        ax.step(xs, ys, where="post", color="k", lw=1.0, alpha=0.6, zorder=2)
+        ax.scatter(xs, ys, s=90, facecolors="none", edgecolors="k", lw=0.9, zorder=4, label="Pareto front")
     ax.axhline(1.0, color="k", lw=0.8, ls=":", label="1x (full space)")
     for j, b in enumerate(budgets):
         ax.axvline(b, color="C3", lw=0.9, ls="--", label="error budget" if j == 0 else None)
     ax.set_xscale("log")
+    xs = [max(p["error"], 1e-12) for p in pts] + [float(b) for b in budgets]
+    if xs:  # room for the labels right of the points
+        ax.set_xlim(min(xs) / 2, max(xs) * 4)
     ax.set_xlabel("max vertex distance to the full-space run / scene size")
     ax.set_ylabel("speedup over full space (x)")
     ax.set_title(title or "Speed against accuracy (up and left is better)", fontsize=10)

@@ -37,7 +37,8 @@ def points_from_runs(runs):
         if s.get("tau_a") is not None:
             label = f"{name} {_label(float(s['tau_a']), float(s['tau_e']))}"
         else:
-            label = f"{name} {getattr(run.sim.reducer, 'target_error', None) or ''}"
+            target = getattr(run.sim.reducer, "target_error", None)
+            label = f"{name}, budget {target:g}" if target is not None else name
         out.append({"error": s.get("max_distance_error"), "speedup": s.get("speedup"), "method": name,
                     "label": label.strip()})
     return out
