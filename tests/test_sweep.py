@@ -17,9 +17,11 @@ TINY = runners.SceneSpec.make("cantilever", resolution=1)
 class Exploding(sa.Affinification):
     """Affinification whose velocity update turns non-finite at frame 3: the integrator must raise."""
 
-    def solve(self, sim, rec):
-        dv = super().solve(sim, rec)
-        return dv * np.nan if sim.state.frame >= 2 else dv
+    def solve(self, problem):
+        result = super().solve(problem)
+        if problem.frame >= 3:
+            result.dv = result.dv * np.nan
+        return result
 
 
 EXPLODING = runners.Method("exploding", lambda a, e: Exploding(a, e) if a > 0.05 else sa.Affinification(a, e),

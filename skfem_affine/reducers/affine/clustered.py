@@ -72,9 +72,9 @@ def resolve_thresholds(tau, tau_e, target_error, name):
     if not explicit:
         target = budgets.DEFAULT_TARGET_ERROR if target_error is None else target_error
         return None, None, real(target, "target_error", low=0.0, high=1.0, include_low=False)
+    tau_e = None if tau_e is None else check_threshold(tau_e, "tau_e")
     tau = check_threshold(tau if tau is not None else 0.5 * tau_e, name)
-    tau_e = check_threshold(tau_e if tau_e is not None else 2.0 * tau, "tau_e")
-    return tau, tau_e, None
+    return tau, (tau_e if tau_e is not None else 2.0 * tau), None
 
 
 def elements_touching(system, mask):
