@@ -255,6 +255,9 @@ class Simulation:
             raise SimulationDiverged(s.frame + 1)
         self.state = State(x, v, s.frame + 1, s.time + self.dt, result.clusters)
         rec["wall"] = time.perf_counter() - t0
+        end_frame = getattr(self.reducer, "end_frame", None)  # a time budget reads the frame's wall time
+        if end_frame is not None:
+            end_frame(rec)
         self.stats.append(rec)
         return self.state
 

@@ -20,11 +20,11 @@ def run_json(capsys, argv):
 
 
 def test_help_on_every_subcommand(capsys):
-    for command in ("demo", "run", "compare", "sweep", "scaling", "scenes"):
+    for command in ("demo", "run", "compare", "sweep", "budget", "scaling", "scenes"):
         assert main([command, "--help"]) == 0
         assert "usage: skfem-affine " + command in capsys.readouterr().out
     commands = parser()._subparsers._group_actions[0].choices
-    assert set(commands) == {"demo", "run", "compare", "sweep", "scaling", "scenes"}
+    assert set(commands) == {"demo", "run", "compare", "sweep", "budget", "scaling", "scenes"}
 
 
 def test_scenes_lists_the_scene_registry(capsys):
@@ -80,7 +80,7 @@ def test_sweep_json(tmp_path, capsys):
             "--workers", "1", "--threads", "--no-step-error", "--paired-timing", "--out", str(tmp_path)]
     code, s = run_json(capsys, argv)
     assert code == 0 and set(SUMMARY_KEYS) <= set(s) and s["cells"] == 4 and s["failed"] == 0
-    assert len(s["rows"]) == 4 and os.path.exists(s["table"]) and os.path.exists(s["heatmaps"])
+    assert len(s["rows"]) == 4 and os.path.exists(s["table"]) and os.path.exists(s["heatmaps"]) and os.path.exists(s["trade"])
     assert s["best_tau_a"] in (0.01, 0.3) and all(r["timing"] == "paired" for r in s["rows"])
 
 
@@ -195,11 +195,19 @@ def test_headers_are_human_readable(tmp_path, capsys):
 def test_demo(tmp_path, capsys):
     assert main(["demo", "--resolution", "1", "--frames", "10", "--out", str(tmp_path)]) == 0
     out = capsys.readouterr().out
-    assert "speedup" in out and "affinification" in out and "rigidification" in out
-    assert "demo: cantilever (resolution=1), 10 frames: full, affinification (tau_a=0.03, tau_e=0.06), " \
-           "rigidification" in out
+    assert "speedup" in out and "affinification-budget" in out and "Where it stops paying" in out
     names = set(os.listdir(tmp_path / "demo"))
-    assert {"compare_clusters.png", "compare_speedup.png", "affinification.gif", "paraview"} <= names
+    assert {"compare_clusters.png", "compare_speedup.png", "trade.png"} <= names
+
+
+def test_budget_command_runs_each_budget_against_full_space(tmp_path, capsys):
+    code, s = run_json(capsys, ["budget", "--resolution", "1", "--frames", "6", "--errors", "0.01", "0.05",
+                                "--never-slower", "off", "--out", str(tmp_path)])
+    assert code == 0 and [r["budget"] for r in s["rows"]] == [0.01, 0.05]
+    assert all(r["timing"] == "interleaved" and r["speedup"] > 0 and r["error"] >= 0 for r in s["rows"])
+    assert os.path.isfile(s["trade"]) and os.path.isfile(s["table"])
+    assert main(["budget", "--errors", "2", "--resolution", "1", "--frames", "2", "--out", str(tmp_path)]) == 2
+    assert "target_error" in capsys.readouterr().err
 
 
 def test_compare_and_run_say_how_they_timed(tmp_path, capsys):
