@@ -1,4 +1,5 @@
-r"""First bending frequency of a cantilever against Euler-Bernoulli theory.
+r"""Verification: the first bending frequency against beam theory
+=============================================================
 
 A stiff beam (E = 100 MPa, nu = 0, rho = 1000 kg/m^3, length L = 4 m, square
 section a = 0.5 m) starts from rest under gravity and oscillates about its

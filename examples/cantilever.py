@@ -1,4 +1,5 @@
-r"""Cantilever beam swinging under gravity.
+r"""A first simulation: a cantilever swinging under gravity
+=======================================================
 
 A 4 m x 1 m x 1 m beam of stable Neo-Hookean rubber (E = 100 kPa,
 nu = 0.35, rho = 1000 kg/m^3) is clamped at x = 0 and released from rest.

@@ -1,4 +1,7 @@
-r"""Measuring the trade: one scene three ways, with speedup, error and a picture.
+r"""Measuring the trade: speedup, error and a picture
+=================================================
+
+One scene three ways, with speedup, error and a picture.
 
 Affinification trades accuracy for speed through two thresholds on deformation
 rates (1/s): tau_a, below which elastic elements merge into affine bodies, and
@@ -38,5 +41,5 @@ if __name__ == "__main__":
         step = "-" if s["max_step_error"] is None else f"{s['max_step_error']:.1e}"
         print(f"{name:>15} {s['speedup']:8.2f} {s['dof_ratio']:9.2f} {s['mean_clusters']:7.1f} "
               f"{s['max_distance_error']:9.1e} {step:>10}")
-    for path in plots.compare_plots(runs, "compare_out"):
+    for path in plots.compare_plots(runs, "out/compare"):
         print("wrote", path)

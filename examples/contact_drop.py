@@ -1,4 +1,7 @@
-r"""Contact, part 1: a soft body dropped on the floor, with Coulomb friction and affinification.
+r"""Contact with the ground: a soft body dropped on the floor
+=========================================================
+
+A soft body dropped on the floor, with Coulomb friction and affinification.
 
 A scene declares static obstacles with ``colliders=[...]``; each answers one
 vectorised signed-distance query, ``distance, normal = collider.query(points)``

@@ -1,4 +1,5 @@
-r"""Contact, part 3: stiff against soft, bowling balls on a mattress and a toothbrush.
+r"""Stiff against soft: bowling balls on a mattress, a toothbrush
+=============================================================
 
 Two scenes mix materials. In ``bowling``, stiff balls (E = 1e7 Pa) fall from
 different heights onto a soft mattress (E = 2e4 Pa) lying on the floor; the

@@ -1,4 +1,5 @@
-r"""Contact, part 2: several bodies, stacked beams and pills in a bowl.
+r"""Contact between bodies: stacked beams and pills in a bowl
+=========================================================
 
 With several bodies, contact is on by default (``contact=sa.PGS()``): every
 surface vertex of one body is tested against the boundary triangles of every

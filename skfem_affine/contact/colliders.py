@@ -96,7 +96,7 @@ class Plane(Collider):
 
 
 class Sphere(Collider):
-    """A solid ball: d = |x - c| - r, normal (x - c) / |x - c|."""
+    """A solid ball: ``d = |x - c| - r``, normal ``(x - c) / |x - c|``."""
 
     def __init__(self, center=(0.0, 0.0, 0.0), radius=1.0):
         self.center = _vector(center, "sphere center")
