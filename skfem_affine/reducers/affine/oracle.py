@@ -51,7 +51,7 @@ def element_moduli(system):
 
 
 def laplacian_weights(system):
-    """Weights w_e = V_e mu_e of A_p (eq. 14); see :class:`Preconditioner` for the measurement."""
+    """Weights w_e = V_e mu_e of A_p (eq. 14); see :class:`Preconditioner` for the choice."""
     mu, _ = element_moduli(system)
     return system.volumes * mu
 
@@ -179,29 +179,11 @@ class Preconditioner:
 
     Notes
     -----
-    **Weights.** Measured with :func:`predict` (``kind="ichol"``; ``"amg"`` and an
-    exact A_p solve agree within 3%): relative residual ||b - A dv|| / ||b|| of the
-    true system after one iteration, lower is better, on the default cantilever
-    (Neo-Hookean E = 1e5, nu = 0.35, h = 0.01, k = resolution) at rest (b = h M g)
-    and bent after 10 frames (b with gravity split out, as the oracle uses it):
-
-    ==============  =============  ==============  =============  ==============
-    w_e / V_e       k=3 rest       k=3 bent        k=6 rest       k=6 bent
-    ==============  =============  ==============  =============  ==============
-    mu / 2          0.0065         0.021           0.015          0.049
-    mu              **0.0048**     **0.018**       **0.0086**     **0.042**
-    2 mu            0.0093         0.032           0.020          0.060
-    mu + lam        0.018          0.058           0.036          0.095
-    2 mu + lam      0.025          0.077           0.046          0.118
-    ==============  =============  ==============  =============  ==============
-
-    mu also wins with Rayleigh damping (0.03, 0.02). Stiffer (E = 1e7, k = 4, exact
-    A_p): in the A-norm of the error, which CG minimises, mu / 2 to mu stay best
-    (2 mu + lam is 1.4-1.9x worse); the 2-norm residual then prefers more weight
-    (nu = 0.45, bent: 0.82 with 2 mu + lam, 1.20 with mu): alpha minimises the
-    energy norm, so one iteration may even increase the 2-norm residual of stiff
-    systems. V mu is the shear part mu grad u : grad v of the linearised tangent,
-    the vector Laplacian of [MK23].
+    **Weights.** w_e = V_e mu_e, the shear part mu grad u : grad v of the linearised
+    tangent (the vector Laplacian of [MK23]). Of mu / 2, mu, 2 mu, mu + lam and
+    2 mu + lam it gives the smallest residual after the one iteration on the cantilever,
+    at rest and bent, with and without damping, and mu / 2 to mu stay best in the energy
+    norm for stiff bodies (the table: the user guide's Affinification page).
 
     **ichol.** Measured on the bent cantilever at 24k tets (prediction residual,
     exact A_p: 0.0751): ICholT(10, 1e-3) after RCM 0.0754; IC(0) 0.096; with the
@@ -217,10 +199,9 @@ class Preconditioner:
     mass-augmented P1 Laplacian). ilupp 1.0.2 raises "insufficient memory
     reserved" for ``add_fill_in`` around 50.
 
-    **amg.** Default smoothed aggregation (4 levels at 24k tets) is as good as an
-    exact A_p solve (0.0752) but ~10x costlier per application than ichol (three
-    V-cycles, one per component); Jacobi smoothing halves that cost for a 22%
-    worse prediction.
+    **amg.** Default smoothed aggregation predicts as well as an exact A_p solve but
+    costs more per application than ichol (three V-cycles, one per component), so ichol
+    is the default; Jacobi smoothing would halve the cost for a worse prediction.
     """
 
     def __init__(self, system, dt, damping=None, kind="ichol", weights=None):
