@@ -45,7 +45,7 @@ if __name__ == "__main__":
 
     import matplotlib.pyplot as plt
 
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description="A cantilever beam swinging under gravity.")
     parser.add_argument("--resolution", type=int, default=3)
     parser.add_argument("--frames", type=int, default=100)
     parser.add_argument("--out", default="out")

@@ -236,7 +236,7 @@ class StVK(Material):
 
 
 class NeoHookean(Material):
-    """Stable Neo-Hookean [SGK18], psi = mu/2 (I_C - 3) - mu (J - 1) + lam'/2 (J - 1)^2.
+    """Stable Neo-Hookean (Smith, de Goes & Kim 2018), psi = mu/2 (I_C - 3) - mu (J - 1) + lam'/2 (J - 1)^2.
 
     lam' = lam + mu makes the small-strain limit match linear elasticity with
     the Lame parameters of (E, nu). Rest-stable and defined for inverted F.

@@ -180,7 +180,7 @@ class Preconditioner:
     Notes
     -----
     **Weights.** w_e = V_e mu_e, the shear part mu grad u : grad v of the linearised
-    tangent (the vector Laplacian of [MK23]). Of mu / 2, mu, 2 mu, mu + lam and
+    tangent (the Laplacian-based approximation of Mercier-Aubin & Kry 2023). Of mu / 2, mu, 2 mu, mu + lam and
     2 mu + lam it gives the smallest residual after the one iteration on the cantilever,
     at rest and bent, with and without damping, and mu / 2 to mu stay best in the energy
     norm for stiff bodies (the table: the user guide's Affinification page).
