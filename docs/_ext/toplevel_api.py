@@ -18,10 +18,10 @@ def _write(app):
             target, role = f"{obj.__module__}.{obj.__qualname__}", "class" if inspect.isclass(obj) else "func"
         doc = inspect.getdoc(obj) or ""
         summary = doc.strip().split("\n\n")[0].replace("\n", " ").strip() if doc else ""
-        rows.append((f"``sa.{name}``", f":{role}:`~{target}`", summary.replace("|", "\\|")))
+        rows.append((f"``sa.{name}``", f":{role}:`{target}`", summary))
     out = os.path.join(app.srcdir, "api", "toplevel.inc")
     os.makedirs(os.path.dirname(out), exist_ok=True)
-    lines = [".. list-table::", "   :header-rows: 1", "   :widths: 20 30 50", "",
+    lines = [".. list-table::", "   :header-rows: 1", "   :widths: 18 37 45", "",
              "   * - name", "     - defined in", "     - summary"]
     for a, b, c in rows:
         lines += [f"   * - {a}", f"     - {b}", f"     - {c}"]

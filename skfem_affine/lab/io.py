@@ -48,9 +48,23 @@ class SeriesWriter:
 
 
 def write_series(path, sim, frames=None, every=1):
-    """Run ``sim`` for ``frames`` (default ``sim.frames``) and write every ``every``-th state.
+    """Run ``sim`` for ``frames`` and write the initial state and every ``every``-th state.
 
-    Returns the path of the .pvd file that ParaView opens.
+    Parameters
+    ----------
+    path : str or path-like
+        Where to write: ``<path>.pvd`` and ``<stem>_NNNNN.vtu`` beside it (a trailing
+        ``.pvd`` is optional); the folder is created.
+    sim : Simulation
+    frames : int, optional
+        Frames to run (default ``sim.frames``, set by the scenes, else 100).
+    every : int
+        Keep every ``every``-th frame (and the last).
+
+    Returns
+    -------
+    str
+        The path of the .pvd file that ParaView opens as a time series.
     """
     frames = getattr(sim, "frames", 100) if frames is None else frames
     writer = SeriesWriter(path)
@@ -74,10 +88,29 @@ def write_states(path, sim, states):
 
 
 def load_mesh(path):
-    """Read a tetrahedral mesh file (e.g. MEDIT .mesh) into a skfem.MeshTet.
+    """Read a tetrahedral mesh file into a ``skfem.MeshTet``.
 
-    Region labels (``medit:ref`` or ``gmsh:physical``) become ``mesh.subdomains``
-    named ``"ref<label>"``.
+    Any format meshio reads (Gmsh ``.msh``, MEDIT ``.mesh``, VTK/VTU, ...). Only the
+    tetrahedra are kept (other cells are ignored) and vertices no tetrahedron uses are
+    dropped.
+
+    Parameters
+    ----------
+    path : str or path-like
+        The mesh file.
+
+    Returns
+    -------
+    skfem.MeshTet
+        With ``mesh.subdomains`` named ``"ref<label>"`` when the file labels its
+        tetrahedra with more than one region (``medit:ref`` or ``gmsh:physical``), so
+        that ``ElasticBody(mesh, material={"ref1": ..., "ref2": ...})`` assigns a
+        material per region.
+
+    Raises
+    ------
+    ValueError
+        If the file holds no tetrahedra.
     """
     import skfem
     m = meshio.read(path)
