@@ -72,5 +72,8 @@ if __name__ == "__main__":
     plt.ylabel("enriched node ratio")
     plt.legend()
     plt.title("Cantilever: nodal enrichment per step")
-    plt.savefig("adaptive_subspace_enrichment.png", dpi=120)
-    print("wrote adaptive_subspace_enrichment.png")
+    import os
+
+    os.makedirs("out", exist_ok=True)
+    plt.savefig(os.path.join("out", "adaptive_subspace_enrichment.png"), dpi=120)
+    print("wrote", os.path.join("out", "adaptive_subspace_enrichment.png"))

@@ -59,5 +59,8 @@ if __name__ == "__main__":
     plt.ylabel("DOFs solved per frame")
     plt.legend()
     plt.title("Cantilever: DOFs solved per frame")
-    plt.savefig("affinification_dofs.png", dpi=120)
-    print("wrote affinification_dofs.png")
+    import os
+
+    os.makedirs("out", exist_ok=True)
+    plt.savefig(os.path.join("out", "affinification_dofs.png"), dpi=120)
+    print("wrote", os.path.join("out", "affinification_dofs.png"))

@@ -41,5 +41,15 @@ if __name__ == "__main__":
         step = "-" if s["max_step_error"] is None else f"{s['max_step_error']:.1e}"
         print(f"{name:>15} {s['speedup']:8.2f} {s['dof_ratio']:9.2f} {s['mean_clusters']:7.1f} "
               f"{s['max_distance_error']:9.1e} {step:>10}")
-    for path in plots.compare_plots(runs, "out/compare"):
+    paths = plots.compare_plots(runs, "out/compare")
+    for path in paths:
         print("wrote", path)
+
+    import matplotlib.pyplot as plt
+
+    for path in paths[:1] + paths[-1:]:          # the speedup per frame and the clusters picture
+        image = plt.imread(path)
+        fig, ax = plt.subplots(figsize=(image.shape[1] / 120, image.shape[0] / 120))
+        ax.imshow(image)
+        ax.axis("off")
+        fig.tight_layout(pad=0)
