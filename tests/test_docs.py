@@ -35,8 +35,13 @@ def test_docs_build_without_warnings(tmp_path):
     assert proc.returncode == 0, f"sphinx failed:\n{proc.stdout[-5000:]}\n{proc.stderr[-10000:]}"
     pages = {p.name for p in html.rglob("*.html")}
     # the user guide, the API reference (one page per module) and the gallery are all there
-    assert {"index.html", "affinification.html", "contact.html", "references.html"} <= pages
-    assert {"skfem_affine.lab.io.html", "skfem_affine.reducers.affine.html"} <= pages
-    assert {"cantilever.html", "own_mesh.html", "adaptive_subspace.html"} <= pages
+    assert {"index.html", "affinification.html", "contact.html", "references.html",
+            "reliability.html", "solvers.html", "threads.html"} <= pages
+    assert {"skfem_affine.lab.io.html", "skfem_affine.reducers.affine.html", "skfem_affine.threads.html",
+            "skfem_affine.reducers.affine.ichol.html", "skfem_affine.integrators.newton_integrator.html",
+            "skfem_affine.contact.delassus.html", "skfem_affine.lab.scene_spec.html"} <= pages
+    assert {"cantilever.html", "own_mesh.html", "adaptive_subspace.html", "custom_reducer.html"} <= pages
+    index = (html / "index.html").read_text()
+    assert all(f'href="{page}.html"' in index for page in ("reliability", "solvers", "threads"))  # in the toctree
     api = (html / "api" / "generated" / "skfem_affine.lab.io.html").read_text()
     assert "load_mesh" in api
