@@ -19,8 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from skfem_affine.assembly import ElasticSystem
-from skfem_affine.body import ElasticBody
-from skfem_affine.checks import positive
+from skfem_affine.checks import check_bodies, choice, flag, integer, positive, real_array
 from skfem_affine.contact import pgs
 from skfem_affine.contact.colliders import check_colliders
 from skfem_affine.contact.barrier import barrier_of
@@ -139,17 +138,11 @@ class Simulation:
     def __init__(self, bodies, dt=0.01, gravity=(0.0, 0.0, 0.0), damping=None, reducer=None,
                  solver="auto", newton_iters=None, newton_tol=None, project_hessian=True, mass="lumped",
                  colliders=None, contact=None, integrator="linearized"):
-        bodies = [bodies] if isinstance(bodies, ElasticBody) else list(bodies)
-        if not bodies or not all(isinstance(b, ElasticBody) for b in bodies):
-            raise TypeError("Simulation needs an ElasticBody or a non-empty list of them")
-        integrator = "linearized" if integrator is None else integrator
-        if integrator not in INTEGRATORS:
-            raise ValueError(f"integrator must be one of {INTEGRATORS}, got {integrator!r}")
+        bodies = check_bodies(bodies)
+        integrator = choice("linearized" if integrator is None else integrator, "integrator", INTEGRATORS)
         self.integrator_name = integrator
         self.dt = positive(dt, "time step dt")
-        self.gravity = np.asarray(gravity, dtype=float)
-        if self.gravity.shape != (3,) or not np.all(np.isfinite(self.gravity)):
-            raise ValueError(f"gravity must be a finite 3-vector, got {gravity!r}")
+        self.gravity = real_array(gravity, "gravity", shape=(3,))
         if damping is not None and not isinstance(damping, Rayleigh):
             raise TypeError("damping must be a Rayleigh(alpha, beta) or None")
         self.damping = damping or Rayleigh()
@@ -162,11 +155,9 @@ class Simulation:
         newton_tol, newton_iters = newton.resolve_newton_settings(newton_tol, newton_iters, reducer)
         newton_iters = (1 if linearized else 50) if newton_iters is None else newton_iters
         newton_tol = (1e-9 if linearized else 1e-6) if newton_tol is None else newton_tol
-        if int(newton_iters) < 1:
-            raise ValueError(f"newton_iters must be >= 1, got {newton_iters}")
-        self.newton_iters = int(newton_iters)
+        self.newton_iters = integer(newton_iters, "newton_iters", low=1)
         self.newton_tol = positive(newton_tol, "newton_tol")
-        self.project_hessian = bool(project_hessian)
+        self.project_hessian = flag(project_hessian, "project_hessian")
         self.system = ElasticSystem(bodies, mass=mass)
         self.bodies = self.system.bodies
         self.size = float(np.linalg.norm(np.ptp(self.system.p0, axis=0)))
@@ -224,9 +215,7 @@ class Simulation:
 
     def run(self, frames):
         """Advance ``frames`` steps, yielding a copy of the state after each one."""
-        frames = int(frames)
-        if frames < 0:
-            raise ValueError(f"frames must be >= 0, got {frames}")
+        frames = integer(frames, "frames", low=0)
         for _ in range(frames):
             self.step()
             yield self.state.copy()

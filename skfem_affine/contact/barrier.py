@@ -25,6 +25,9 @@ colliders; it holds no simulation.
 """
 import numpy as np
 
+from skfem_affine.checks import positive
+from skfem_affine.contact.colliders import check_colliders
+
 
 def barrier(d, dhat):
     """b(d), b'(d), b''(d) elementwise (b = inf for d <= 0, 0 for d >= dhat)."""
@@ -57,15 +60,10 @@ class Barrier:
 
     def __init__(self, model, colliders, dhat=None, kappa=None):
         sysm = model.system
-        self.colliders = list(colliders)
-        for c in self.colliders:
-            if not callable(getattr(c, "query", None)):
-                raise TypeError(f"a collider needs query(points) -> (distance, normal), got {type(c).__name__}")
-        self.dhat = 1e-3 * model.size if dhat is None else float(dhat)
-        if not self.dhat > 0:
-            raise ValueError(f"barrier distance dhat must be > 0, got {dhat}")
+        self.colliders = check_colliders(colliders)
+        self.dhat = 1e-3 * model.size if dhat is None else positive(dhat, "barrier distance dhat")
         m_avg = float(sysm.lumped_mass.mean())
-        self.kappa = 100.0 * m_avg * 9.81 / self.dhat if kappa is None else float(kappa)
+        self.kappa = 100.0 * m_avg * 9.81 / self.dhat if kappa is None else positive(kappa, "barrier stiffness kappa")
         self.vertices = np.flatnonzero(~sysm.fixed)
         # positions of each free vertex's diagonal 3 x 3 block in the free-DOF pattern
         pat = sysm.pattern

@@ -40,6 +40,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
+from skfem_affine.checks import flag, integer, nonnegative, real
 from skfem_affine.contact.colliders import check_colliders
 from skfem_affine.contact.delassus import Resolvent, jacobian
 from skfem_affine.contact.geometry import Detector
@@ -86,18 +87,16 @@ class PGS:
     block: int = 64
 
     def __post_init__(self):
+        put = object.__setattr__  # frozen: store the checked values
         for name in ("friction", "tolerance"):
-            v = getattr(self, name)
-            if not isinstance(v, (int, float, np.floating, np.integer)) or not np.isfinite(v) or v < 0:
-                raise ValueError(f"PGS {name} must be a finite number >= 0, got {v!r}")
-        if not isinstance(self.iterations, (int, np.integer)) or self.iterations < 1:
-            raise ValueError(f"PGS iterations must be an integer >= 1, got {self.iterations!r}")
-        if not 0.0 <= float(self.erp) <= 1.0:
-            raise ValueError(f"PGS erp must lie in [0, 1], got {self.erp!r}")
-        if self.margin is not None and not (np.isfinite(self.margin) and self.margin >= 0):
-            raise ValueError(f"PGS margin must be finite and >= 0, got {self.margin!r}")
-        if int(self.block) < 1:
-            raise ValueError(f"PGS block must be >= 1, got {self.block!r}")
+            put(self, name, nonnegative(getattr(self, name), f"PGS {name}"))
+        put(self, "iterations", integer(self.iterations, "PGS iterations", low=1))
+        put(self, "erp", real(self.erp, "PGS erp", low=0.0, high=1.0))
+        if self.margin is not None:
+            put(self, "margin", nonnegative(self.margin, "PGS margin"))
+        put(self, "warm_start", flag(self.warm_start, "PGS warm_start"))
+        put(self, "body_contact", flag(self.body_contact, "PGS body_contact"))
+        put(self, "block", integer(self.block, "PGS block", low=1))
 
 
 @njit(cache=True)

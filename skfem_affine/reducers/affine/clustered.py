@@ -20,6 +20,7 @@ import time
 
 import numpy as np
 
+from skfem_affine.checks import choice, integer, real
 from skfem_affine.threads import serial_blas
 from skfem_affine.integrators.problem import Operator, StepResult
 from skfem_affine.reducers.affine import clustering, oracle
@@ -31,11 +32,8 @@ SEEDINGS = ("random", "index", "temporal")
 
 
 def check_threshold(value, name):
-    """A finite threshold >= 0, or a ValueError naming it."""
-    value = float(value)
-    if not np.isfinite(value) or value < 0:
-        raise ValueError(f"threshold {name} must be finite and >= 0, got {value}")
-    return value
+    """A finite threshold >= 0, or a TypeError/ValueError naming it."""
+    return real(value, f"threshold {name}", low=0.0)
 
 
 def forced_fraction(min_fraction, old_value, old_name):
@@ -44,10 +42,8 @@ def forced_fraction(min_fraction, old_value, old_name):
         if min_fraction is not None:
             raise ValueError(f"give min_fraction or its older name {old_name}, not both")
         min_fraction = old_value
-    min_fraction = 0.0 if min_fraction is None else float(min_fraction)
-    if not 0.0 <= min_fraction <= 1.0:
-        raise ValueError(f"resource limit fraction min_fraction must lie in [0, 1], got {min_fraction}")
-    return min_fraction
+    name = "min_fraction" if old_value is None else old_name
+    return 0.0 if min_fraction is None else real(min_fraction, name, low=0.0, high=1.0)
 
 
 def elements_touching(system, mask):
@@ -82,14 +78,10 @@ class ClusteringReducer(Reducer):
 
     def __init__(self, tau_e, *, min_fraction=0.0, seeding="random", preconditioner="ichol", seed=0, solver=None):
         self.tau_e = check_threshold(tau_e, "tau_e")
-        if preconditioner not in oracle.KINDS:
-            raise ValueError(f"preconditioner must be 'ichol' or 'amg', got {preconditioner!r}")
-        self.preconditioner_kind = preconditioner
+        self.preconditioner_kind = choice(preconditioner, "preconditioner", tuple(oracle.KINDS))
         self.min_fraction = min_fraction
-        if seeding not in SEEDINGS:
-            raise ValueError(f"seeding must be 'random', 'index' or 'temporal', got {seeding!r}")
-        self.seeding = seeding
-        self.seed = seed
+        self.seeding = choice(seeding, "seeding", SEEDINGS)
+        self.seed = None if seed is None else integer(seed, "seed", low=0)
         self.solver_spec = solver
 
     def _setup(self, model):

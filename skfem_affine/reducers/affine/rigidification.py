@@ -3,6 +3,7 @@ on the same integrator, oracle, solver and statistics as affinification so that 
 import numpy as np
 
 from skfem_affine._kernels import strain_rate_norms
+from skfem_affine.checks import integer
 from skfem_affine.reducers.affine import clustering
 from skfem_affine.reducers.affine import mapping as reduction
 from skfem_affine.reducers.affine.clustered import ClusteringReducer, check_threshold, forced_fraction
@@ -47,9 +48,7 @@ class Rigidification(ClusteringReducer):
     def __init__(self, tau_r=1e-3, tau_e=2e-3, *, warmup_frames=3, min_fraction=None, seeding="random",
                  preconditioner="ichol", seed=0, solver=None, min_rigid_fraction=None):
         self.tau_r = check_threshold(tau_r, "tau_r")
-        if int(warmup_frames) < 0:
-            raise ValueError(f"warmup_frames must be >= 0, got {warmup_frames}")
-        self.warmup_frames = int(warmup_frames)
+        self.warmup_frames = integer(warmup_frames, "warmup_frames", low=0)
         super().__init__(tau_e, min_fraction=forced_fraction(min_fraction, min_rigid_fraction, "min_rigid_fraction"),
                          seeding=seeding, preconditioner=preconditioner, seed=seed, solver=solver)
 

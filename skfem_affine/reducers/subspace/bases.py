@@ -33,6 +33,8 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from skfem_affine.checks import flag, integer
+
 
 @dataclass
 class ModalBasis:
@@ -68,10 +70,8 @@ class _Basis:
     kind = "basis"
 
     def __init__(self, n=16, cache_dir=None, cache=True):
-        if int(n) < 1:
-            raise ValueError(f"number of modes n must be >= 1, got {n}")
-        self.n = int(n)
-        self.cache = bool(cache)
+        self.n = integer(n, "n", low=1)
+        self.cache = flag(cache, "cache")
         self.cache_dir = Path(cache_dir) if cache_dir is not None else None
         self.last_cache_hit = False
 
