@@ -14,6 +14,8 @@ solver for good when a freshly built hierarchy still needs more than
 :data:`AMG_MAX_ITERATIONS` CG iterations. Reduced systems always use a direct solver (their
 affine blocks do not suit AMG). Measurements: ``docs/solvers.md``.
 """
+import contextlib
+
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
@@ -217,6 +219,24 @@ class _PardisoLibrary:
         return x
 
 
+@contextlib.contextmanager
+def seeded_global_random(seed=0):
+    """Run a block with NumPy's global random state seeded, restoring the caller's state after.
+
+    pyamg estimates spectral radii (for its prolongation smoother) by Arnoldi/Lanczos from a
+    ``np.random.rand`` start vector, so two hierarchies built from one matrix differ in the last
+    bits unless the global state is fixed. Seeding it here makes every hierarchy, and hence every
+    AMG-CG solve and AMG oracle prediction, reproducible run to run, without disturbing the
+    random numbers of the user's own code.
+    """
+    saved = np.random.get_state()
+    np.random.seed(seed)
+    try:
+        yield
+    finally:
+        np.random.set_state(saved)
+
+
 def _same(a, b):
     return a.shape == b.shape and np.array_equal(a, b)
 
@@ -243,15 +263,40 @@ class AMGCG:
         self.rebuilds = 0
 
     def factorize(self, A):
-        import pyamg
         self._A = sp.csr_matrix(A)
         if self._ml is None or self._ml.levels[0].A.shape != A.shape or self._stale:
-            B = np.kron(np.ones((A.shape[0] // 3, 1)), np.eye(3)) if A.shape[0] % 3 == 0 else None
-            self._ml = pyamg.smoothed_aggregation_solver(self._A, B=B, strength="symmetric", max_coarse=500)
-            self._M = self._ml.aspreconditioner(cycle="V")
+            self._build(self._A)
             self._stale = False
             self.fresh_iterations = None
             self.rebuilds += 1
+
+    def _build(self, A):
+        """The hierarchy of A (reproducible: :func:`seeded_global_random`)."""
+        import pyamg
+        B = np.kron(np.ones((A.shape[0] // 3, 1)), np.eye(3)) if A.shape[0] % 3 == 0 else None
+        with seeded_global_random():
+            self._ml = pyamg.smoothed_aggregation_solver(A, B=B, strength="symmetric", max_coarse=500)
+            self._M = self._ml.aspreconditioner(cycle="V")
+        self._built_from = A.copy()
+
+    def state_dict(self):
+        """What later solves depend on: the matrix the current hierarchy was built from, and the
+        rebuild bookkeeping (the hierarchy itself is rebuilt from the matrix, bit-identically)."""
+        A = getattr(self, "_built_from", None) if self._ml is not None else None
+        out = {"stale": bool(self._stale), "fresh_iterations": self.fresh_iterations, "rebuilds": int(self.rebuilds)}
+        if A is not None:
+            out.update(A_data=A.data.copy(), A_indices=A.indices.copy(), A_indptr=A.indptr.copy(),
+                       A_shape=np.array(A.shape))
+        return out
+
+    def load_state_dict(self, state):
+        self._ml = None
+        if "A_data" in state:
+            A = sp.csr_matrix((state["A_data"], state["A_indices"], state["A_indptr"]), shape=tuple(state["A_shape"]))
+            self._build(A)
+        self._stale = bool(state["stale"])
+        self.fresh_iterations = state["fresh_iterations"]
+        self.rebuilds = int(state["rebuilds"])
 
     def solve(self, b):
         count = [0]
@@ -325,6 +370,27 @@ class AutoSolver:
 
     def solve(self, b):
         return self._current.solve(b)
+
+    def state_dict(self):
+        """The AMG/direct choice and the AMG solver's state (:meth:`AMGCG.state_dict`)."""
+        out = {"amg_abandoned": bool(self.amg_abandoned),
+               "current": None if self._current is None else ("amg" if self._current is self._amg else "direct")}
+        if self._amg is not None:
+            out.update({f"amg.{k}": v for k, v in self._amg.state_dict().items()})
+        return out
+
+    def load_state_dict(self, state):
+        self.amg_abandoned = bool(state["amg_abandoned"])
+        amg = {k[4:]: v for k, v in state.items() if k.startswith("amg.")}
+        self._amg = None
+        if amg:
+            self._amg = AMGCG()
+            self._amg.load_state_dict(amg)
+        if state["current"] == "amg":
+            self._current = self._amg
+        elif state["current"] == "direct":
+            self._direct = self._direct or direct_solver()
+            self._current = self._direct
 
 
 SOLVERS = {"superlu": SuperLU, "pardiso": Pardiso, "amg": AMGCG, "auto": AutoSolver, "direct": direct_solver}
