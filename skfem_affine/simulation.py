@@ -18,6 +18,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+import skfem_affine
+from skfem_affine import checkpoint
+
 from skfem_affine.assembly import ElasticSystem
 from skfem_affine.checks import check_bodies, choice, flag, integer, positive, real_array
 from skfem_affine.contact import pgs
@@ -27,17 +30,21 @@ from skfem_affine.integrators import newton
 from skfem_affine.integrators.linearized import LinearizedEuler
 from skfem_affine.integrators.newton_integrator import NewtonIntegrator
 from skfem_affine.integrators.problem import PHASES, Model, Rayleigh, StepProblem, StepResult
+from skfem_affine.monitor import Diverged, Monitor, SimulationWarning
 from skfem_affine.reducers.base import Reducer
 from skfem_affine.reducers.full import FullSpace, factorize_and_solve
 from skfem_affine.solvers import SolverError, make_solver
 
 INTEGRATORS = ("linearized",) + newton.SCHEMES
 
-__all__ = ["Simulation", "SimulationDiverged", "State", "Stats", "Rayleigh", "INTEGRATORS"]
+__all__ = ["Simulation", "SimulationDiverged", "SimulationWarning", "State", "Stats", "Rayleigh", "INTEGRATORS"]
 
 
 class SimulationDiverged(RuntimeError):
-    """The state became non-finite (or the linear system stopped being solvable)."""
+    """A step failed the divergence policy (:mod:`skfem_affine.monitor`): a non-finite state, a
+    failed linear solve, energy created by the step, a body torn apart, or (when asked to raise)
+    inverted elements or a Newton solve that did not converge. ``frame`` is the frame that failed;
+    the simulation's state stays at the frame before it."""
 
     def __init__(self, frame, reason="non-finite state detected"):
         self.frame = frame
@@ -116,6 +123,12 @@ class Simulation:
         Static obstacles (:mod:`skfem_affine.contact.colliders`: ``sa.Plane``, ``sa.Sphere``, ...).
     contact : PGS, optional
         Contact solver settings (:class:`skfem_affine.contact.pgs.PGS`), linearized integrator only.
+    on_inverted, on_nonconvergence : {"warn", "raise"}
+        What a frame with inverted elements (det F <= 0), resp. a Newton solve that stopped before
+        its tolerance, does: ``"warn"`` (default; one :class:`SimulationWarning` per run, every
+        frame counted in ``sim.stats``) or ``"raise"`` :class:`SimulationDiverged`.
+    check_energy : bool
+        Refuse a step that creates energy (default True; :mod:`skfem_affine.monitor`).
 
     Notes
     -----
@@ -137,7 +150,8 @@ class Simulation:
 
     def __init__(self, bodies, dt=0.01, gravity=(0.0, 0.0, 0.0), damping=None, reducer=None,
                  solver="auto", newton_iters=None, newton_tol=None, project_hessian=True, mass="lumped",
-                 colliders=None, contact=None, integrator="linearized"):
+                 colliders=None, contact=None, integrator="linearized", on_inverted="warn",
+                 on_nonconvergence="warn", check_energy=True):
         bodies = check_bodies(bodies)
         integrator = choice("linearized" if integrator is None else integrator, "integrator", INTEGRATORS)
         self.integrator_name = integrator
@@ -191,6 +205,7 @@ class Simulation:
                                                tol=self.newton_tol, max_iters=self.newton_iters)
             self.colliders = colliders  # the barrier of the colliders (property setter)
         active.attach(self.model)
+        self.monitor = Monitor(self.system, self.f_gravity, self.size, on_inverted, on_nonconvergence, check_energy)
 
     # ------------------------------------------------------------------ public
     @property
@@ -224,16 +239,100 @@ class Simulation:
         """Advance one time step; returns the new state."""
         t0 = time.perf_counter()
         s = self.state
-        rec = {"frame": s.frame + 1, "contact": 0.0, "contact_model": self.contact_model}
+        frame = s.frame + 1
+        if not (np.all(np.isfinite(s.x)) and np.all(np.isfinite(s.v))):
+            raise SimulationDiverged(frame, "the state to step from is not finite")
+        rec = {"frame": frame, "contact": 0.0, "contact_model": self.contact_model}
+        barrier = getattr(self.integrator, "barrier", None)
+        self.monitor.start(s, barrier)
         try:
             x, v, result = self.integrator.step(s, rec)
         except SolverError as err:
-            raise SimulationDiverged(s.frame + 1, f"linear solve failed ({err})") from err
+            raise SimulationDiverged(frame, f"linear solve failed ({err})") from err
+        except np.linalg.LinAlgError as err:
+            raise SimulationDiverged(frame, f"a dense factorisation failed ({err})") from err
         if not (np.all(np.isfinite(x)) and np.all(np.isfinite(v))):
-            raise SimulationDiverged(s.frame + 1)
-        self.state = State(x, v, s.frame + 1, s.time + self.dt, result.clusters)
+            raise SimulationDiverged(frame)
+        t1 = time.perf_counter()
+        try:
+            self.monitor.check(frame, s.x, x, v, rec, barrier)
+        except Diverged as err:
+            raise SimulationDiverged(frame, str(err)) from None
+        if self.colliders or self.contact is not None:
+            rec["max_penetration"] = self.max_penetration(x)
+        rec["checks"] = time.perf_counter() - t1
+        self.monitor.accept()
+        self.state = State(x, v, frame, s.time + self.dt, result.clusters)
         rec["wall"] = time.perf_counter() - t0
         self.stats.append(rec)
+        return self.state
+
+    def max_penetration(self, x=None):
+        """Largest penetration depth (m, >= 0) of a surface vertex into a collider or another body
+        at positions x (default: the current state)."""
+        x = self.state.x if x is None else x
+        if self.contact is not None:
+            return self.contact.detector.max_penetration(x)
+        depth = 0.0
+        for c in self.colliders:
+            d, _ = c.query(x)
+            depth = max(depth, float(-d.min(initial=0.0)))
+        return depth
+
+    # ------------------------------------------------------------------ checkpoints
+    def _components(self):
+        """The parts whose state later frames depend on, by checkpoint name."""
+        comps = {"integrator": self.integrator, "reducer": self.integrator.reducer, "contact": self.contact,
+                 "solver": self.solver, "monitor": self.monitor}
+        return {k: c for k, c in comps.items() if c is not None and hasattr(c, "state_dict")}
+
+    def _signature(self):
+        """What a checkpoint must match to be loaded into this simulation."""
+        return {"integrator": self.integrator_name, "reducer": type(self.integrator.reducer).__name__,
+                "contact_model": self.contact_model, "n_vertices": int(self.system.n),
+                "n_elements": int(self.system.m), "dt": float(self.dt), "mesh": checkpoint.mesh_hash(self.system)}
+
+    def save(self, path):
+        """Write a checkpoint of the run to ``path`` (an ``.npz``; :mod:`skfem_affine.checkpoint`).
+
+        Resume it with :meth:`load_state` on a simulation built with the same arguments: the
+        frames after it are then bit-identical to those of an uninterrupted run. Returns the path.
+        """
+        s = self.state
+        comps = {"state": {"x": s.x, "v": s.v, "frame": int(s.frame), "time": float(s.time),
+                           "clusters": s.clusters if s.clusters is not None else None}}
+        comps.update({k: c.state_dict() for k, c in self._components().items()})
+        stats = []
+        for r in self.stats:
+            rec = {}
+            for k, val in r.items():
+                try:
+                    rec[k] = checkpoint._jsonable(val)
+                except TypeError:  # a statistic that is no plain value is not kept
+                    pass
+            stats.append(rec)
+        header = dict(self._signature(), package=skfem_affine.__version__, frame=int(s.frame), stats=stats)
+        return checkpoint.write(path, header, comps)
+
+    def load_state(self, path):
+        """Resume from a checkpoint written by :meth:`save` of a simulation built the same way.
+
+        Raises
+        ------
+        ValueError
+            The file is no checkpoint, comes from an incompatible format version, or does not
+            match this simulation (mesh, integrator, reducer, contact model, time step).
+        """
+        header, arrays = checkpoint.read(path)
+        checkpoint.check_matches(path, header, self._signature())
+        values = header["values"]
+        st = checkpoint.unflatten(arrays, values, "state")
+        clusters = st.get("clusters")
+        self.state = State(np.array(st["x"]), np.array(st["v"]), int(st["frame"]), float(st["time"]),
+                           None if clusters is None else np.array(clusters))
+        for name, comp in self._components().items():
+            comp.load_state_dict(checkpoint.unflatten(arrays, values, name))
+        self.stats = Stats(header.get("stats", []))
         return self.state
 
     def energy(self, state=None):

@@ -193,6 +193,19 @@ class Detector:
             return None
         return concat(sets)
 
+    def max_penetration(self, x):
+        """Largest penetration depth (m, >= 0) of a surface vertex into a collider or another body at x."""
+        xs = x[self.surface]
+        depth = 0.0
+        for col in self.colliders:
+            d, _ = col.query(xs)
+            depth = max(depth, float(-d.min(initial=0.0)))
+        if self.body_pairs:
+            zero = np.zeros_like(xs)
+            for cs in self._body_contacts(x, np.zeros_like(x), xs, zero, 0.0):
+                depth = max(depth, float(-cs.distance.min(initial=0.0)))
+        return depth
+
     def _body_contacts(self, x, v, xs, vs, dt):
         """Surface vertices of every body against the boundary triangles of each other body.
 

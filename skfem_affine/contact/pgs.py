@@ -176,6 +176,17 @@ class Contact:
         self.current = None
         self.prediction = None
 
+    # -------------------------------------------------------------- checkpoint
+    def state_dict(self):
+        """The warm start carried to the next frame: impulses (world frame) by contact identity."""
+        if self.previous is None:
+            return {"previous": False}
+        return {"previous": True, "previous_keys": self.previous[0].copy(), "previous_world": self.previous[1].copy()}
+
+    def load_state_dict(self, state):
+        self.previous = ((np.asarray(state["previous_keys"]).copy(), np.asarray(state["previous_world"]).copy())
+                         if state["previous"] else None)
+
     # -------------------------------------------------------------- frame hooks
     def detect(self, model, x, v, rec):
         """Algorithm 1, "Find contacts": contacts at (x_t, v_t) (n, 3), their Jacobian, warm start

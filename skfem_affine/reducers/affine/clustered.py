@@ -75,6 +75,29 @@ class ClusteringReducer(Reducer):
     """
 
     integrators = ("linearized",)
+    # carried across frames: who was reduced, the clusters and seeds, the random seeding's generator
+    _state_keys = ("was_reduced", "labels", "previous_seeds", "rng_state")
+
+    @property
+    def rng_state(self):
+        """The random seeding generator's state (a dict of integers)."""
+        return self.rng.bit_generator.state
+
+    @rng_state.setter
+    def rng_state(self, state):
+        self.rng.bit_generator.state = state
+
+    def state_dict(self):
+        state = super().state_dict()
+        if hasattr(self.solver, "state_dict"):  # e.g. an AMG hierarchy reused across frames
+            state.update({f"solver.{k}": v for k, v in self.solver.state_dict().items()})
+        return state
+
+    def load_state_dict(self, state):
+        super().load_state_dict(state)
+        solver = {k[7:]: v for k, v in state.items() if k.startswith("solver.")}
+        if solver and hasattr(self.solver, "load_state_dict"):
+            self.solver.load_state_dict(solver)
 
     def __init__(self, tau_e, *, min_fraction=0.0, seeding="random", preconditioner="ichol", seed=0, solver=None):
         self.tau_e = check_threshold(tau_e, "tau_e")

@@ -44,6 +44,7 @@ class Rigidification(ClusteringReducer):
 
     name = "rigidification"
     kind = reduction.RIGID
+    _state_keys = ClusteringReducer._state_keys + ("calm_frames",)
 
     def __init__(self, tau_r=1e-3, tau_e=2e-3, *, warmup_frames=3, min_fraction=None, seeding="random",
                  preconditioner="ichol", seed=0, solver=None, min_rigid_fraction=None):

@@ -105,6 +105,9 @@ class AdaptiveSubspace(Reducer):
     integrators = ("implicit_euler", "bdf2")
     default_newton_tol = 1e-3
     default_max_newton = 50
+    # carried across steps: the active blocks of modes and the enriched nodes (the BFGS Hessians
+    # restart from hessian_init every step and the inertia cache is a function of the basis)
+    _state_keys = ("active", "enriched")
 
     def __init__(self, basis=None, eps_nodal=0.5, eps_modal=0.5, eps_progress=1e-4, eps_down=0.1,
                  subdomains=200, newton_tol=None, max_newton=None, pcg_tol=1e-5, pcg_maxiter=10000,
