@@ -31,9 +31,11 @@ After every step the :class:`~skfem_affine.Simulation` hands the new state to a 
 
 **Warned or raised, as the user chooses** (``on_inverted``, ``on_nonconvergence``:
 ``"warn"`` (default: one :class:`SimulationWarning` per kind and run, every frame counted in
-``sim.stats``) or ``"raise"``):
+``sim.stats``), ``"raise"``, or ``"ignore"`` (only counted; with ``on_inverted="ignore"`` and
+``check_energy=False`` the checks need no pass over the elements and cost almost nothing)):
 
-* inverted elements (det F <= 0) in the new state: ``rec["inverted_elements"]``;
+* inverted elements (det F <= 0) in the new state: ``rec["inverted_elements"]`` (None when
+  not checked);
 * a Newton solve that stopped before its tolerance (``rec["newton_converged"]`` False).
 
 Each frame's record gets ``energy`` (J, when checked), ``inverted_elements`` and, with contact,
@@ -45,7 +47,7 @@ import numpy as np
 
 from skfem_affine.checks import choice, flag, positive
 
-POLICIES = ("warn", "raise")
+POLICIES = ("warn", "raise", "ignore")
 
 
 class SimulationWarning(UserWarning):
@@ -96,12 +98,14 @@ class Monitor:
         self.warned = {"inverted": False, "nonconvergence": False}
 
     # -------------------------------------------------------------- energy
-    def energies(self, x, v, barrier=None):
-        """(total, kinetic + strain) of a state; the barrier energy counts as potential."""
+    def energies(self, x, v, barrier=None, F=None):
+        """(total, kinetic + strain) of a state; the barrier energy counts as potential.
+        ``F``: the deformation gradients at x, if already computed."""
         sysm = self.system
         vf = v.reshape(-1)
         kin = 0.5 * float(vf @ (sysm.M @ vf))
-        strain = sysm.strain_energy(x)
+        F = sysm.deformation_gradients(x) if F is None else F
+        strain = float(sum(np.dot(sysm.volumes[idx], mat.energy_density(F[idx])) for mat, idx in sysm.groups))
         grav = -float(self.f_gravity @ (x - sysm.p0).reshape(-1))
         bar = 0.0 if barrier is None else float(barrier.energy(x.reshape(-1)))
         return kin + strain + grav + bar, kin + strain
@@ -117,8 +121,11 @@ class Monitor:
         """Check the step x0 -> (x, v) of ``frame``; raises :class:`Diverged` with the cause, warns or
         raises per the policies, and records ``energy`` and ``inverted_elements`` into ``rec``."""
         self._tearing(x0, x)
+        F = None
+        if self.check_energy or self.on_inverted != "ignore":
+            F = self.system.deformation_gradients(x)
         if self.check_energy:
-            e, play = self.energies(x, v, barrier)
+            e, play = self.energies(x, v, barrier, F)
             work = float(rec.get("external_work", 0.0))
             scale = max(self.in_play, self.weight_scale, 1e-300)
             gain = e - self.energy - work
@@ -129,7 +136,7 @@ class Monitor:
                                f"external work {_fmt(work)} J, energy in play {_fmt(scale)} J)")
             rec["energy"] = e
             self._pending = (e, play)
-        inverted = self.inverted(x)
+        inverted = None if F is None else self.inverted(F)
         rec["inverted_elements"] = inverted
         if inverted:
             self._policy("inverted", self.on_inverted, f"{inverted} inverted element(s) (det F <= 0)", frame)
@@ -146,17 +153,23 @@ class Monitor:
             self.in_play = max(self.in_play, pending[1])
             self._pending = None
 
-    def inverted(self, x):
-        """Number of elements with det F <= 0 at positions x."""
-        return int(np.count_nonzero(np.linalg.det(self.system.deformation_gradients(x)) <= 0))
+    @staticmethod
+    def inverted(F):
+        """Number of elements with det F <= 0, F (m, 3, 3) the deformation gradients."""
+        det = (F[:, 0, 0] * (F[:, 1, 1] * F[:, 2, 2] - F[:, 1, 2] * F[:, 2, 1])
+               - F[:, 0, 1] * (F[:, 1, 0] * F[:, 2, 2] - F[:, 1, 2] * F[:, 2, 0])
+               + F[:, 0, 2] * (F[:, 1, 0] * F[:, 2, 1] - F[:, 1, 1] * F[:, 2, 0]))
+        return int(np.count_nonzero(det <= 0))
 
     def _tearing(self, x0, x):
         d = (x - x0).reshape(-1, 3)
-        mean = np.zeros((self.n_bodies, 3))
-        np.add.at(mean, self.body_of_vertex, d)
-        rel = np.linalg.norm(d - (mean / self.counts)[self.body_of_vertex], axis=1)
-        worst = np.zeros(self.n_bodies)
-        np.maximum.at(worst, self.body_of_vertex, rel)
+        if self.n_bodies == 1:
+            worst = np.sqrt(((d - d.mean(axis=0)) ** 2).sum(axis=1).max(initial=0.0))[None]
+        else:
+            mean = np.stack([np.bincount(self.body_of_vertex, d[:, k], self.n_bodies) for k in range(3)], axis=1)
+            rel = np.sqrt(((d - (mean / self.counts)[self.body_of_vertex]) ** 2).sum(axis=1))
+            worst = np.zeros(self.n_bodies)
+            np.maximum.at(worst, self.body_of_vertex, rel)
         bad = np.flatnonzero(worst > self.body_size)
         if bad.size:
             b = int(bad[0])
@@ -164,6 +177,8 @@ class Monitor:
                            f"step, more than its size {_fmt(self.body_size[b])} m")
 
     def _policy(self, kind, policy, message, frame):
+        if policy == "ignore":
+            return
         if policy == "raise":
             raise Diverged(message)
         if not self.warned[kind]:

@@ -123,10 +123,11 @@ class Simulation:
         Static obstacles (:mod:`skfem_affine.contact.colliders`: ``sa.Plane``, ``sa.Sphere``, ...).
     contact : PGS, optional
         Contact solver settings (:class:`skfem_affine.contact.pgs.PGS`), linearized integrator only.
-    on_inverted, on_nonconvergence : {"warn", "raise"}
+    on_inverted, on_nonconvergence : {"warn", "raise", "ignore"}
         What a frame with inverted elements (det F <= 0), resp. a Newton solve that stopped before
         its tolerance, does: ``"warn"`` (default; one :class:`SimulationWarning` per run, every
-        frame counted in ``sim.stats``) or ``"raise"`` :class:`SimulationDiverged`.
+        frame counted in ``sim.stats``), ``"raise"`` :class:`SimulationDiverged`, or ``"ignore"``
+        (counted only).
     check_energy : bool
         Refuse a step that creates energy (default True; :mod:`skfem_affine.monitor`).
 
