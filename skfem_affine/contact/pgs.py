@@ -42,7 +42,7 @@ from numba import njit
 
 from skfem_affine.checks import flag, integer, nonnegative, real
 from skfem_affine.contact.colliders import check_colliders
-from skfem_affine.contact.delassus import Resolvent, jacobian
+from skfem_affine.contact.delassus import Resolvent, block_solver, jacobian
 from skfem_affine.contact.geometry import Detector
 
 # The contact model this module implements, as recorded in ``sim.stats`` ("contact_model").
@@ -179,13 +179,27 @@ class Contact:
     # -------------------------------------------------------------- checkpoint
     def state_dict(self):
         """The warm start carried to the next frame: impulses (world frame) by contact identity."""
-        if self.previous is None:
-            return {"previous": False}
-        return {"previous": True, "previous_keys": self.previous[0].copy(), "previous_world": self.previous[1].copy()}
+        out = {"previous": self.previous is not None}
+        if self.previous is not None:
+            out.update(previous_keys=self.previous[0].copy(), previous_world=self.previous[1].copy())
+        # the per-body solvers of the Delassus operator (a direct solver's ordering history)
+        out["blocks"] = [list(key) for key in self.block_solvers]
+        for i, solver in enumerate(self.block_solvers.values()):
+            if hasattr(solver, "state_dict"):
+                out.update({f"block{i}.{k}": v for k, v in solver.state_dict().items()})
+        return out
 
     def load_state_dict(self, state):
         self.previous = ((np.asarray(state["previous_keys"]).copy(), np.asarray(state["previous_world"]).copy())
                          if state["previous"] else None)
+        self.block_solvers = {}
+        for i, key in enumerate(state["blocks"]):
+            key = tuple(int(k) for k in key)
+            solver = block_solver(key[0])
+            sub = {k[len(f"block{i}."):]: v for k, v in state.items() if k.startswith(f"block{i}.")}
+            if sub and hasattr(solver, "load_state_dict"):
+                solver.load_state_dict(sub)
+            self.block_solvers[key] = solver
 
     # -------------------------------------------------------------- frame hooks
     def detect(self, model, x, v, rec):
