@@ -140,7 +140,7 @@ class Monitor:
         rec["inverted_elements"] = inverted
         if inverted:
             self._policy("inverted", self.on_inverted, f"{inverted} inverted element(s) (det F <= 0)", frame)
-        if rec.get("newton_converged", True) is False:
+        if not rec.get("newton_converged", True):
             self._policy("nonconvergence", self.on_nonconvergence,
                          f"Newton stopped after {rec.get('newton_iters')} iteration(s) without reaching its tolerance",
                          frame)
