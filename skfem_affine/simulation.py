@@ -255,6 +255,12 @@ class Simulation:
         if not (np.all(np.isfinite(x)) and np.all(np.isfinite(v))):
             raise SimulationDiverged(frame)
         t1 = time.perf_counter()
+        uncorrected = getattr(self.integrator, "uncorrected", None)
+        if uncorrected is not None and self.monitor.check_energy:
+            # contact pushed penetrations out through the positions: the energy it moved counts as work
+            work = self.monitor.energies(x, v, barrier)[0] - self.monitor.energies(uncorrected, v, barrier)[0]
+            rec["contact_work"] = work
+            rec["external_work"] = rec.get("external_work", 0.0) + work
         try:
             self.monitor.check(frame, s.x, x, v, rec, barrier)
         except Diverged as err:
