@@ -222,7 +222,10 @@ class Simulation:
     def colliders(self, colliders):
         colliders = check_colliders(colliders)
         if isinstance(getattr(self, "integrator", None), NewtonIntegrator):
-            self.integrator.barrier = barrier_of(self.model, colliders)
+            barrier = barrier_of(self.model, colliders)
+            if barrier is not None:
+                barrier.check_state(self.state.x)
+            self.integrator.barrier = barrier
             self.contact_model = "ipc-barrier" if colliders else "none"
         elif hasattr(self, "_colliders"):
             raise ValueError("the colliders of a simulation with integrator='linearized' are fixed at "

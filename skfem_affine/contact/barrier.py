@@ -78,6 +78,26 @@ class Barrier:
         self.nnz = pat.nnz
         self.nfree = sysm.free.size
 
+    def check_state(self, x):
+        """Raise a ValueError naming the colliders and vertices when a free vertex of x (n, 3) is on
+        or inside a collider (distance <= 0): the barrier is infinite there, so Newton could never
+        move such a vertex (the body would stay frozen)."""
+        pts = np.asarray(x, float).reshape(-1, 3)[self.vertices]
+        problems = []
+        for i, c in enumerate(self.colliders):
+            d, _ = c.query(pts)
+            bad = np.flatnonzero(np.asarray(d) <= 0)
+            if bad.size:
+                worst = bad[np.argsort(d[bad])[:5]]
+                listed = ", ".join(f"{int(self.vertices[j])} (distance {float(d[j]):.3g} m)" for j in worst)
+                problems.append(f"collider {i} ({type(c).__name__}): {bad.size} vertices on or inside it, "
+                                f"e.g. {listed}")
+        if problems:
+            raise ValueError("the IPC barrier needs every free vertex strictly outside the colliders (gap > 0); "
+                             + "; ".join(problems) + f". Move the bodies out by at least dhat = {self.dhat:.3g} m "
+                             "(the barrier's range), or use integrator='linearized', whose PGS contact pushes "
+                             "penetrations out")
+
     def _query(self, x):
         pts = x.reshape(-1, 3)[self.vertices]
         for c in self.colliders:
