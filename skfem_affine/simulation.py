@@ -77,6 +77,14 @@ class Stats(list):
     def mean(self, key):
         return self.total(key) / max(len(self), 1)
 
+    def problems(self):
+        """Frames accepted with a defect the divergence policy warns about: ``{"inverted_frames":
+        frames with inverted elements, "unconverged_frames": frames whose Newton solve stopped
+        before its tolerance, "max_penetration": the largest penetration (m) recorded}``."""
+        return {"inverted_frames": sum(1 for r in self if r.get("inverted_elements")),
+                "unconverged_frames": sum(1 for r in self if "newton_converged" in r and not r["newton_converged"]),
+                "max_penetration": max((r.get("max_penetration", 0.0) for r in self), default=0.0)}
+
     def phase_totals(self):
         return {k: self.total(k) for k in self.PHASES if any(k in r for r in self)}
 
@@ -268,7 +276,10 @@ class Simulation:
             self.monitor.check(frame, s.x, x, v, rec, barrier)
         except Diverged as err:
             raise SimulationDiverged(frame, str(err)) from None
-        if self.colliders or self.contact is not None:
+        if self.contact is not None:  # colliders at x_{t+1}; bodies at the frame's detection (x_t)
+            rec["max_penetration"] = max(self.contact.detector.max_penetration(x, bodies=False),
+                                         rec.get("body_penetration", 0.0))
+        elif self.colliders:
             rec["max_penetration"] = self.max_penetration(x)
         rec["checks"] = time.perf_counter() - t1
         self.monitor.accept()

@@ -80,6 +80,7 @@ def test_inverted_elements_warn_once_and_are_counted():
         states, err = _run(sim, 3)
     assert err is None and len([w for w in record if "inverted" in str(w.message)]) == 1
     assert sum(r["inverted_elements"] > 0 for r in sim.stats) >= 1
+    assert sim.stats.problems()["inverted_frames"] == sum(r["inverted_elements"] > 0 for r in sim.stats)
 
 
 def test_inverted_elements_raise_when_asked():
@@ -95,6 +96,7 @@ def test_newton_non_convergence_warns_or_raises():
     with pytest.warns(sa.SimulationWarning, match="Newton stopped"):
         states, err = _run(sim, 3)
     assert err is None and not any(r["newton_converged"] for r in sim.stats)
+    assert sim.stats.problems()["unconverged_frames"] == 3
     sim = scenes.cantilever(resolution=2, integrator="implicit_euler", newton_iters=1, newton_tol=1e-12,
                             on_nonconvergence="raise")
     states, err = _run(sim, 3)

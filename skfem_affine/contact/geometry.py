@@ -198,13 +198,14 @@ class Detector:
             return None
         return concat(sets)
 
-    def max_penetration(self, x):
-        """Largest penetration depth (m, >= 0) of a surface vertex into a collider or another body at x."""
+    def max_penetration(self, x, bodies=True):
+        """Largest penetration depth (m, >= 0) of a vertex into a collider or (``bodies``) of a
+        surface vertex into another body at x."""
         depth = 0.0
         for col in self.colliders:
             d, _ = col.query(x[self.collider_vertices])
             depth = max(depth, float(-d.min(initial=0.0)))
-        if self.body_pairs:
+        if bodies and self.body_pairs:
             xs = x[self.surface]
             zero = np.zeros_like(xs)
             for cs in self._body_contacts(x, np.zeros_like(x), xs, zero, 0.0):
