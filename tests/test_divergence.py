@@ -136,3 +136,15 @@ def test_checks_can_be_switched_off():
                            check_energy=False, on_inverted="ignore")
     states, err = _run(sim, 1)
     assert err is None and "energy" not in sim.stats[0] and sim.stats[0]["inverted_elements"] is None
+
+
+def test_a_non_finite_newton_direction_becomes_simulation_diverged(monkeypatch):
+    from skfem_affine.integrators import newton
+
+    def nan_direction(self, x, g, data, rec, e):
+        return np.full_like(g, np.nan)
+
+    monkeypatch.setattr(newton.FullSpaceDirection, "__call__", nan_direction)
+    sim = scenes.drop(integrator="implicit_euler", contact=None)  # with the barrier's collider queries
+    states, err = _run(sim, 2)
+    assert err is not None and err.frame == 1 and "Newton direction is not finite" in str(err)
