@@ -25,6 +25,8 @@ def _falling():
 SCENES = {
     "linearized-full": lambda: sa.Simulation(_body(), gravity=(0, 0, -9.81)),
     "linearized-newton": lambda: sa.Simulation(_body(), gravity=(0, 0, -9.81), newton_iters=3),
+    "linearized-auto-amg": lambda: sa.Simulation(_body(), gravity=(0, 0, -9.81),
+                                                 solver=sa.solvers.AutoSolver(amg_min_dofs=0)),
     "linearized-amg": lambda: sa.Simulation(_body(), gravity=(0, 0, -9.81), solver="amg"),
     "affinification": lambda: sa.Simulation(_body(), gravity=(0, 0, -9.81), damping=sa.Rayleigh(0.1, 0.001),
                                             reducer=sa.Affinification(min_fraction=0.3)),
