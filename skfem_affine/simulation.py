@@ -253,7 +253,7 @@ class Simulation:
         s = self.state
         frame = s.frame + 1
         if not (np.all(np.isfinite(s.x)) and np.all(np.isfinite(s.v))):
-            raise SimulationDiverged(frame, "non-finite state detected (in the state to step from)")
+            raise SimulationDiverged(frame)  # e.g. a state set from outside: before contact detection
         rec = {"frame": frame, "contact": 0.0, "contact_model": self.contact_model}
         barrier = getattr(self.integrator, "barrier", None)
         self.monitor.start(s, barrier)
