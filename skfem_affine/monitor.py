@@ -96,6 +96,8 @@ class Monitor:
         self.energy = None        # total energy of the current state
         self.in_play = 0.0        # max over accepted frames of kinetic + strain
         self.warned = {"inverted": False, "nonconvergence": False}
+        self._accepted = None     # (x, v) of the state the last checked step produced
+        self._pending = None
 
     # -------------------------------------------------------------- energy
     def energies(self, x, v, barrier=None, F=None):
@@ -111,8 +113,14 @@ class Monitor:
         return kin + strain + grav + bar, kin + strain
 
     def start(self, state, barrier=None):
-        """Reference values from the state a run starts (or resumes) from."""
-        if self.energy is None and self.check_energy:
+        """Reference values from the state a step starts from: recomputed when it is not the state
+        the last step produced (the first step, a loaded or edited state), so that a state changed
+        from outside (a kick) is never taken for energy the integrator created."""
+        if not self.check_energy:
+            return
+        ref = self._accepted
+        if self.energy is None or ref is None or not (np.array_equal(ref[0], state.x) and
+                                                       np.array_equal(ref[1], state.v)):
             self.energy, play = self.energies(state.x, state.v, barrier)
             self.in_play = max(self.in_play, play)
 
@@ -135,7 +143,7 @@ class Monitor:
                 raise Diverged(f"energy grew {grew}in one step (from {_fmt(self.energy)} J to {_fmt(e)} J; "
                                f"external work {_fmt(work)} J, energy in play {_fmt(scale)} J)")
             rec["energy"] = e
-            self._pending = (e, play)
+            self._pending = (e, play, x.copy(), v.copy())
         inverted = None if F is None else self.inverted(F)
         rec["inverted_elements"] = inverted
         if inverted:
@@ -147,10 +155,11 @@ class Monitor:
 
     def accept(self):
         """The checked step became the state: update the energy reference."""
-        pending = getattr(self, "_pending", None)
+        pending = self._pending
         if pending is not None:
             self.energy = pending[0]
             self.in_play = max(self.in_play, pending[1])
+            self._accepted = pending[2:]
             self._pending = None
 
     @staticmethod

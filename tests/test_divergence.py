@@ -148,3 +148,11 @@ def test_a_non_finite_newton_direction_becomes_simulation_diverged(monkeypatch):
     sim = scenes.drop(integrator="implicit_euler", contact=None)  # with the barrier's collider queries
     states, err = _run(sim, 2)
     assert err is not None and err.frame == 1 and "Newton direction is not finite" in str(err)
+
+
+def test_a_state_changed_from_outside_is_not_taken_for_created_energy():
+    sim = scenes.free_body(resolution=2, spin=(0, 0, 1.0))
+    list(sim.run(2))
+    sim.state.v *= 20.0  # a kick: 400x the kinetic energy, given by the user, not by the integrator
+    states, err = _run(sim, 3)
+    assert err is None and sim.stats[-1]["energy"] > 100 * sim.stats[1]["energy"]
