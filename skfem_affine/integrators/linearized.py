@@ -62,6 +62,13 @@ class LinearizedEuler:
             dv = dv + contact.resolve(problem, result, rec)
         v = state.v.copy()
         v.reshape(-1)[free] += dv
+        self.uncorrected = None
+        correction = None if contact is None else contact.correction
+        if correction is not None:  # contact's split impulse: penetrations move out through x only
+            self.uncorrected = result.positions(state.x, v, model.dt)
+            w = v.copy()
+            w.reshape(-1)[free] += correction
+            return result.positions(state.x, w, model.dt), v, result
         return result.positions(state.x, v, model.dt), v, result
 
     # ------------------------------------------------------------------ newton_iters > 1

@@ -9,6 +9,8 @@ and the scheme's velocities. Contact is the IPC barrier in the potential
 """
 import time
 
+import numpy as np
+
 from skfem_affine.integrators.newton import newton_solve
 from skfem_affine.integrators.potential import SCHEMES, IncrementalPotential
 from skfem_affine.integrators.problem import StepResult, merge_stats
@@ -43,6 +45,17 @@ class NewtonIntegrator:
         self.model, self.scheme, self.reducer, self.solver, self.barrier = model, scheme, reducer, solver, barrier
         self.tol, self.max_iters = tol, max_iters
         self.history = None  # (frame, x_prev, v_prev)
+
+    def state_dict(self):
+        """BDF2's history: the state the last step started from."""
+        if self.history is None:
+            return {"history": False}
+        frame, x, v = self.history
+        return {"history": True, "frame": int(frame), "x_prev": x.copy(), "v_prev": v.copy()}
+
+    def load_state_dict(self, state):
+        self.history = ((int(state["frame"]), np.array(state["x_prev"]), np.array(state["v_prev"]))
+                        if state["history"] else None)
 
     def potential(self, state):
         """The :class:`IncrementalPotential` of one step from ``state``."""
