@@ -17,6 +17,7 @@ from skfem_affine.contact import colliders
 from skfem_affine.contact.colliders import Bowl, Box, Capsule, Plane, SDFCollider, Sphere
 from skfem_affine.contact.pgs import PGS
 from skfem_affine.materials import Corotational, Material, NeoHookean, StVK
+from skfem_affine.motion import Prescribed, VertexForce
 from skfem_affine.reducers.affine.affinification import Affinification
 from skfem_affine.reducers.affine.rigidification import Rigidification
 from skfem_affine.reducers.subspace import bases
@@ -27,7 +28,7 @@ from skfem_affine.lab import io, metrics, runners, scenes
 
 __version__ = "0.1.0"
 
-__all__ = ["ElasticBody", "Simulation", "SimulationDiverged", "State", "Stats", "Rayleigh",
+__all__ = ["ElasticBody", "Prescribed", "VertexForce", "Simulation", "SimulationDiverged", "State", "Stats", "Rayleigh",
            "Material", "StVK", "Corotational", "NeoHookean", "Affinification", "Rigidification",
            "AdaptiveSubspace", "AffineModes", "LinearModes", "SkinningEigenmodes", "bases",
            "Plane", "Sphere", "Box", "Capsule", "Bowl", "SDFCollider", "PGS", "colliders",

@@ -28,6 +28,7 @@ from skfem_affine.integrators import newton
 from skfem_affine.integrators.linearized import LinearizedEuler
 from skfem_affine.integrators.newton_integrator import NewtonIntegrator
 from skfem_affine.integrators.problem import PHASES, Model, Rayleigh, StepProblem, StepResult
+from skfem_affine.motion import Motion
 from skfem_affine.reducers.base import Reducer
 from skfem_affine.reducers.full import FullSpace, factorize_and_solve
 from skfem_affine.solvers import SolverError, make_solver
@@ -117,6 +118,10 @@ class Simulation:
         Static obstacles (:mod:`skfem_affine.contact.colliders`: ``sa.Plane``, ``sa.Sphere``, ...).
     contact : PGS, optional
         Contact solver settings (:class:`skfem_affine.contact.pgs.PGS`), linearized integrator only.
+    forces : list of VertexForce, optional
+        External forces on vertices as functions of time and state
+        (``sa.VertexForce(vertices, force(t, x, v))``, :mod:`skfem_affine.motion`), added to gravity.
+        Moving boundaries are given to the bodies (``ElasticBody(prescribed=sa.Prescribed(...))``).
 
     Notes
     -----
@@ -138,7 +143,7 @@ class Simulation:
 
     def __init__(self, bodies, dt=0.01, gravity=(0.0, 0.0, 0.0), damping=None, reducer=None,
                  solver="auto", newton_iters=None, newton_tol=None, project_hessian=True, mass="lumped",
-                 colliders=None, contact=None, integrator="linearized"):
+                 colliders=None, contact=None, integrator="linearized", forces=None):
         bodies = [bodies] if isinstance(bodies, ElasticBody) else list(bodies)
         if not bodies or not all(isinstance(b, ElasticBody) for b in bodies):
             raise TypeError("Simulation needs an ElasticBody or a non-empty list of them")
@@ -171,8 +176,10 @@ class Simulation:
         self.bodies = self.system.bodies
         self.size = float(np.linalg.norm(np.ptp(self.system.p0, axis=0)))
         self.f_gravity = self.system.gravity_force(self.gravity)
+        # prescribed vertices and vertex forces; None when there are none (the frame then runs unchanged)
+        self.motion = Motion(self.system, forces)
         self.model = Model(self.system, self.dt, self.damping, self.gravity, self.f_gravity,
-                           self.project_hessian, self.size)
+                           self.project_hessian, self.size, self.motion if self.motion.active else None)
         if linearized:
             self.contact = pgs.make_contact(self.model, colliders, contact)
             self.colliders = [] if self.contact is None else self.contact.colliders
@@ -187,6 +194,9 @@ class Simulation:
         self.solver = make_solver(solver)
         self.reducer = reducer
         x0 = self.system.p0.copy()
+        if self.motion.paths:  # prescribed vertices start on their paths
+            idx, xp = self.motion.positions(0.0)
+            x0[idx] = xp
         v0 = np.concatenate([b.velocity for b in bodies])
         self.state = State(x0, v0)
         self.stats = Stats()

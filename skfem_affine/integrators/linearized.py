@@ -49,26 +49,36 @@ class LinearizedEuler:
         if contact is not None:  # Algorithm 1: find contacts at x_t
             contacts = contact.detect(model, state.x, state.v, rec)
             impulse = contact.prediction_impulse()
+        motion = {}
+        if model.motion is not None and model.motion.active:  # the frame's prescribed positions and forces
+            motion = dict(targets=model.motion.targets(state.time + model.dt, state.x, model.dt),
+                          f_ext=model.motion.force(state.time, state.x, state.v))
         if self.newton_iters == 1:
             problem = StepProblem.at(model, state.x, state.v, state.frame + 1, rec=rec,
-                                     contact_impulse=impulse, contacts=contacts)
+                                     contact_impulse=impulse, contacts=contacts, **motion)
             result = self.reducer.solve(problem)
         else:
-            problem = StepProblem(model, state.x, state.v, state.frame + 1, None, None, impulse, contacts)
-            result = self._newton(state)
+            problem = StepProblem(model, state.x, state.v, state.frame + 1, None, None, impulse, contacts, **motion)
+            result = self._newton(state, problem)
         merge_stats(rec, result.stats)
         dv = result.dv
         if contact is not None:  # Algorithm 1: PGS contact solve with the frame's factorization
             dv = dv + contact.resolve(problem, result, rec)
         v = state.v.copy()
         v.reshape(-1)[free] += dv
-        return result.positions(state.x, v, model.dt), v, result
+        targets = problem.targets
+        if targets is not None:
+            v[targets.vertices] = targets.v
+        x = result.positions(state.x, v, model.dt)
+        if targets is not None:  # exactly on the path, not integrated
+            x[targets.vertices] = targets.x
+        return x, v, result
 
     # ------------------------------------------------------------------ newton_iters > 1
-    def _newton(self, state):
+    def _newton(self, state, problem):
         """Newton to the converged implicit Euler step (the one Newton loop of
         :func:`skfem_affine.integrators.newton.linearized_newton`); its first iterate is the linearized step."""
         stats = {}
         dv, A = linearized_newton(self.model, state.x, state.v, self.solver, self.newton_tol, self.newton_iters,
-                                  stats)
+                                  stats, targets=problem.targets, f_ext=problem.f_ext)
         return StepResult(dv=dv, operator=Operator(self.solver, A), stats=stats)

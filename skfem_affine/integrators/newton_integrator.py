@@ -49,8 +49,12 @@ class NewtonIntegrator:
         prev = (None, None)
         if self.scheme == "bdf2" and self.history is not None and self.history[0] == state.frame - 1:
             prev = self.history[1:]
+        motion, extra = self.model.motion, {}
+        if motion is not None and motion.active:  # the step's prescribed positions and vertex forces
+            extra = dict(targets=motion.targets(state.time + self.model.dt, state.x, self.model.dt),
+                         f_ext=motion.force(state.time, state.x, state.v))
         return IncrementalPotential(self.model, state.x, state.v, *prev, barrier=self.barrier,
-                                    tol=self.tol, max_iters=self.max_iters)
+                                    tol=self.tol, max_iters=self.max_iters, **extra)
 
     def step(self, state, rec):
         """One step from ``state``; returns ``(x, v, result)`` with (n, 3) arrays and the StepResult."""
@@ -65,7 +69,7 @@ class NewtonIntegrator:
         else:
             result = self.reducer.solve(problem)
         merge_stats(rec, result.stats)
-        v = problem.velocity(result.x)  # zero on fixed DOFs, which stay at x_t
+        v = problem.velocity(result.x)  # zero on fixed DOFs, which stay at x_t; the path's on prescribed ones
         self.history = (state.frame, state.x.copy(), state.v.copy())
         return result.x.reshape(-1, 3), v.reshape(-1, 3), result
 
