@@ -209,7 +209,8 @@ class Simulation:
             self.integrator = NewtonIntegrator(self.model, integrator, active, self.solver, None,
                                                tol=self.newton_tol, max_iters=self.newton_iters)
             self.colliders = colliders  # the barrier of the colliders (property setter)
-        active.attach(self.model)
+        if self.system.free.size:  # a scene whose vertices all follow paths has nothing to reduce
+            active.attach(self.model)
 
     # ------------------------------------------------------------------ public
     @property

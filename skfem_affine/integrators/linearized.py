@@ -13,6 +13,8 @@ search on the incremental potential
 whose minimiser is the converged implicit Euler step (the reference solve); its first
 iterate is the linearized step.
 """
+import numpy as np
+
 from skfem_affine.integrators.newton import linearized_newton
 from skfem_affine.integrators.problem import Operator, StepProblem, StepResult, merge_stats
 
@@ -53,7 +55,10 @@ class LinearizedEuler:
         if model.motion is not None and model.motion.active:  # the frame's prescribed positions and forces
             motion = dict(targets=model.motion.targets(state.time + model.dt, state.x, model.dt),
                           f_ext=model.motion.force(state.time, state.x, state.v))
-        if self.newton_iters == 1:
+        if not free.size:  # every vertex fixed or prescribed: nothing to solve
+            problem = StepProblem(model, state.x, state.v, state.frame + 1, None, None, impulse, contacts, **motion)
+            result = StepResult(dv=np.zeros(0))
+        elif self.newton_iters == 1:
             problem = StepProblem.at(model, state.x, state.v, state.frame + 1, rec=rec,
                                      contact_impulse=impulse, contacts=contacts, **motion)
             result = self.reducer.solve(problem)

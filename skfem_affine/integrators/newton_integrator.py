@@ -62,7 +62,9 @@ class NewtonIntegrator:
         problem = self.potential(state)
         rec["assembly"] = rec.get("assembly", 0.0) + time.perf_counter() - t0
         rec["integrator"] = problem.scheme
-        if self.reducer is None:
+        if not self.model.system.free.size:  # every vertex fixed or prescribed: nothing to solve
+            result = StepResult(x=problem.x_start.copy())
+        elif self.reducer is None:
             stats = {}
             x, _ = newton_solve(problem, self.solver, stats)
             result = StepResult(x=x, stats=stats)
