@@ -25,7 +25,7 @@ import scipy.sparse as sp
 
 # Per-frame timing keys of ``sim.stats`` (seconds); a reducer's stats add to the integrator's.
 PHASES = ("assembly", "prediction", "clustering", "map_assembly", "reduced_assembly",
-          "factorization", "solve", "line_search", "contact")
+          "factorization", "solve", "line_search", "contact", "oracle_refresh")
 
 
 @dataclass(frozen=True)

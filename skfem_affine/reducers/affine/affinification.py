@@ -28,6 +28,10 @@ class Affinification(ClusteringReducer):
         Solver of the reduced system (default: the fastest direct solver).
     min_body_elements : int
         Clusters of fewer elements are dissolved (>= 2: a single element is never a body).
+    refresh, refresh_tol, refresh_background
+        Whether and when the oracle's preconditioner is rebuilt at the current pose
+        (:class:`~skfem_affine.reducers.affine.clustered.ClusteringReducer`); default False,
+        the paper's preconditioner factorised once at rest.
 
     The thresholds come first and positionally; the arguments shared with
     :class:`~skfem_affine.Rigidification` follow, keyword-only, in the same order.
@@ -37,13 +41,15 @@ class Affinification(ClusteringReducer):
     kind = reduction.AFFINE
 
     def __init__(self, tau_a=1e-4, tau_e=2e-4, *, min_fraction=None, seeding="random", preconditioner="ichol",
-                 seed=0, solver=None, min_body_elements=2, min_affine_fraction=None):
+                 seed=0, solver=None, min_body_elements=2, min_affine_fraction=None, refresh=False, refresh_tol=0.2,
+                 refresh_background=False):
         self.tau_a = check_threshold(tau_a, "tau_a")
         if int(min_body_elements) < 2:
             raise ValueError(f"min_body_elements must be >= 2 (singletons are always dissolved), got {min_body_elements}")
         self.min_body_elements = int(min_body_elements)
         super().__init__(tau_e, min_fraction=forced_fraction(min_fraction, min_affine_fraction, "min_affine_fraction"),
-                         seeding=seeding, preconditioner=preconditioner, seed=seed, solver=solver)
+                         seeding=seeding, preconditioner=preconditioner, seed=seed, solver=solver,
+                         refresh=refresh, refresh_tol=refresh_tol, refresh_background=refresh_background)
 
     def __repr__(self):
         return (f"Affinification(tau_a={self.tau_a:g}, tau_e={self.tau_e:g}, min_fraction={self.min_fraction:g}, "

@@ -29,6 +29,11 @@ from skfem_affine.solvers import make_solver
 
 SEEDINGS = ("random", "index", "temporal")
 
+# The refresh trigger compares growth of the oracle residual with refresh_tol times
+# max(reference, RESIDUAL_FLOOR): a preconditioner that leaves a few percent of ||b|| is as good as
+# exact for the clustering, and relative noise on such a small residual should not trigger rebuilds.
+RESIDUAL_FLOOR = 0.1
+
 
 def check_threshold(value, name):
     """A finite threshold >= 0, or a ValueError naming it."""
@@ -76,11 +81,40 @@ class ClusteringReducer(Reducer):
         Seed of the random seeding (reproducible runs).
     solver : str or solver object, optional
         Solver of the reduced system (default: the fastest direct solver).
+    refresh : {False, True, "laplacian", "tangent"}
+        Whether the oracle's preconditioner follows the pose (see Notes). False (default) keeps
+        the paper's: A_p factorised once at rest. When the oracle stops predicting well,
+        True or ``"tangent"`` rebuilds it as an incomplete Cholesky of the frame's whole A
+        (:class:`~skfem_affine.reducers.affine.oracle.TangentPreconditioner`), ``"laplacian"``
+        rebuilds A_p (the scalar Laplacian S) in the deformed configuration. The Laplacian is
+        invariant under rotations of elements, so on a twist (rotation-dominated) it hardly
+        changes; the tangent sees the pose's stiffness (measurements: docs/affinification.md,
+        "The oracle follows the pose").
+    refresh_tol : float
+        Rebuild when the oracle's averaged residual has grown by more than ``refresh_tol`` times
+        its value right after the last build (at least ``refresh_tol`` times :data:`RESIDUAL_FLOOR`).
+    refresh_background : bool
+        Build the new preconditioner in a background thread (:func:`skfem_affine.threads.background`)
+        and swap it in at the first frame after it is ready; False (default) builds it between
+        two frames, which keeps runs reproducible. Either way its time is recorded as
+        ``oracle_refresh`` in ``sim.stats``, apart from the frame's phases.
+
+    Notes
+    -----
+    **Refresh trigger.** Every frame the one-iteration prediction records
+    ``oracle_residual`` = ||b - A dv_pred|| / ||b|| (:func:`oracle.predict`, from dot products it
+    has anyway). Its exponential average over about four frames (:attr:`residual_avg`) is
+    compared with the first value measured after the preconditioner was last built
+    (:attr:`residual_ref`); when it has grown by more than ``refresh_tol * max(residual_ref,
+    RESIDUAL_FLOOR)``, the preconditioner is rebuilt at the current pose, and the reference restarts. State a checkpoint must keep:
+    :attr:`precond` (or the pose :attr:`precond_pose` to rebuild it), :attr:`residual_ref`,
+    :attr:`residual_avg`, :attr:`refreshes`; a pending background build is dropped.
     """
 
     integrators = ("linearized",)
 
-    def __init__(self, tau_e, *, min_fraction=0.0, seeding="random", preconditioner="ichol", seed=0, solver=None):
+    def __init__(self, tau_e, *, min_fraction=0.0, seeding="random", preconditioner="ichol", seed=0, solver=None,
+                 refresh=False, refresh_tol=0.2, refresh_background=False):
         self.tau_e = check_threshold(tau_e, "tau_e")
         if preconditioner not in oracle.KINDS:
             raise ValueError(f"preconditioner must be 'ichol' or 'amg', got {preconditioner!r}")
@@ -91,6 +125,15 @@ class ClusteringReducer(Reducer):
         self.seeding = seeding
         self.seed = seed
         self.solver_spec = solver
+        if refresh is True:
+            refresh = "tangent"
+        if refresh not in (False, None, "laplacian", "tangent"):
+            raise ValueError(f"refresh must be False, True, 'laplacian' or 'tangent', got {refresh!r}")
+        self.refresh = refresh or False
+        self.refresh_tol = check_threshold(refresh_tol, "refresh_tol")
+        if not isinstance(refresh_background, (bool, np.bool_)):
+            raise TypeError(f"refresh_background must be True or False, got {refresh_background!r}")
+        self.refresh_background = bool(refresh_background)
 
     def _setup(self, model):
         sysm = model.system
@@ -101,6 +144,11 @@ class ClusteringReducer(Reducer):
         self.previous_seeds = None
         self.labels = np.full(sysm.m, -1, dtype=np.int64)
         self.precond = oracle.Preconditioner(sysm, model.dt, model.damping, kind=self.preconditioner_kind)
+        # the refresh trigger's state (plain attributes; see the class Notes)
+        self.precond_pose = None  # positions the preconditioner was built at; None: rest
+        self.residual_ref = self.residual_avg = None
+        self.refreshes = 0
+        self._pending = None  # (future, pose) of a background build
         self.solver = make_solver(self.solver_spec if self.solver_spec is not None else "direct")
         self.upper = getattr(self.solver, "accepts_upper", False)  # a Cholesky reads one triangle
         # a fill-reducing order of the free vertices, inherited by every frame's reduced system
@@ -123,9 +171,14 @@ class ClusteringReducer(Reducer):
         b = problem.b
         b_ng = b - h * model.f_gravity[free] + problem.contact_impulse  # contact impulses as explicit forces
         apply_A = oracle.system_operator(self.mdiag, problem.Hmat, model.coefficients)
-        dv_pred = oracle.predict(apply_A, b_ng, self.precond, gravity_dv=self.gravity_dv)
+        if self._pending is not None:
+            self._swap_if_ready(stats)
+        dv_pred = oracle.predict(apply_A, b_ng, self.precond, gravity_dv=self.gravity_dv, stats=stats)
         t2 = time.perf_counter()
         stats["prediction"] = t2 - t1
+        if self.refresh and "oracle_residual" in stats:
+            self._refresh_trigger(problem, stats)
+            t2 = time.perf_counter()
         # deformation rates (eq. 4) and clustering (Algorithm 2)
         v_pred = problem.v.copy()
         v_pred.reshape(-1)[free] += dv_pred
@@ -170,6 +223,45 @@ class ClusteringReducer(Reducer):
         self.labels = labels
         return StepResult(dv=reduction.lift(G, dq, d), operator=Operator(self.solver, Ar, G, upper=upper),  # eq. 12
                           mapping=gmap, clusters=labels, stats=stats)
+
+    # -------------------------------------------------------------- the oracle follows the pose
+    def _refresh_trigger(self, problem, stats):
+        """Update the averaged oracle residual; rebuild the preconditioner when it has grown (class Notes)."""
+        rho = stats["oracle_residual"]
+        if self.residual_ref is None:
+            self.residual_ref = self.residual_avg = rho
+            return
+        self.residual_avg = 0.75 * self.residual_avg + 0.25 * rho
+        grown = self.residual_avg - self.residual_ref
+        if self._pending is None and grown > self.refresh_tol * max(self.residual_ref, RESIDUAL_FLOOR):
+            t0 = time.perf_counter()
+            pose = np.array(problem.x, dtype=float)
+            A = problem.matrix() if self.refresh == "tangent" else None
+            if self.refresh_background:
+                from skfem_affine import threads
+                self._pending = (threads.background(self._build, pose, A), pose)
+            else:
+                self._install(self._build(pose, A), pose)
+            stats["oracle_refresh"] = time.perf_counter() - t0
+
+    def _build(self, pose, A=None):
+        """The preconditioner at ``pose`` (positions (n, 3)); A: the frame's matrix for ``"tangent"``."""
+        if self.refresh == "tangent":
+            return oracle.TangentPreconditioner(A)
+        model = self.model
+        return oracle.Preconditioner(model.system, model.dt, model.damping, kind=self.preconditioner_kind, x=pose)
+
+    def _install(self, precond, pose):
+        self.precond, self.precond_pose = precond, pose
+        self.residual_ref = self.residual_avg = None  # the next frame measures the new reference
+        self.refreshes += 1
+
+    def _swap_if_ready(self, stats):
+        future, pose = self._pending
+        if future.done():
+            self._pending = None
+            self._install(future.result(), pose)
+            stats["oracle_refreshed"] = True
 
     def _labels(self, problem, v_pred):
         """Per-element body labels (m,), -1 elastic, from the problem and the predicted velocities."""

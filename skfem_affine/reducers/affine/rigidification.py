@@ -37,7 +37,7 @@ class Rigidification(ClusteringReducer):
     min_fraction : float
         Resource limiting: at least this fraction of the elements (the calmest) is eligible.
         ``min_rigid_fraction`` is its older name.
-    seeding, preconditioner, seed, solver
+    seeding, preconditioner, seed, solver, refresh, refresh_tol, refresh_background
         As for :class:`~skfem_affine.Affinification`, in the same order.
     """
 
@@ -45,13 +45,15 @@ class Rigidification(ClusteringReducer):
     kind = reduction.RIGID
 
     def __init__(self, tau_r=1e-3, tau_e=2e-3, *, warmup_frames=3, min_fraction=None, seeding="random",
-                 preconditioner="ichol", seed=0, solver=None, min_rigid_fraction=None):
+                 preconditioner="ichol", seed=0, solver=None, min_rigid_fraction=None, refresh=False, refresh_tol=0.2,
+                 refresh_background=False):
         self.tau_r = check_threshold(tau_r, "tau_r")
         if int(warmup_frames) < 0:
             raise ValueError(f"warmup_frames must be >= 0, got {warmup_frames}")
         self.warmup_frames = int(warmup_frames)
         super().__init__(tau_e, min_fraction=forced_fraction(min_fraction, min_rigid_fraction, "min_rigid_fraction"),
-                         seeding=seeding, preconditioner=preconditioner, seed=seed, solver=solver)
+                         seeding=seeding, preconditioner=preconditioner, seed=seed, solver=solver,
+                         refresh=refresh, refresh_tol=refresh_tol, refresh_background=refresh_background)
 
     def __repr__(self):
         return (f"Rigidification(tau_r={self.tau_r:g}, tau_e={self.tau_e:g}, "
