@@ -32,6 +32,11 @@ class Affinification(ClusteringReducer):
         Whether and when the oracle's preconditioner is rebuilt at the current pose
         (:class:`~skfem_affine.reducers.affine.clustered.ClusteringReducer`); default False,
         the paper's preconditioner factorised once at rest.
+    pinned_bodies : bool
+        Let affine bodies contain fixed and prescribed vertices, their 12 DOFs constrained by
+        them (:mod:`skfem_affine.reducers.affine.pinned`; four or more non-coplanar pins
+        prescribe the body entirely). Default False: as the paper, elements touching such
+        vertices stay elastic.
 
     The thresholds come first and positionally; the arguments shared with
     :class:`~skfem_affine.Rigidification` follow, keyword-only, in the same order.
@@ -42,14 +47,15 @@ class Affinification(ClusteringReducer):
 
     def __init__(self, tau_a=1e-4, tau_e=2e-4, *, min_fraction=None, seeding="random", preconditioner="ichol",
                  seed=0, solver=None, min_body_elements=2, min_affine_fraction=None, refresh=False, refresh_tol=0.2,
-                 refresh_background=False):
+                 refresh_background=False, pinned_bodies=False):
         self.tau_a = check_threshold(tau_a, "tau_a")
         if int(min_body_elements) < 2:
             raise ValueError(f"min_body_elements must be >= 2 (singletons are always dissolved), got {min_body_elements}")
         self.min_body_elements = int(min_body_elements)
         super().__init__(tau_e, min_fraction=forced_fraction(min_fraction, min_affine_fraction, "min_affine_fraction"),
                          seeding=seeding, preconditioner=preconditioner, seed=seed, solver=solver,
-                         refresh=refresh, refresh_tol=refresh_tol, refresh_background=refresh_background)
+                         refresh=refresh, refresh_tol=refresh_tol, refresh_background=refresh_background,
+                         pinned_bodies=pinned_bodies)
 
     def __repr__(self):
         return (f"Affinification(tau_a={self.tau_a:g}, tau_e={self.tau_e:g}, min_fraction={self.min_fraction:g}, "

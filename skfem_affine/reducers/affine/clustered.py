@@ -22,7 +22,7 @@ import numpy as np
 
 from skfem_affine.threads import serial_blas
 from skfem_affine.integrators.problem import Operator, StepResult
-from skfem_affine.reducers.affine import clustering, oracle
+from skfem_affine.reducers.affine import clustering, oracle, pinned
 from skfem_affine.reducers.affine import mapping as reduction
 from skfem_affine.reducers.base import Reducer
 from skfem_affine.solvers import make_solver
@@ -98,6 +98,10 @@ class ClusteringReducer(Reducer):
         and swap it in at the first frame after it is ready; False (default) builds it between
         two frames, which keeps runs reproducible. Either way its time is recorded as
         ``oracle_refresh`` in ``sim.stats``, apart from the frame's phases.
+    pinned_bodies : bool
+        Whether affine bodies may contain fixed and prescribed vertices, their DOFs constrained
+        by them (:mod:`skfem_affine.reducers.affine.pinned`); default False, the paper's: elements
+        touching such vertices stay elastic. Affine bodies only.
 
     Notes
     -----
@@ -114,7 +118,7 @@ class ClusteringReducer(Reducer):
     integrators = ("linearized",)
 
     def __init__(self, tau_e, *, min_fraction=0.0, seeding="random", preconditioner="ichol", seed=0, solver=None,
-                 refresh=False, refresh_tol=0.2, refresh_background=False):
+                 refresh=False, refresh_tol=0.2, refresh_background=False, pinned_bodies=False):
         self.tau_e = check_threshold(tau_e, "tau_e")
         if preconditioner not in oracle.KINDS:
             raise ValueError(f"preconditioner must be 'ichol' or 'amg', got {preconditioner!r}")
@@ -134,12 +138,19 @@ class ClusteringReducer(Reducer):
         if not isinstance(refresh_background, (bool, np.bool_)):
             raise TypeError(f"refresh_background must be True or False, got {refresh_background!r}")
         self.refresh_background = bool(refresh_background)
+        if not isinstance(pinned_bodies, (bool, np.bool_)):
+            raise TypeError(f"pinned_bodies must be True or False, got {pinned_bodies!r}")
+        if pinned_bodies and getattr(self, "kind", None) is not reduction.AFFINE:
+            raise ValueError("pinned_bodies needs affine bodies (Affinification)")
+        self.pinned_bodies = bool(pinned_bodies)
 
     def _setup(self, model):
         sysm = model.system
         self.rng = np.random.default_rng(self.seed)
         self.adjacency = clustering.element_adjacency(sysm.t)
-        self.excluded = elements_touching(sysm, sysm.fixed)  # pinned elements stay elastic
+        # the paper's: elements touching fixed or prescribed vertices stay elastic; with pinned_bodies
+        # they may join bodies, whose DOFs are then constrained (:mod:`.pinned`)
+        self.excluded = None if self.pinned_bodies else elements_touching(sysm, sysm.fixed)
         self.was_reduced = np.zeros(sysm.m, dtype=bool)
         self.previous_seeds = None
         self.labels = np.full(sysm.m, -1, dtype=np.int64)
@@ -189,6 +200,8 @@ class ClusteringReducer(Reducer):
         stats["clustering"] = t3 - t2
         # map assembly: G, projection (eq. 9), discrepancy (eq. 11)
         gmap = self._mapping(problem, vcluster, n_bodies)
+        if self.pinned_bodies and n_bodies and np.any(sysm.fixed[vcluster >= 0]):
+            return self._pinned_frame(problem, labels, gmap, stats, t3)
         G = gmap.G
         vf = problem.v.reshape(-1)[free]
         q = gmap.project(self.mdiag, vf) if n_bodies else vf  # eq. 9
@@ -223,6 +236,32 @@ class ClusteringReducer(Reducer):
         self.labels = labels
         return StepResult(dv=reduction.lift(G, dq, d), operator=Operator(self.solver, Ar, G, upper=upper),  # eq. 12
                           mapping=gmap, clusters=labels, stats=stats)
+
+    # -------------------------------------------------------------- bodies with pinned vertices
+    def _pinned_frame(self, problem, labels, gmap, stats, t3):
+        """The reduced step when bodies contain fixed or prescribed vertices (:mod:`.pinned`)."""
+        sysm = problem.system
+        for _ in range(2):  # a body whose pins do not move affinely is dissolved, once
+            pins = np.flatnonzero((gmap.vcluster >= 0) & sysm.fixed)
+            cons, bad = pinned.constraints(gmap, pins, pinned.pinned_velocities(problem, pins))
+            if not bad:
+                break
+            labels = labels.copy()
+            labels[np.isin(labels, bad)] = -1
+            kept = np.unique(labels[labels >= 0])
+            labels[labels >= 0] = np.searchsorted(kept, labels[labels >= 0])
+            vcluster = reduction.vertex_clusters(labels, sysm.t, sysm.n)
+            gmap = self._mapping(problem, vcluster, kept.size)
+        G, g0 = pinned.constrained_mapping(gmap, cons)
+        t4 = time.perf_counter()
+        stats["map_assembly"] = t4 - t3
+        dv, Ar = pinned.solve(problem, G, g0, self.solver, stats)
+        stats["factorization"] = time.perf_counter() - t4  # assembly, factorisation and solve of G_N^T A G_N
+        stats.update(n_clusters=gmap.n_bodies, elastic_dofs=int(gmap.n_elastic), pinned_bodies=len(cons),
+                     reduced_fraction=float(np.mean(labels >= 0)) if labels.size else 0.0)
+        self.was_reduced = labels >= 0
+        self.labels = labels
+        return StepResult(dv=dv, operator=Operator(self.solver, Ar, G), mapping=gmap, clusters=labels, stats=stats)
 
     # -------------------------------------------------------------- the oracle follows the pose
     def _refresh_trigger(self, problem, stats):
