@@ -52,7 +52,7 @@ class LinearizedEuler:
             contacts = contact.detect(model, state.x, state.v, rec)
             impulse = contact.prediction_impulse()
         motion = {}
-        if model.motion is not None and model.motion.active:  # the frame's prescribed positions and forces
+        if getattr(model, "motion", None) is not None and model.motion.active:  # the frame's prescribed positions and forces
             motion = dict(targets=model.motion.targets(state.time + model.dt, state.x, model.dt),
                           f_ext=model.motion.force(state.time, state.x, state.v))
         if not free.size:  # every vertex fixed or prescribed: nothing to solve

@@ -49,7 +49,7 @@ class NewtonIntegrator:
         prev = (None, None)
         if self.scheme == "bdf2" and self.history is not None and self.history[0] == state.frame - 1:
             prev = self.history[1:]
-        motion, extra = self.model.motion, {}
+        motion, extra = getattr(self.model, "motion", None), {}
         if motion is not None and motion.active:  # the step's prescribed positions and vertex forces
             extra = dict(targets=motion.targets(state.time + self.model.dt, state.x, self.model.dt),
                          f_ext=motion.force(state.time, state.x, state.v))
