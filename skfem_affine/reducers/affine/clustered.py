@@ -84,12 +84,11 @@ class ClusteringReducer(Reducer):
     refresh : {False, True, "laplacian", "tangent"}
         Whether the oracle's preconditioner follows the pose (see Notes). False (default) keeps
         the paper's: A_p factorised once at rest. When the oracle stops predicting well,
-        True or ``"tangent"`` rebuilds it as an incomplete Cholesky of the frame's whole A
-        (:class:`~skfem_affine.reducers.affine.oracle.TangentPreconditioner`), ``"laplacian"``
-        rebuilds A_p (the scalar Laplacian S) in the deformed configuration. The Laplacian is
-        invariant under rotations of elements, so on a twist (rotation-dominated) it hardly
-        changes; the tangent sees the pose's stiffness (measurements: docs/affinification.md,
-        "The oracle follows the pose").
+        True or ``"laplacian"`` rebuilds A_p (the scalar Laplacian S) in the deformed
+        configuration; ``"tangent"`` rebuilds it as an incomplete Cholesky of the frame's whole
+        A (:class:`~skfem_affine.reducers.affine.oracle.TangentPreconditioner`), which predicts
+        far better but elastifies more and is rebuilt far more often (measurements:
+        docs/affinification.md, "The oracle follows the pose").
     refresh_tol : float
         Rebuild when the oracle's averaged residual has grown by more than ``refresh_tol`` times
         its value right after the last build (at least ``refresh_tol`` times :data:`RESIDUAL_FLOOR`).
@@ -130,7 +129,7 @@ class ClusteringReducer(Reducer):
         self.seed = seed
         self.solver_spec = solver
         if refresh is True:
-            refresh = "tangent"
+            refresh = "laplacian"
         if refresh not in (False, None, "laplacian", "tangent"):
             raise ValueError(f"refresh must be False, True, 'laplacian' or 'tangent', got {refresh!r}")
         self.refresh = refresh or False
