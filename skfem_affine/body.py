@@ -69,7 +69,8 @@ class ElasticBody:
 
     def __repr__(self):
         return (f"ElasticBody({self.name!r}, vertices={self.n_vertices}, elements={self.n_elements}, "
-                f"materials={self.materials}, fixed={int(self.fixed.sum())})")
+                f"materials={self.materials}, fixed={int(self.fixed.sum())}"
+                + (f", prescribed={sum(i.size for i in self.prescribed_vertices)})" if self.prescribed else ")"))
 
     @property
     def size(self):

@@ -207,3 +207,22 @@ def test_step_problem_carries_the_frame_values_and_no_simulation():
     sim.step()
     np.testing.assert_array_equal(seen["targets"].x, turn(0.01, mesh.p.T[clamp]))
     assert seen["f_ext"].shape == (3 * mesh.p.shape[1],) and seen["f_ext"].sum() == -1.0
+
+
+@pytest.mark.parametrize("setup", ["linearized-full", "linearized-affinification", "implicit-euler"])
+def test_a_prescribed_press_pushes_a_block_onto_a_plane(setup):
+    """Prescribed vertices beside contact: the top follows its path, the bottom stays above the plane."""
+    mesh = skfem.MeshTet.init_tensor(np.linspace(0, 1, 4), np.linspace(0, 0.5, 3), np.linspace(0.1, 0.6, 3))
+    top = mesh.nodes_satisfying(lambda p: p[2] > 0.6 - 1e-9)
+
+    def press(t, X):
+        return X - np.array([0.0, 0.0, 0.3 * t])
+
+    body = sa.ElasticBody(mesh, sa.NeoHookean(E=1e4, nu=0.3), density=100.0, prescribed=sa.Prescribed(top, press))
+    sim = sa.Simulation(body, dt=0.01, gravity=(0, 0, -9.81), colliders=[sa.Plane((0, 0, 0), (0, 0, 1))],
+                        **SETUPS[setup])
+    for state in sim.run(40):
+        assert np.abs(state.x[top] - press(state.time, mesh.p.T[top])).max() <= 1e-12
+    assert state.x[:, 2].min() > -1e-6  # pressed onto the plane, not through it
+    bottom = mesh.nodes_satisfying(lambda p: p[2] < 0.1 + 1e-9)
+    assert state.x[bottom, 2].max() < 0.02  # it reached the plane
