@@ -48,7 +48,7 @@ def paper_beam(path, material, **sim_kw):
 def make_scene(scene, material, solver, reducer):
     mat = MATERIALS[material](E=1e5, nu=0.35)
     if isinstance(scene, int):
-        return sa.scenes.cantilever(resolution=scene, material=mat, solver=solver, reducer=reducer)
+        return sa.scenes.cantilever(resolution=scene, material=mat, solver=solver, reducer=reducer, damping=None)
     return paper_beam(scene, mat, solver=solver, reducer=reducer)
 
 

@@ -39,7 +39,7 @@ def median_ms(f, calls=20, repeats=7):
 
 def scene(args, material):
     if args.mesh is None:
-        return sa.scenes.cantilever(resolution=args.resolution, material=material)
+        return sa.scenes.cantilever(resolution=args.resolution, material=material, damping=None)
     mesh = sa.io.load_mesh(args.mesh)
     z = mesh.p[2]
     body = sa.ElasticBody(mesh, material=material, density=100.0, fixed=np.flatnonzero(z < z.min() + 1e-6 * np.ptp(z)))

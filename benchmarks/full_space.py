@@ -40,13 +40,13 @@ def timed(fn, repeat=1):
 
 def bench_size(k, frames, solvers):
     row = {"resolution": k}
-    sim = sa.scenes.cantilever(resolution=k, solver="superlu")
+    sim = sa.scenes.cantilever(resolution=k, solver="superlu", E=1e5, damping=None)
     row.update(tets=sim.system.m, vertices=sim.system.n, dofs=int(sim.system.free.size))
     mesh = sim.bodies[0].mesh
     basis = skfem.Basis(mesh, skfem.ElementVector(skfem.ElementTetP1()))
     row["asm_skfem"], _ = timed(lambda: skfem.asm(linear_elasticity(*lame_parameters(1e5, 0.35)), basis))
     # bend the beam so that the tangent is not the rest one
-    warm = sa.scenes.cantilever(resolution=k, solver="amg")
+    warm = sa.scenes.cantilever(resolution=k, solver="amg", E=1e5, damping=None)
     runners.interleaved({"amg": warm}, 20)
     x, v = warm.state.x, warm.state.v
     row["assembly"], (A, b, _) = timed(lambda: warm.linear_system(x, v), repeat=3)
@@ -56,7 +56,7 @@ def bench_size(k, frames, solvers):
             continue  # minutes per frame: not worth measuring
         solver = sa.solvers.make_solver(name)
         fresh[name], _ = timed(lambda: (solver.factorize(A), solver.solve(b)))
-        sims[name] = sa.scenes.cantilever(resolution=k, solver=name)
+        sims[name] = sa.scenes.cantilever(resolution=k, solver=name, E=1e5, damping=None)
         sims[name].state = warm.state.copy()
     # every solver from the same bent state, frame by frame in turn (load from elsewhere hits all alike)
     for name, run in runners.interleaved(sims, frames).items():

@@ -42,7 +42,7 @@ def scene(k, kind="cantilever", **kw):
     """The cantilever (24 k^3 tets), or a soft cube (6 k^3 tets) dropped at 2 m/s on a plane."""
     material = sa.NeoHookean(E=1e5, nu=0.35)
     if kind == "cantilever":
-        return sa.scenes.cantilever(resolution=k, material=material, **kw)
+        return sa.scenes.cantilever(resolution=k, material=material, damping=None, **kw)
     # the plane enters the Newton integrators as an IPC barrier, the linearized one (affinification) as PGS contact
     return sa.scenes.free_body(resolution=k, velocity=(0, 0, -2.0), spin=(0, 0, 0), gravity=(0, 0, -9.81),
                                material=material, colliders=[sa.Plane(point=(0, 0, -0.52), normal=(0, 0, 1))], **kw)

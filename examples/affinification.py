@@ -29,7 +29,7 @@ def compare(resolution=3, frames=100, tau_a=0.1, tau_e=0.2):
                "rigidification": sa.Rigidification(tau_r=1e-2, tau_e=2e-2)}
     out, reference = {}, None
     for name, reducer in methods.items():
-        sim = sa.scenes.cantilever(resolution=resolution, reducer=reducer)
+        sim = sa.scenes.cantilever(resolution=resolution, reducer=reducer, E=1e5, damping=None)
         xs = [s.x for s in sim.run(frames)]
         if reference is None:
             reference = xs
@@ -46,6 +46,8 @@ def compare(resolution=3, frames=100, tau_a=0.1, tau_e=0.2):
 results = compare()
 
 if __name__ == "__main__":
+    import os
+
     import matplotlib.pyplot as plt
 
     for name, r in results.items():
@@ -58,5 +60,6 @@ if __name__ == "__main__":
     plt.ylabel("DOFs solved per frame")
     plt.legend()
     plt.title("Cantilever: DOFs solved per frame")
-    plt.savefig("affinification_dofs.png", dpi=120)
-    print("wrote affinification_dofs.png")
+    os.makedirs(os.path.join("out", "affinification"), exist_ok=True)
+    plt.savefig(os.path.join("out", "affinification", "dofs.png"), dpi=120)
+    print("wrote out/affinification/dofs.png")

@@ -11,10 +11,12 @@ The package is laid out by idea: the elastic core (:mod:`materials`, :mod:`kinem
 :mod:`body`, :mod:`assembly`, :mod:`solvers`), :mod:`integrators`, :mod:`reducers`
 (``affine/`` and ``subspace/``), :mod:`contact`, and the measuring tools in :mod:`lab`.
 """
+from skfem_affine import _compile_notice  # noqa: F401 (one stderr line when the kernels compile)
 from skfem_affine import assembly, kinematics, materials, solvers
 from skfem_affine.body import ElasticBody
 from skfem_affine.contact import colliders
 from skfem_affine.contact.colliders import Bowl, Box, Capsule, Plane, SDFCollider, Sphere
+from skfem_affine.contact.ipc import IPC
 from skfem_affine.contact.pgs import PGS
 from skfem_affine.materials import Corotational, Material, NeoHookean, StVK
 from skfem_affine.motion import Prescribed, VertexForce
@@ -31,5 +33,5 @@ __version__ = "0.1.0"
 __all__ = ["ElasticBody", "Prescribed", "VertexForce", "Simulation", "SimulationDiverged", "State", "Stats", "Rayleigh",
            "Material", "StVK", "Corotational", "NeoHookean", "Affinification", "Rigidification",
            "AdaptiveSubspace", "AffineModes", "LinearModes", "SkinningEigenmodes", "bases",
-           "Plane", "Sphere", "Box", "Capsule", "Bowl", "SDFCollider", "PGS", "colliders",
+           "Plane", "Sphere", "Box", "Capsule", "Bowl", "SDFCollider", "PGS", "IPC", "colliders",
            "assembly", "io", "kinematics", "materials", "metrics", "runners", "scenes", "solvers"]

@@ -23,6 +23,7 @@ from skfem_affine.body import ElasticBody
 from skfem_affine.checks import positive
 from skfem_affine.contact import pgs
 from skfem_affine.contact.colliders import check_colliders
+from skfem_affine.contact.ipc import IPC, IPCContact
 from skfem_affine.contact.barrier import barrier_of
 from skfem_affine.integrators import newton
 from skfem_affine.integrators.linearized import LinearizedEuler
@@ -116,8 +117,9 @@ class Simulation:
     mass : {"lumped", "consistent"}
     colliders : list of colliders, optional
         Static obstacles (:mod:`skfem_affine.contact.colliders`: ``sa.Plane``, ``sa.Sphere``, ...).
-    contact : PGS, optional
-        Contact solver settings (:class:`skfem_affine.contact.pgs.PGS`), linearized integrator only.
+    contact : PGS or IPC, optional
+        Contact settings: :class:`skfem_affine.contact.pgs.PGS` under the linearized integrator,
+        :class:`skfem_affine.contact.ipc.IPC` under the Newton integrators (see Notes).
     forces : list of VertexForce, optional
         External forces on vertices as functions of time and state
         (``sa.VertexForce(vertices, force(t, x, v))``, :mod:`skfem_affine.motion`), added to gravity.
@@ -135,9 +137,13 @@ class Simulation:
       colliders or several bodies; ``contact=False`` turns it off. With contact, the
       ``"auto"`` solver means the direct solver (the Delassus operator needs A^-1 on many
       columns).
-    * ``"ipc-barrier"`` (Newton integrators): a frictionless IPC log-barrier against the
-      colliders only, added to the incremental potential (:mod:`skfem_affine.contact.barrier`);
-      ``contact=PGS(...)`` is refused.
+    * ``"ipc-barrier"`` (Newton integrators, ``contact=None``): a frictionless IPC log-barrier
+      against the colliders only, added to the incremental potential
+      (:mod:`skfem_affine.contact.barrier`); ``contact=PGS(...)`` is refused.
+    * ``"ipc"`` (Newton integrators, ``contact=sa.IPC(friction=...)``): IPC contact from ipctk
+      (:mod:`skfem_affine.contact.ipc`): barrier, lagged smoothed friction and continuous
+      collision detection in the line search, against the colliders, between bodies and within
+      a body. The start state must be intersection-free (a ValueError names the gap otherwise).
     * ``"none"``: no collider and a single body (or ``contact=False``); no contact code runs.
     """
 
@@ -184,11 +190,12 @@ class Simulation:
             self.contact = pgs.make_contact(self.model, colliders, contact)
             self.colliders = [] if self.contact is None else self.contact.colliders
             self.contact_model = "none" if self.contact is None else pgs.MODEL
-        else:  # Newton integrators: colliders enter the incremental potential as an IPC barrier (barrier.py)
-            if contact not in (None, False):
-                raise ValueError("PGS contact runs with integrator='linearized'; the Newton integrators "
-                                 "use the IPC barrier against the colliders")
+        else:  # Newton integrators: contact enters the incremental potential (barrier.py or ipc.py)
+            if contact is not None and contact is not False and not isinstance(contact, IPC):
+                raise ValueError("contact=sa.PGS(...) runs with integrator='linearized'; the Newton integrators "
+                                 "take contact=sa.IPC(...) (or None: the frictionless barrier against the colliders)")
             self.contact = None
+            self._ipc = contact if isinstance(contact, IPC) else None
         if self.contact is not None and isinstance(solver, str) and solver == "auto":
             solver = "direct"
         self.solver = make_solver(solver)
@@ -226,8 +233,12 @@ class Simulation:
     def colliders(self, colliders):
         colliders = check_colliders(colliders)
         if isinstance(getattr(self, "integrator", None), NewtonIntegrator):
-            self.integrator.barrier = barrier_of(self.model, colliders)
-            self.contact_model = "ipc-barrier" if colliders else "none"
+            if self._ipc is not None:  # ipctk: bodies against colliders, each other and themselves
+                self.integrator.barrier = IPCContact(self.model, colliders, self._ipc, x0=self.state.x)
+                self.contact_model = "ipc"
+            else:
+                self.integrator.barrier = barrier_of(self.model, colliders)
+                self.contact_model = "ipc-barrier" if colliders else "none"
         elif hasattr(self, "_colliders"):
             raise ValueError("the colliders of a simulation with integrator='linearized' are fixed at "
                              "construction (its contact state is built for them)")
@@ -255,6 +266,9 @@ class Simulation:
             raise SimulationDiverged(s.frame + 1)
         self.state = State(x, v, s.frame + 1, s.time + self.dt, result.clusters)
         rec["wall"] = time.perf_counter() - t0
+        end_frame = getattr(self.reducer, "end_frame", None)  # a time budget reads the frame's wall time
+        if end_frame is not None and self.system.free.size:  # (a reducer with nothing to solve is not attached)
+            end_frame(rec)
         self.stats.append(rec)
         return self.state
 

@@ -1,6 +1,8 @@
 """The command line: every subcommand end to end on a tiny beam, --json output, written files."""
 import json
 import os
+import socket
+import time
 
 import meshio
 import numpy as np
@@ -18,13 +20,11 @@ def run_json(capsys, argv):
 
 
 def test_help_on_every_subcommand(capsys):
-    for command in ("demo", "run", "compare", "sweep", "scaling", "scenes"):
-        with pytest.raises(SystemExit) as exit_:
-            main([command, "--help"])
-        assert exit_.value.code == 0
+    for command in ("demo", "run", "compare", "sweep", "budget", "scaling", "scenes"):
+        assert main([command, "--help"]) == 0
         assert "usage: skfem-affine " + command in capsys.readouterr().out
     commands = parser()._subparsers._group_actions[0].choices
-    assert set(commands) == {"demo", "run", "compare", "sweep", "scaling", "scenes"}
+    assert set(commands) == {"demo", "run", "compare", "sweep", "budget", "scaling", "scenes"}
 
 
 def test_scenes_lists_the_scene_registry(capsys):
@@ -44,7 +44,7 @@ def test_run_json_with_reference(tmp_path, capsys):
     assert s["elements"] == 24 and s["vertices"] == 20
     for key in ("wall_s", "speedup", "dof_ratio", "mean_clusters", "max_distance_error"):
         assert isinstance(s[key], float), key
-    out = tmp_path / "run_cantilever"
+    out = tmp_path / "run" / "cantilever"
     assert {"affinification_frames.csv", "affinification_clusters.png", "paraview"} <= set(os.listdir(out))
     assert sorted(os.listdir(out / "paraview")) == ["affinification.pvd", "affinification_00000.vtu",
                                                     "affinification_00003.vtu", "affinification_00006.vtu"]
@@ -60,7 +60,7 @@ def test_compare_json_and_outputs(tmp_path, capsys):
     assert code == 0 and set(SUMMARY_KEYS) <= set(s) and s["method"] == "affinification"
     assert set(s["methods"]) == {"full", "affinification", "rigidification"}
     assert s["methods"]["full"]["speedup"] == 1.0 and s["max_distance_error"] >= 0
-    out = tmp_path / "compare_cantilever"
+    out = tmp_path / "compare" / "cantilever"
     names = set(os.listdir(out))
     assert {"frames.csv", "summary.csv", "compare_speedup.png", "compare_dofs.png", "compare_phases.png",
             "compare_error.png", "compare_clusters.png", "affinification.gif", "full.gif"} <= names
@@ -80,7 +80,7 @@ def test_sweep_json(tmp_path, capsys):
             "--workers", "1", "--threads", "--no-step-error", "--paired-timing", "--out", str(tmp_path)]
     code, s = run_json(capsys, argv)
     assert code == 0 and set(SUMMARY_KEYS) <= set(s) and s["cells"] == 4 and s["failed"] == 0
-    assert len(s["rows"]) == 4 and os.path.exists(s["table"]) and os.path.exists(s["heatmaps"])
+    assert len(s["rows"]) == 4 and os.path.exists(s["table"]) and os.path.exists(s["heatmaps"]) and os.path.exists(s["trade"])
     assert s["best_tau_a"] in (0.01, 0.3) and all(r["timing"] == "paired" for r in s["rows"])
 
 
@@ -101,23 +101,113 @@ def test_user_scene_file(tmp_path, capsys):
     assert code == 0 and s["scene"] == "drop" and s["elements"] == 6 * 1
 
 
-def test_bad_input_is_a_clear_error(tmp_path, capsys):
-    assert main(["run", "nope", "--out", str(tmp_path)]) == 2
-    assert "unknown scene 'nope'" in capsys.readouterr().err
-    assert main(["run", "cantilever", "--set", "oops", "--out", str(tmp_path)]) == 2
-    assert "KEY=VALUE" in capsys.readouterr().err
-    assert main(["compare", "--methods", "nope", "--out", str(tmp_path)]) == 2
-    assert "unknown method" in capsys.readouterr().err
-    assert main(["sweep", "--grid", "0", "--out", str(tmp_path)]) == 2
-    assert "--grid" in capsys.readouterr().err
+def error_line(capsys):
+    """The one stderr line of a refused command (and no traceback)."""
+    err = capsys.readouterr().err
+    lines = err.splitlines()
+    assert len(lines) == 1 and lines[0].startswith("skfem-affine") and "Traceback" not in err, err
+    return lines[0]
+
+
+MISTAKES = [
+    (["run", "nope"], "unknown scene 'nope'"),
+    (["run", "cantilever", "--set", "oops"], "KEY=VALUE"),
+    (["compare", "--methods", "nope"], "unknown method"),
+    (["compare", "--frames", "0"], "argument --frames: must be >= 1, got 0"),
+    (["run", "--frames", "ten"], "argument --frames: must be a whole number, got 'ten'"),
+    (["run", "--resolution", "0"], "argument --resolution: must be >= 1"),
+    (["run", "--every", "0"], "argument --every: must be >= 1"),
+    (["run", "--tau-a", "nan"], "argument --tau-a: must be a finite number >= 0"),
+    (["run", "--tau-e", "-1"], "argument --tau-e: must be a finite number >= 0"),
+    (["compare", "--taus", "rigidification=inf,1"], "must be finite"),
+    (["compare", "--taus", "rigidification=1"], "METHOD=TAU_A,TAU_E"),
+    (["sweep", "--grid", "0"], "argument --grid: must be >= 1"),
+    (["sweep", "--workers", "-1"], "argument --workers: must be >= 1, got -1"),
+    (["sweep", "--tau-range", "0.1", "inf"], "argument --tau-range: must be a finite number > 0, got inf"),
+    (["sweep", "--tau-range", "0", "1"], "argument --tau-range: must be a finite number > 0"),
+    (["sweep", "--tau-range", "1", "0.1"], "LO <= HI"),
+    (["sweep", "--scheduler", "nonsense"], "--scheduler takes tcp://HOST:PORT"),
+    (["scaling", "--resolution", "2"], "--resolution is not an option here; use --resolutions"),
+    (["scaling", "--resolutions", "1", "2", "--frames", "1", "2", "3"], "one per resolution (2), got 3"),
+    (["scaling", "--resolutions", "0"], "argument --resolutions: must be >= 1"),
+    (["demo", "extra"], "unrecognized arguments: extra"),
+    (["run", "--frame", "-2"], "argument --frame: must be >= 0"),
+]
+
+
+@pytest.mark.parametrize("argv, says", MISTAKES, ids=[" ".join(a) for a, _ in MISTAKES])
+def test_every_mistake_is_one_line_and_exit_code_2(tmp_path, capsys, argv, says):
+    code = main(argv + ["--out", str(tmp_path / "out")])
+    line = error_line(capsys)
+    assert code == 2
+    assert says in line
+    assert not os.path.exists(tmp_path / "out") or not os.listdir(tmp_path / "out")  # refused before any work
+
+
+def test_out_pointing_at_a_file_is_refused(tmp_path, capsys):
+    (tmp_path / "results").write_text("mine")
+    for argv in (["demo"], ["run", "--frames", "1"], ["compare", "--frames", "1"], ["scaling", "--resolutions", "1"]):
+        assert main(argv + ["--out", str(tmp_path / "results")]) == 2
+        assert "--out" in error_line(capsys) and (tmp_path / "results").read_text() == "mine"
+
+
+def test_a_scene_file_that_raises_is_named_with_its_line(tmp_path, capsys):
+    files = {"imports.py": "import skfem_affine\nx = 1 / 0\n",
+             "builds.py": "def scene(reducer=None, **kwargs):\n    raise RuntimeError('no mesh here')\n",
+             "typo.py": "def scene(reducer=None:\n    pass\n"}
+    expected = {"imports.py": "line 2: ZeroDivisionError: division by zero",
+                "builds.py": "line 2: RuntimeError: no mesh here",
+                "typo.py": "line 1: SyntaxError"}
+    for name, text in files.items():
+        (tmp_path / name).write_text(text)
+        for command in (["run", "--frames", "2"], ["compare", "--frames", "2"]):
+            assert main([command[0], str(tmp_path / name)] + command[1:] + ["--out", str(tmp_path)]) == 2
+            line = error_line(capsys)
+            assert f"scene file {tmp_path / name}, {expected[name]}" in line, line
+
+
+def test_a_scheduler_at_a_closed_port_is_refused_at_once(tmp_path, capsys):
+    with socket.socket() as s:  # a free localhost port: nothing listens there once closed
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    t0 = time.perf_counter()
+    code = main(["sweep", "--resolution", "1", "--frames", "2", "--grid", "1", "--scheduler",
+                 f"tcp://127.0.0.1:{port}", "--out", str(tmp_path)])
+    assert code == 2 and time.perf_counter() - t0 < 20
+    assert f"--scheduler tcp://127.0.0.1:{port}: no dask scheduler answers there" in error_line(capsys)
+
+
+def test_headers_are_human_readable(tmp_path, capsys):
+    assert main(["run", "free_body", "--resolution", "1", "--frames", "2", "--method", "full", "--no-paraview",
+                 "--out", str(tmp_path)]) == 0
+    assert capsys.readouterr().out.splitlines()[0] == "run: free_body (resolution=1), 2 frames: full"
+    assert main(["run", "--resolution", "1", "--frames", "2", "--tau-a", "0.3", "--no-paraview",
+                 "--set", "dt=0.005", "--out", str(tmp_path)]) == 0
+    assert capsys.readouterr().out.splitlines()[0] == \
+        "run: cantilever (dt=0.005, resolution=1), 2 frames: affinification (tau_a=0.3, tau_e=0.2)"
+    assert main(["scaling", "--resolutions", "1", "--frames", "2", "--out", str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    assert out.splitlines()[0] == "scaling: cantilever, resolutions 1, 2 frames: affinification " \
+                                  "(tau_a=0.1, tau_e=0.2) against full space"
+    assert "{" not in out
 
 
 def test_demo(tmp_path, capsys):
     assert main(["demo", "--resolution", "1", "--frames", "10", "--out", str(tmp_path)]) == 0
     out = capsys.readouterr().out
-    assert "speedup" in out and "affinification" in out and "rigidification" in out
-    names = set(os.listdir(tmp_path / "compare_cantilever"))
-    assert {"compare_clusters.png", "compare_speedup.png", "affinification.gif", "paraview"} <= names
+    assert "speedup" in out and "affinification-budget" in out and "Where it stops paying" in out
+    names = set(os.listdir(tmp_path / "demo"))
+    assert {"compare_clusters.png", "compare_speedup.png", "trade.png"} <= names
+
+
+def test_budget_command_runs_each_budget_against_full_space(tmp_path, capsys):
+    code, s = run_json(capsys, ["budget", "--resolution", "1", "--frames", "6", "--errors", "0.01", "0.05",
+                                "--never-slower", "off", "--out", str(tmp_path)])
+    assert code == 0 and [r["budget"] for r in s["rows"]] == [0.01, 0.05]
+    assert all(r["timing"] == "interleaved" and r["speedup"] > 0 and r["error"] >= 0 for r in s["rows"])
+    assert os.path.isfile(s["trade"]) and os.path.isfile(s["table"])
+    assert main(["budget", "--errors", "2", "--resolution", "1", "--frames", "2", "--out", str(tmp_path)]) == 2
+    assert "target_error" in capsys.readouterr().err
 
 
 def test_compare_and_run_say_how_they_timed(tmp_path, capsys):
@@ -132,3 +222,13 @@ def test_compare_and_run_say_how_they_timed(tmp_path, capsys):
     assert code == 0 and s["timing"] == "interleaved" and s["speedup"] > 0
     assert main(["run", "--reference"] + base) == 0
     assert "timing: interleaved frame by frame in one process" in capsys.readouterr().out
+
+
+def test_scaling_needs_a_resolution_parameter(tmp_path, capsys):
+    f = tmp_path / "fixed.py"
+    f.write_text("import skfem_affine as sa\n"
+                 "def scene(reducer=None, dt=0.01):\n"
+                 "    return sa.scenes.free_body(resolution=1, reducer=reducer, dt=dt)\n")
+    assert main(["scaling", str(f), "--resolutions", "1", "2", "--out", str(tmp_path / "out")]) == 2
+    assert "has no resolution parameter to scale" in error_line(capsys)
+    assert not os.path.exists(tmp_path / "out")

@@ -1,6 +1,9 @@
 """Every example in examples/ runs (at its default, small size) and computes the right thing."""
 import os
 import runpy
+import sys
+
+import meshio
 
 import numpy as np
 import pytest
@@ -29,12 +32,31 @@ def test_rotating_clamp_example():
     assert g["dof_ratio"] <= 1.0 and g["error"] < 0.05
 
 
-def test_cantilever_example():
+def test_cantilever_example(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
     g = run("cantilever.py")
     assert g["sim"].state.frame == 100
     assert np.all(np.isfinite(g["tip_height"]))
     # soft beam: the tip falls, at first like a hinged rod (3g/2), then slower than free fall would allow
     assert -6.0 < g["lowest"] < -4.0
+    # the ParaView series holds the run itself, frames 0 to 100, in out/cantilever/
+    out = tmp_path / "out" / "cantilever"
+    pvd = (out / "cantilever.pvd").read_text()
+    assert pvd.count("<DataSet") == 101 and "cantilever_00000.vtu" in pvd and "cantilever_00100.vtu" in pvd
+    assert np.allclose(meshio.read(out / "cantilever_00100.vtu").points, g["sim"].state.x)
+
+
+def test_cantilever_example_as_a_script(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(sys, "argv", ["cantilever.py", "--resolution", "1", "--frames", "5", "--out", "here"])
+    runs, run_ = [], sa.Simulation.run
+    monkeypatch.setattr(sa.Simulation, "run", lambda sim, frames: runs.append(frames) or run_(sim, frames))
+    g = runpy.run_path(os.path.join(EXAMPLES, "cantilever.py"), run_name="__main__")
+    assert runs == [5] and g["sim"].state.frame == 5 and g["sim"].system.m == 24  # simulated once, as asked
+    assert sorted(os.listdir(tmp_path)) == ["here"]
+    assert sorted(os.listdir(tmp_path / "here")) == ["cantilever.pvd"] + [f"cantilever_{i:05d}.vtu" for i in range(6)] \
+        + ["tip.png"]
+    assert "frames 0-5" in capsys.readouterr().out
 
 
 def test_beam_frequency_example_matches_euler_bernoulli():

@@ -2,25 +2,57 @@ import os
 
 import meshio
 import numpy as np
+import pytest
 
 import skfem_affine as sa
 
 
-def test_write_series_opens_with_meshio(tmp_path):
+def test_series_holds_exactly_the_states_written_in_the_loop(tmp_path):
     sim = sa.scenes.cantilever(resolution=1)
-    pvd = sa.io.write_series(tmp_path / "beam", sim, frames=4, every=2)
-    assert os.path.exists(pvd)
-    text = open(pvd).read()
+    series = sa.io.Series(tmp_path / "beam", sim)
+    series.write(sim.state)
+    for state in sim.run(4):
+        if state.frame % 2 == 0:
+            series.write(state)
+    assert sim.state.frame == 4  # the series simulated nothing of its own
+    text = open(series.pvd).read()
     files = sorted(f for f in os.listdir(tmp_path) if f.endswith(".vtu"))
     assert files == ["beam_00000.vtu", "beam_00002.vtu", "beam_00004.vtu"]
-    for f in files:
-        assert f in text
+    assert [line.split('file="')[1].split('"')[0] for line in text.splitlines() if "DataSet" in line] == files
     last = meshio.read(tmp_path / files[-1])
     assert np.allclose(last.points, sim.state.x)
     assert np.allclose(last.point_data["velocity"], sim.state.v)
     for key in ("cluster", "affine", "material"):
         assert key in last.cell_data
     assert np.all(last.cell_data["cluster"][0] == -1)
+    first = meshio.read(tmp_path / files[0])
+    assert np.allclose(first.points, sim.system.p0)
+    # writing a frame again replaces it rather than listing it twice
+    series.write(sim.state)
+    assert open(series.pvd).read().count("beam_00004.vtu") == 1
+
+
+def test_write_series_writes_the_given_states_and_simulates_nothing(tmp_path):
+    sim = sa.scenes.cantilever(resolution=1)
+    states = list(sim.run(3))
+    pvd = sa.io.write_series(tmp_path / "out" / "beam.pvd", sim, states=states)
+    assert pvd == str(tmp_path / "out" / "beam.pvd") and sim.state.frame == 3
+    assert sorted(os.listdir(tmp_path / "out")) == ["beam.pvd", "beam_00001.vtu", "beam_00002.vtu",
+                                                    "beam_00003.vtu"]
+    assert np.allclose(meshio.read(tmp_path / "out" / "beam_00002.vtu").points, states[1].x)
+    with pytest.raises(TypeError):
+        sa.io.write_series(tmp_path / "beam", sim, frames=100)  # the old, simulating call is refused
+
+
+def test_series_refuses_what_is_not_its_simulation_s_state(tmp_path):
+    sim = sa.scenes.cantilever(resolution=1)
+    other = sa.scenes.cantilever(resolution=2)
+    with pytest.raises(ValueError, match="not one of this simulation"):
+        sa.io.Series(tmp_path / "beam", sim).write(other.state)
+    with pytest.raises(TypeError, match="state must be"):
+        sa.io.Series(tmp_path / "beam", sim).write(sim.state.x)
+    with pytest.raises(TypeError, match="sim must be"):
+        sa.io.Series(tmp_path / "beam", "beam")
 
 
 def test_load_mesh_roundtrip(tmp_path):

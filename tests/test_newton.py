@@ -20,6 +20,7 @@ def model_of(sim):
 def beam(**kw):
     kw.setdefault("resolution", 1)
     kw.setdefault("material", sa.NeoHookean(E=1e5, nu=0.3))
+    kw.setdefault("damping", None)
     return sa.scenes.cantilever(**kw)
 
 

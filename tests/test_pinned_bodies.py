@@ -27,7 +27,7 @@ def test_a_body_with_pinned_vertices_keeps_them_pinned_and_moves_affinely():
     mesh = skfem.MeshTet.init_tensor(np.linspace(0, 2, 5), np.linspace(0, 1, 3), np.linspace(0, 1, 3))
     clamp = mesh.nodes_satisfying(lambda p: p[0] < 1e-9)  # a face: coplanar pins
     body = sa.ElasticBody(mesh, sa.NeoHookean(E=1e5, nu=0.35), density=1000.0, fixed=clamp)
-    red = sa.Affinification(min_fraction=1.0, pinned_bodies=True)
+    red = sa.Affinification(1e-4, 2e-4, min_fraction=1.0, pinned_bodies=True)
     sim = sa.Simulation(body, dt=0.01, gravity=(0, 0, -9.81), reducer=red)
     X = mesh.p.T
     seen = 0
@@ -46,17 +46,19 @@ def test_a_body_pinned_at_four_non_coplanar_vertices_does_not_move():
     X = mesh.p.T
     t0 = mesh.t[:, 0]  # the four vertices of one tet: non-coplanar
     body = sa.ElasticBody(mesh, sa.NeoHookean(E=1e5, nu=0.35), density=1000.0, fixed=t0)
-    red = sa.Affinification(min_fraction=1.0, pinned_bodies=True)
+    red = sa.Affinification(1e-4, 2e-4, min_fraction=1.0, pinned_bodies=True)
     sim = sa.Simulation(body, dt=0.01, gravity=(0, 0, -9.81), reducer=red)
     fixed = np.zeros(X.shape[0], dtype=bool)
     fixed[t0] = True
     seen = 0
+    previous = sim.state.copy()
     for state in sim.run(10):
         for verts in bodies_with(state, sim.system, fixed):
             if np.sum(fixed[verts]) == 4:
                 seen += 1
                 assert np.abs(state.v[verts]).max() <= 1e-12
-                assert np.abs(state.x[verts] - X[verts]).max() <= 1e-12
+                assert np.abs(state.x[verts] - previous.x[verts]).max() <= 1e-12
+        previous = state
     assert seen > 0
 
 
@@ -70,7 +72,7 @@ def test_a_body_with_a_prescribed_clamp_follows_it():
         return X @ np.array([[c, 0, -s], [0, 1, 0], [s, 0, c]]) + np.array([0.0, 0.0, 0.3 * t])
 
     body = sa.ElasticBody(mesh, sa.NeoHookean(E=1e5, nu=0.35), density=1000.0, prescribed=sa.Prescribed(clamp, lift))
-    red = sa.Affinification(min_fraction=1.0, pinned_bodies=True)
+    red = sa.Affinification(1e-4, 2e-4, min_fraction=1.0, pinned_bodies=True)
     sim = sa.Simulation(body, dt=0.01, reducer=red)
     X = mesh.p.T
     seen = 0
@@ -90,7 +92,7 @@ def test_the_constrained_solve_without_pins_is_the_papers_reduced_step():
 
     mesh = skfem.MeshTet.init_tensor(np.linspace(0, 2, 5), np.linspace(0, 1, 3), np.linspace(0, 1, 3))
     body = sa.ElasticBody(mesh, sa.NeoHookean(E=1e5, nu=0.35), velocity=(0.0, 0.0, 0.0))
-    red = sa.Affinification(min_fraction=0.7)
+    red = sa.Affinification(1e-4, 2e-4, min_fraction=0.7)
     sim = sa.Simulation(body, dt=0.01, reducer=red, damping=sa.Rayleigh(0.1, 0.01),
                         forces=[sa.VertexForce([0, 1], (0.0, 5.0, -20.0))])
     for _ in range(5):

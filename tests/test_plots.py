@@ -28,7 +28,7 @@ def test_cluster_colors_and_picked_state():
 
 
 def test_pictures_are_written(tmp_path):
-    sim = sa.scenes.cantilever(resolution=1, reducer=sa.Affinification(tau_a=1.0, tau_e=2.0))
+    sim = sa.scenes.cantilever(resolution=1, reducer=sa.Affinification(tau_a=1.0, tau_e=2.0), E=1e5, damping=None)
     states = [sim.state.copy()] + [s for s in sim.run(4)]
     png = plots.clusters_picture([("affinification", sim, states[-1])], str(tmp_path / "c.png"))
     gif = plots.animation("affinification", sim, states, str(tmp_path / "a.gif"))
@@ -36,3 +36,17 @@ def test_pictures_are_written(tmp_path):
     assert Image.open(png).size[0] > 300
     im = Image.open(gif)
     assert im.n_frames == len(states)
+
+
+def test_pareto_front_keeps_the_points_nothing_beats():
+    # (error, speedup): the second is slower and less accurate than the first; None is left out
+    pts = [(1e-3, 2.0), (2e-3, 1.5), (5e-3, 3.0), (1e-4, 0.8), (None, 9.0), (1e-2, 3.0)]
+    assert plots.pareto_front(pts) == [3, 0, 2]
+
+
+def test_trade_plot_is_written(tmp_path):
+    points = [{"error": 1e-3, "speedup": 1.4, "label": "0.1, 0.2"}, {"error": 2e-2, "speedup": 3.0, "label": "0.3, 0.6"},
+              {"error": 4e-3, "speedup": 2.0, "label": "budget 0.01", "budget": 0.01, "method": "budget"},
+              {"error": None, "speedup": 2.0, "label": "failed"}]
+    path = plots.trade_plot(points, str(tmp_path / "trade.png"), budgets=[0.01])
+    assert (tmp_path / "trade.png").stat().st_size > 1000 and path.endswith("trade.png")

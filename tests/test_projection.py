@@ -180,8 +180,8 @@ def test_element_pass_works_in_a_forked_child():
     A full-space and an affinification frame (oracle, strain rates, reduced assembly) run in the
     parent first, then in a forked child, whichever threading layer numba has.
     """
-    sims = [sa.scenes.cantilever(resolution=2),
-            sa.scenes.cantilever(resolution=2, reducer=sa.Affinification(tau_a=1.0, tau_e=2.0))]
+    sims = [sa.scenes.cantilever(resolution=2, E=1e5, damping=None),
+            sa.scenes.cantilever(resolution=2, E=1e5, damping=None, reducer=sa.Affinification(tau_a=1.0, tau_e=2.0))]
     for sim in sims:
         sim.step()  # the parent's helper threads exist now
     pid = os.fork()

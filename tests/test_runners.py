@@ -6,7 +6,8 @@ import pytest
 import skfem_affine as sa
 from skfem_affine.lab import runners
 
-TINY = runners.SceneSpec.make("cantilever", resolution=1)
+# the earlier rope-like cantilever (SceneSpec drops None values: Rayleigh() is "undamped")
+TINY = runners.SceneSpec.make("cantilever", resolution=1, E=1e5, damping=sa.Rayleigh())
 
 
 class Exploding(sa.Affinification):
@@ -29,7 +30,7 @@ def test_scene_specs(tmp_path):
     f = tmp_path / "myscene.py"
     f.write_text("import skfem_affine as sa\n"
                  "def scene(reducer=None, resolution=1, **kw):\n"
-                 "    return sa.scenes.cantilever(resolution=resolution, reducer=reducer, **kw)\n")
+                 "    return sa.scenes.cantilever(resolution=resolution, reducer=reducer, E=1e5, damping=None, **kw)\n")
     spec = runners.SceneSpec.make(str(f), resolution=1)
     assert spec.label == "myscene" and spec.build().system.m == 24
     assert spec.key() != TINY.key() and spec.key() == runners.SceneSpec.make(str(f), resolution=1).key()
@@ -96,7 +97,7 @@ def test_scaling_rows():
 
 
 def test_subspace_method_is_measured_against_the_newton_reference():
-    spec = runners.SceneSpec.make("cantilever", resolution=1, integrator="implicit_euler")
+    spec = runners.SceneSpec.make("cantilever", resolution=1, integrator="implicit_euler", E=1e5, damping=sa.Rayleigh())
     ref, runs = runners.compare(spec, frames=8, methods=("subspace",), taus={"subspace": (0.0, 0.0)})
     sub = runs["subspace"].summary
     # every threshold zero: all nodes enriched, the full-space Newton solution to its tolerance

@@ -26,6 +26,8 @@ def reducer(**kw):
 
 def beam(red=None, integrator="implicit_euler", **kw):
     kw.setdefault("resolution", 2)
+    kw.setdefault("E", 1e5)  # the earlier soft, undamped defaults
+    kw.setdefault("damping", None)
     return sa.scenes.cantilever(integrator=integrator, reducer=red, **kw)
 
 

@@ -60,6 +60,8 @@ class NewtonIntegrator:
         """One step from ``state``; returns ``(x, v, result)`` with (n, 3) arrays and the StepResult."""
         t0 = time.perf_counter()
         problem = self.potential(state)
+        if hasattr(self.barrier, "begin_step"):  # lagged friction of the step (IPCContact)
+            self.barrier.begin_step(problem.x_t, problem.x_hat, problem.c)
         rec["assembly"] = rec.get("assembly", 0.0) + time.perf_counter() - t0
         rec["integrator"] = problem.scheme
         if not self.model.system.free.size:  # every vertex fixed or prescribed: nothing to solve

@@ -181,8 +181,19 @@ class IncrementalPotential:
         return None if self.barrier is None else self.weight * self.barrier.hessian_data(x)
 
     def hessian(self, H, x=None):
-        """grad^2 E as a CSR matrix on the free DOFs (see :meth:`hessian_data`)."""
-        return self.system.pattern.matrix(self.hessian_data(H, x))
+        """grad^2 E as a CSR matrix on the free DOFs (see :meth:`hessian_data`); with ``x``, also
+        the contact terms off the elastic pattern (:meth:`contact_hessian`)."""
+        A = self.system.pattern.matrix(self.hessian_data(H, x))
+        extra = None if x is None else self.contact_hessian(x)
+        return A if extra is None else (A + extra).tocsr()
+
+    def contact_hessian(self, x):
+        """a h^2 grad^2 B(x) of a contact model whose Hessian couples vertices that are not mesh
+        neighbours (body-body and self contact, :class:`skfem_affine.contact.ipc.IPCContact`) as a
+        CSR matrix on the free DOFs, or None (no such contact: its Hessian is in :meth:`hessian_data`)."""
+        if self.barrier is None or not hasattr(self.barrier, "hessian"):
+            return None
+        return self.weight * self.barrier.hessian(x)
 
     def max_step(self, x, d):
         """Largest step fraction along d (free DOFs) that keeps vertices off the colliders (<= 1)."""

@@ -1,9 +1,12 @@
 """Command line: ``skfem-affine`` / ``python -m skfem_affine`` (run ``--help`` on any subcommand).
 
-Subcommands: ``demo``, ``run``, ``compare``, ``sweep``, ``scaling``, ``scenes``. A scene is a name
+Subcommands: ``demo``, ``run``, ``compare``, ``sweep``, ``budget``, ``scaling``, ``scenes``. A scene is a name
 from :data:`skfem_affine.scenes.SCENES` or the path of a Python file defining ``scene(**kwargs)``
 that returns a Simulation. With ``--json`` exactly one JSON object is printed on stdout (nothing
-else); progress bars appear on a terminal only.
+else); progress bars appear on a terminal only. Files go into ``OUT/COMMAND/SCENE/`` (``OUT/demo/``
+for the demo). A mistake in the command (a bad option or number, an unknown scene, a scene file
+that raises, a scheduler nobody answers at) is one line on stderr and exit code 2, with no
+traceback; a traceback means a bug of the package.
 """
 import argparse
 import ast
@@ -11,18 +14,14 @@ import inspect
 import json
 import math
 import os
+import socket
 import sys
 import time
+import traceback
 
 import numpy as np
 
-from skfem_affine.lab import io
-
-from skfem_affine.lab import plots
-
-from skfem_affine.lab import runners
-
-from skfem_affine.lab import scenes
+from skfem_affine.lab import io, plots, runners, scenes, trade
 from skfem_affine.simulation import SimulationDiverged
 
 SUMMARY_KEYS = ("scene", "method", "frames", "elements", "vertices", "wall_s", "speedup", "dof_ratio",
@@ -85,10 +84,63 @@ def _spec(args):
     return spec
 
 
-def _folder(args, command, spec):
-    out = os.path.join(args.out, f"{command}_{spec.label}")
+def _folder(args, spec):
+    """``OUT/COMMAND/SCENE/`` (``OUT/demo/`` for the demo), created."""
+    if args.command == "demo":
+        out = os.path.join(args.out, "demo")
+    else:
+        out = os.path.join(args.out, args.command, spec.label)
     os.makedirs(out, exist_ok=True)
     return out
+
+
+def _scene_text(spec):
+    """``cantilever (resolution=4)``: the scene and its overrides, for headers."""
+    def short(value):
+        text = repr(value) if isinstance(value, str) else str(value)
+        return text if len(text) <= 40 else text[:37] + "..."
+    kwargs = ", ".join(f"{k}={short(v)}" for k, v in spec.kwargs)
+    return f"{spec.label} ({kwargs})" if kwargs else spec.label
+
+
+def _frames(frames, spec):
+    """The frames to run: ``frames`` (``--frames``), else ``--set frames=``, else the scene's own default."""
+    if frames is not None:
+        return frames
+    kwargs = dict(spec.kwargs)
+    if "frames" in kwargs:
+        return int(kwargs["frames"])
+    default = inspect.signature(spec.factory()).parameters.get("frames")
+    if default is not None and isinstance(default.default, int) and not isinstance(default.default, bool):
+        return default.default
+    return runners.default_frames(spec.build())
+
+
+def _method_text(method, tau_a=None, tau_e=None):
+    """``affinification (tau_a=0.3, tau_e=0.6)``: a method and the thresholds it runs with."""
+    if method.taus[0] is None:
+        return method.name
+    a = tau_a if tau_a is not None else method.taus[0]
+    e = tau_e if tau_e is not None else method.taus[1]
+    return f"{method.name} (tau_a={a:g}, tau_e={e:g})"
+
+
+def _check_scheduler(address, timeout=5.0):
+    """Refuse, within ``timeout`` seconds, a tcp/tls ``--scheduler`` address where nothing listens."""
+    scheme, sep, rest = address.partition("://")
+    if not sep:
+        scheme, rest = "tcp", address
+    if scheme not in ("tcp", "tls"):
+        return  # other transports (inproc, ucx, ...): dask itself connects
+    host, _, port = rest.rpartition(":")
+    host = host.strip("[]")
+    if not host or not port.isdigit():
+        raise ValueError(f"--scheduler takes tcp://HOST:PORT, got {address!r}")
+    try:
+        socket.create_connection((host, int(port)), timeout=timeout).close()
+    except OSError as err:
+        reason = err.strerror or type(err).__name__
+        raise ValueError(f"--scheduler {address}: no dask scheduler answers there ({reason})") from None
 
 
 def _fmt(value, spec=".2e"):
@@ -152,29 +204,37 @@ def cmd_run(args):
     """One method on one scene, optionally against the full-space reference."""
     spec = _spec(args)
     method = runners.get_method(args.method)
-    out = _folder(args, "run", spec)
+    frames = _frames(args.frames, spec)
+    out = _folder(args, spec)
     progress = _progress(args)
-    writer = io.SeriesWriter(os.path.join(out, "paraview", method.name)) if not args.no_paraview else None
+    reference = None
+    with_reference = args.reference and method.name != "full"
+    _say(args, f"run: {_scene_text(spec)}, {frames} frames: {_method_text(method, args.tau_a, args.tau_e)}"
+               + (", against the full-space reference" if with_reference else ""))
+    series = None
     every = max(1, args.every)
 
-    def write(sim, state):
-        if writer is not None and (state.frame % every == 0):
-            writer.write(sim, state)
+    def write(sim, state, last=False):
+        nonlocal series
+        if args.no_paraview or (state.frame % every and not last):
+            return
+        if series is None:
+            series = io.Series(os.path.join(out, "paraview", method.name), sim)
+        series.write(state)
 
     measure = dict(step_error=not args.no_step_error, residual=not args.no_residual, keep_every=every,
                    keep_frames=[args.frame] if args.frame is not None else (), progress=progress)
-    reference = None
-    if args.reference and method.name != "full":
+    if with_reference:
         timing = _timing(args)
         _say(args, f"reference: full space, {spec.label}; timing: {runners.TIMING[timing]}")
-        reference, runs = runners.compare(spec, args.frames, ("full", method), {method.name: (args.tau_a, args.tau_e)},
+        reference, runs = runners.compare(spec, frames, ("full", method), {method.name: (args.tau_a, args.tau_e)},
                                           timing=timing, on_state={method.name: write}, **measure)
         result = runs[method.name]
     else:
-        result = runners.run(spec, method, args.frames, args.tau_a, args.tau_e, on_state=write, **measure)
+        result = runners.run(spec, method, frames, args.tau_a, args.tau_e, on_state=write, **measure)
     s = result.summary
-    if writer is not None and result.records and (len(result.records) % every):
-        writer.write(result.sim, result.sim.state)
+    if result.records and (len(result.records) % every):
+        write(result.sim, result.sim.state, last=True)
     runners.write_table(result.records, os.path.join(out, f"{method.name}_frames.csv"))
     picture = plots.clusters_picture([(method.name, result.sim, plots.pick_state(result.states, args.frame))],
                                      os.path.join(out, f"{method.name}_clusters.png"))
@@ -187,7 +247,7 @@ def cmd_run(args):
         _say(args, f"timing: {runners.TIMING[s['timing']]}")
     _say(args, f"wrote {out}/: {method.name}_frames.csv, {os.path.basename(picture)}"
                + (f", {os.path.basename(gif)}" if gif else "")
-               + (f", {os.path.relpath(writer.pvd, out)} (ParaView)" if writer else ""))
+               + (f", {os.path.relpath(series.pvd, out)} (ParaView)" if series else ""))
     _emit(args, _summary_json(s, {"status": s["status"], "timing": s["timing"] if reference is not None else None,
                                   "out": out}))
     return 0 if s["status"] == "ok" else 1
@@ -200,9 +260,15 @@ def compare_outputs(args, spec, runs, out):
     runners.write_table(summaries, os.path.join(out, "summary.csv"))
     written = ["frames.csv", "summary.csv"]
     written += [os.path.basename(p) for p in plots.compare_plots(runs, out, frame=args.frame, stem="compare")]
+    points = trade.points_from_runs(runs)
+    budgets = sorted({r.sim.reducer.target_error for r in runs.values()
+                      if getattr(r.sim.reducer, "target_error", None) is not None})
+    if points:
+        written.append(os.path.basename(plots.trade_plot(points, os.path.join(out, "trade.png"), budgets=budgets,
+                                                         title=f"{spec.label}: speed against accuracy")))
     if not args.no_paraview:
         for name, run in runs.items():
-            io.write_states(os.path.join(out, "paraview", name), run.sim, run.states)
+            io.write_series(os.path.join(out, "paraview", name), run.sim, states=run.states)
         written.append("paraview/<method>.pvd")
     if args.gif:
         for name, run in runs.items():
@@ -221,6 +287,8 @@ def _compare_taus(args):
             a, e = (float(v) for v in values.split(","))
         except ValueError:
             raise ValueError(f"--taus takes METHOD=TAU_A,TAU_E, got {item!r}") from None
+        if not all(math.isfinite(v) and v >= 0 for v in (a, e)):
+            raise ValueError(f"--taus thresholds must be finite and >= 0, got {item!r}")
         taus[runners.get_method(name).name] = (a, e)
     main = args.methods[1] if len(args.methods) > 1 else args.methods[0]
     if args.tau_a is not None or args.tau_e is not None:
@@ -236,11 +304,13 @@ def cmd_compare(args):
     methods = tuple(dict.fromkeys(["full"] + [runners.get_method(m).name for m in args.methods]))
     args.methods = list(methods)
     taus = _compare_taus(args)
-    out = _folder(args, "compare", spec)
+    frames = _frames(args.frames, spec)
+    out = _folder(args, spec)
     t0 = time.perf_counter()
-    _say(args, f"compare on {spec.label}{dict(spec.kwargs) or ''}: {', '.join(methods)} "
+    shown = [_method_text(runners.get_method(m), *taus.get(m, (None, None))) for m in methods]
+    _say(args, f"{args.command}: {_scene_text(spec)}, {frames} frames: {', '.join(shown)} "
                f"(the full-space run is the reference)")
-    _, runs = runners.compare(spec, args.frames, methods, taus, step_error=not args.no_step_error,
+    _, runs = runners.compare(spec, frames, methods, taus, step_error=not args.no_step_error,
                               residual=not args.no_residual, keep_every=max(1, args.every),
                               keep_frames=[args.frame] if args.frame is not None else (), progress=_progress(args),
                               timing=_timing(args))
@@ -265,20 +335,26 @@ def cmd_sweep(args):
     """A tau_a x tau_e grid on Dask (embedded LocalCluster or --scheduler), heatmaps of every metric."""
     spec = _spec(args)
     method = runners.get_method(args.method)
-    if args.grid < 1:
-        raise ValueError(f"--grid must be >= 1, got {args.grid}")
-    out = _folder(args, "sweep", spec)
-    table = args.table or os.path.join(out, f"{method.name}.{args.format}")
     lo, hi = args.tau_range
+    if lo > hi:
+        raise ValueError(f"--tau-range takes LO HI with LO <= HI, got {lo:g} {hi:g}")
+    if args.scheduler:
+        _check_scheduler(args.scheduler)
+    frames = _frames(args.frames, spec)
+    out = _folder(args, spec)
+    table = args.table or os.path.join(out, f"{method.name}.{args.format}")
     t0 = time.perf_counter()
-    _say(args, f"sweep on {spec.label}: {method.name}, {args.grid} x {args.grid} cells, tau in [{lo:g}, {hi:g}] 1/s, "
-               f"on {args.scheduler or 'an embedded LocalCluster'}; table {table}")
-    rows = runners.sweep(spec, args.frames, method, args.grid, (lo, hi), table, scheduler=args.scheduler,
+    _say(args, f"sweep: {_scene_text(spec)}, {frames} frames: {method.name} on a {args.grid} x {args.grid} grid, "
+               f"tau in [{lo:g}, {hi:g}] 1/s, on {args.scheduler or 'an embedded LocalCluster'}; table {table}")
+    rows = runners.sweep(spec, frames, method, args.grid, (lo, hi), table, scheduler=args.scheduler,
                          workers=args.workers, processes=not args.threads, step_error=not args.no_step_error,
                          residual=not args.no_residual, retry_failed=args.retry_failed, progress=_progress(args),
                          paired_timing=args.paired_timing, cell_timeout=args.cell_timeout)
     heatmaps = plots.sweep_heatmaps(rows, os.path.join(out, f"{method.name}_heatmaps.png"),
                                     title=f"{spec.label}: {method.name} sweep ({len(rows)} cells)")
+    points = trade.points_from_rows(rows)
+    trade_png = plots.trade_plot(points, os.path.join(out, "trade.png"),
+                                 title=f"{spec.label}: {method.name}, one point per (tau_a, tau_e)") if points else None
     ok = [r for r in rows if r.get("status") == "ok"]
     best = max(ok, key=lambda r: r.get("speedup") or 0.0) if ok else {}
     if not args.json:
@@ -291,13 +367,14 @@ def cmd_sweep(args):
             if r.get("status") in ("crashed", "timeout", "error"):
                 print(f"cell tau_a={r['tau_a']:.3g} tau_e={r['tau_e']:.3g} {r['status']}: {r.get('message')}")
         failed = len(rows) - len(ok)
-        print(f"{len(rows)} cells, {failed} failed; wrote {table} and {heatmaps} ({time.perf_counter() - t0:.1f} s)")
+        print(f"{len(rows)} cells, {failed} failed; wrote {table}, {heatmaps}"
+              + (f" and {trade_png}" if trade_png else "") + f" ({time.perf_counter() - t0:.1f} s)")
     summary = {"scene": spec.label, "method": method.name, "frames": best.get("frames"),
                "elements": best.get("elements"), "vertices": best.get("vertices"),
                "wall_s": time.perf_counter() - t0, "speedup": best.get("speedup"), "dof_ratio": best.get("dof_ratio"),
                "mean_clusters": best.get("mean_clusters"), "max_distance_error": best.get("max_distance_error"),
                "best_tau_a": best.get("tau_a"), "best_tau_e": best.get("tau_e"), "cells": len(rows),
-               "failed": len(rows) - len(ok), "table": table, "heatmaps": heatmaps, "rows": rows}
+               "failed": len(rows) - len(ok), "table": table, "heatmaps": heatmaps, "trade": trade_png, "rows": rows}
     _emit(args, summary)
     return 0
 
@@ -306,10 +383,18 @@ def cmd_scaling(args):
     """The scene at increasing resolution: full and reduced time, speedup, error (Table 2)."""
     spec = _spec(args)
     method = runners.get_method(args.method)
-    out = _folder(args, "scaling", spec)
-    frames = args.frames if args.frames else [getattr(spec.build(), "frames", 100)]
+    params = inspect.signature(spec.factory()).parameters
+    if "resolution" not in params and not any(p.kind == p.VAR_KEYWORD for p in params.values()):
+        raise ValueError(f"scene {args.scene!r} has no resolution parameter to scale")
+    if args.frames and len(args.frames) not in (1, len(args.resolutions)):
+        raise ValueError(f"--frames takes one number or one per resolution ({len(args.resolutions)}), "
+                         f"got {len(args.frames)}")
+    out = _folder(args, spec)
+    frames = args.frames if args.frames else [_frames(None, spec)]
     frames = frames[0] if len(frames) == 1 else frames
-    _say(args, f"scaling on {spec.label}: resolutions {args.resolutions}, frames {frames}, {method.name}")
+    _say(args, f"scaling: {_scene_text(spec)}, resolutions {', '.join(map(str, args.resolutions))}, "
+               f"{frames if isinstance(frames, int) else ', '.join(map(str, frames))} frames: "
+               f"{_method_text(method, args.tau_a, args.tau_e)} against full space")
     rows = runners.scaling(spec, args.resolutions, frames, method, args.tau_a, args.tau_e, progress=_progress(args))
     table = runners.write_table(rows, os.path.join(out, f"{method.name}.csv"))
     figure = plots.scaling_plot(rows, os.path.join(out, f"{method.name}_scaling.png"),
@@ -333,38 +418,130 @@ def cmd_scaling(args):
     return 0
 
 
+def cmd_budget(args):
+    """The error-budget reducer at several budgets, interleaved with full space: achieved error, speedup, trade.png."""
+    spec = _spec(args)
+    frames = _frames(args.frames, spec)
+    out = _folder(args, spec)
+    t0 = time.perf_counter()
+    _say(args, f"budget: {_scene_text(spec)}, {frames} frames: {args.method} with target_error in "
+               f"{', '.join(f'{e:g}' for e in args.errors)}, each stepped interleaved with the full-space run "
+               f"(the reference)")
+    options = {} if args.never_slower is None else {"never_slower": args.never_slower == "on"}
+    rows = trade.budget_runs(spec, args.errors, frames, method=args.method, progress=_progress(args), **options)
+    table = runners.write_table(rows, os.path.join(out, "budget.csv"))
+    picture = plots.trade_plot(trade.budget_points(rows), os.path.join(out, "trade.png"), budgets=args.errors,
+                               title=f"{spec.label}: {args.method} at error budgets (achieved beside each budget)")
+    if not args.json:
+        print(f"{'budget':>8} {'achieved':>9} {'estimated':>9} {'speedup':>8} {'DOF ratio':>9} {'reduced':>8} "
+              f"{'mean tau':>9} {'status':>8}")
+        for r in rows:
+            print(f"{r['budget']:8.3g} {r['error']:9.2e} {r['max_estimated_error']:9.2e} {_fmt(r['speedup'], '8.2f')} "
+                  f"{_fmt(r['dof_ratio'], '9.3f')} {100 * r['reduced_frames']:7.0f}% {_fmt(r['mean_tau_a'], '9.3g')} "
+                  f"{r['status']:>8}")
+        print(f"timing: {runners.TIMING['interleaved']}; achieved = max vertex distance to the full-space run / size;"
+              f"\nreduced = frames that returned the reduced solution (the others: shadow, impact or fall-back "
+              f"frames in full space)")
+        print(f"wrote {table} and {picture} ({time.perf_counter() - t0:.1f} s)")
+    _emit(args, {"scene": spec.label, "method": args.method, "rows": rows, "table": table, "trade": picture})
+    return 0 if all(r["status"] == "ok" for r in rows) else 1
+
+
+#: The demo's scene size: where affinification pays on two cores (docs/affinification.md, docs/budget.md).
+DEMO_RESOLUTION = 10
+
+
 def cmd_demo(args):
-    """The product in one command: the cantilever three ways, speedup, error and pictures."""
-    args.scene, args.set, args.methods, args.taus = "cantilever", [], list(runners.COMPARED), []
-    args.tau_a, args.tau_e = 0.3, 0.6
-    args.no_step_error, args.no_residual = True, False  # the step error costs a full solve per frame
-    args.no_paraview, args.gif = False, "affinification"
-    _say(args, "demo: a cantilever beam pinned at x = 0 swings down under gravity, simulated in full space, with\n"
-               "affinification (elements with alike deformation rates merge into 12-DOF affine bodies) and with\n"
-               "rigidification (6-DOF rigid bodies); the full-space run is the reference for speed and error.\n"
-               "(`skfem-affine compare --help` for the general command, with the step error and any scene.)")
-    return cmd_compare(args)
+    """The product in one command: a 24k-tet cantilever in full space and with affinification at its
+    default 1 % error budget, interleaved: the measured speedup and error, plots, a picture."""
+    args.scene, args.set, args.methods, args.taus = "cantilever", [], ["full", "affinification-budget"], []
+    args.tau_a = args.tau_e = None
+    args.no_step_error, args.no_residual = True, True  # each costs a full-space solve or assembly per frame
+    args.no_paraview, args.gif = True, False
+    _say(args, f"demo: a cantilever beam ({24 * args.resolution ** 3} tets) pinned at x = 0 swings down under "
+               "gravity, simulated in full space and\nwith affinification (elements with alike deformation rates "
+               "merge into 12-DOF affine bodies) at its default\nerror budget, 1 % of the beam's size; the "
+               "full-space run is the reference for speed and error, both stepped\nframe by frame in turn. "
+               "(`skfem-affine compare --help`: any scene and method; `skfem-affine budget`: several budgets.)")
+    code = cmd_compare(args)
+    _say(args, "Where it stops paying: below a few thousand tets the full solve is about as fast as the reduced one\n"
+               "(the oracle and the per-frame symbolic factorisation cost as much as they save), and the default\n"
+               "reducer then solves in full space by itself; from about 20k tets it pays (docs/budget.md).")
+    return code
 
 
 # ---------------------------------------------------------------- parser
-def _common(p, frames_help="frames to simulate (default: the scene's own)", frames=True):
+class _Parser(argparse.ArgumentParser):
+    """argparse with one-line errors (exit code 2) and no abbreviated options (one spelling each)."""
+
+    def __init__(self, *args, **kwargs):
+        kwargs.setdefault("allow_abbrev", False)
+        super().__init__(*args, **kwargs)
+
+    def error(self, message):
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
+def _whole(lowest):
+    """An argparse type: a whole number >= ``lowest``."""
+    def parse(text):
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"must be a whole number, got {text!r}") from None
+        if value < lowest:
+            raise argparse.ArgumentTypeError(f"must be >= {lowest}, got {value}")
+        return value
+    parse.__name__ = f"whole number >= {lowest}"
+    return parse
+
+
+def _real(lowest=0.0, strict=False):
+    """An argparse type: a finite number >= ``lowest`` (> with ``strict``)."""
+    def parse(text):
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"must be a number, got {text!r}") from None
+        if not math.isfinite(value) or value < lowest or (strict and value == lowest):
+            raise argparse.ArgumentTypeError(f"must be a finite number {'>' if strict else '>='} {lowest:g}, "
+                                             f"got {text}")
+        return value
+    parse.__name__ = "number"
+    return parse
+
+
+class _Refuse(argparse.Action):
+    """An option that exists only to say which option to use instead."""
+
+    def __init__(self, option_strings, dest, instead, **kwargs):
+        self.instead = instead
+        super().__init__(option_strings, argparse.SUPPRESS, nargs="*", help=argparse.SUPPRESS)
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        parser.error(f"{option_string} is not an option here; use {self.instead}")
+
+
+def _common(p, frames_help="frames to simulate (default: the scene's own)", frames=True, resolution=True):
     p.add_argument("scene", nargs="?", default="cantilever",
                    help="a scene name (see `skfem-affine scenes`) or a .py file defining scene(**kwargs) "
                         "that returns a Simulation and accepts reducer=; default cantilever")
-    p.add_argument("--resolution", type=int, default=None, help="the scene's resolution parameter "
-                   "(cantilever: k cells across, 24 k^3 tets)")
+    if resolution:
+        p.add_argument("--resolution", type=_whole(1), default=None, help="the scene's resolution parameter "
+                       "(cantilever: k cells across, 24 k^3 tets)")
     if frames:
-        p.add_argument("--frames", type=int, default=None, help=frames_help)
+        p.add_argument("--frames", type=_whole(1), default=None, help=frames_help)
     p.add_argument("--set", action="append", metavar="KEY=VALUE", default=[],
                    help="a scene keyword override, e.g. --set dt=0.005 --set solver=superlu "
                         "(repeatable; values are Python literals, else strings)")
-    p.add_argument("--out", default="out", help="output folder (default ./out); each command writes a subfolder")
+    p.add_argument("--out", default="out", help="output folder (default ./out); each command writes into "
+                   "OUT/COMMAND/SCENE/")
     p.add_argument("--json", action="store_true", help="print exactly one JSON summary object on stdout, nothing else")
 
 
 def _taus(p, what="the method's"):
-    p.add_argument("--tau-a", type=float, default=None, help=f"threshold to become reduced, 1/s ({what} default)")
-    p.add_argument("--tau-e", type=float, default=None, help=f"threshold to stay reduced, 1/s ({what} default)")
+    p.add_argument("--tau-a", type=_real(), default=None, help=f"threshold to become reduced, 1/s ({what} default)")
+    p.add_argument("--tau-e", type=_real(), default=None, help=f"threshold to stay reduced, 1/s ({what} default)")
 
 
 def _measure(p):
@@ -380,8 +557,8 @@ def _sequential(p):
 
 
 def _pictures(p, every=10):
-    p.add_argument("--every", type=int, default=every, help=f"keep/write every N-th frame (default {every})")
-    p.add_argument("--frame", type=int, default=None,
+    p.add_argument("--every", type=_whole(1), default=every, help=f"keep/write every N-th frame (default {every})")
+    p.add_argument("--frame", type=_whole(0), default=None,
                    help="frame of the clusters picture (default: where the most elements are reduced)")
     p.add_argument("--gif", action="store_true", help="also write an animated GIF per method")
     p.add_argument("--no-paraview", action="store_true", help="skip the ParaView (.pvd + .vtu) output")
@@ -390,20 +567,21 @@ def _pictures(p, every=10):
 def parser():
     methods = ", ".join(f"{m.name} (default taus {m.taus[0]}, {m.taus[1]})" if m.taus[0] is not None else m.name
                         for m in runners.METHODS.values())
-    top = argparse.ArgumentParser(prog="skfem-affine", description="Fast adaptive elastodynamics for scikit-fem: "
-                                  "simulate scenes and measure the speed/accuracy trade of affinification.",
-                                  epilog="Run `skfem-affine COMMAND --help` for each command's options.")
+    top = _Parser(prog="skfem-affine", description="Fast adaptive elastodynamics for scikit-fem: "
+                  "simulate scenes and measure the speed/accuracy trade of affinification.",
+                  epilog="Run `skfem-affine COMMAND --help` for each command's options.")
     sub = top.add_subparsers(dest="command", metavar="COMMAND")
 
     p = sub.add_parser("demo", help="the cantilever in full space, affinification and rigidification: "
                                     "speedup, error, plots, a picture and ParaView output",
                        description=cmd_demo.__doc__)
-    p.add_argument("--resolution", type=int, default=4, help="cells across the beam, 24 k^3 tets (default 4)")
-    p.add_argument("--frames", type=int, default=150, help="frames (default 150, 1.5 s of simulated time)")
-    p.add_argument("--out", default="out", help="output folder (default ./out)")
+    p.add_argument("--resolution", type=_whole(1), default=DEMO_RESOLUTION,
+                   help=f"cells across the beam, 24 k^3 tets (default {DEMO_RESOLUTION}: 24000 tets)")
+    p.add_argument("--frames", type=_whole(1), default=60, help="frames (default 60, 0.6 s of simulated time)")
+    p.add_argument("--out", default="out", help="output folder (default ./out); the demo writes into OUT/demo/")
     p.add_argument("--json", action="store_true", help="print exactly one JSON summary object on stdout")
-    p.add_argument("--every", type=int, default=5, help="keep/write every N-th frame (default 5)")
-    p.add_argument("--frame", type=int, default=None, help="frame of the clusters picture")
+    p.add_argument("--every", type=_whole(1), default=5, help="keep/write every N-th frame (default 5)")
+    p.add_argument("--frame", type=_whole(0), default=None, help="frame of the clusters picture")
     p.set_defaults(func=cmd_demo)
 
     p = sub.add_parser("run", help="one method on one scene", description=cmd_run.__doc__ +
@@ -435,14 +613,14 @@ def parser():
                        description=cmd_sweep.__doc__ + " Finished cells in the table are not recomputed.")
     _common(p)
     p.add_argument("--method", default="affinification", help=f"one of: {', '.join(runners.METHODS)}")
-    p.add_argument("--grid", type=int, default=9, help="N for an N x N grid (default 9; the paper uses 41)")
-    p.add_argument("--tau-range", type=float, nargs=2, default=(1e-3, 1.0), metavar=("LO", "HI"),
+    p.add_argument("--grid", type=_whole(1), default=9, help="N for an N x N grid (default 9; the paper uses 41)")
+    p.add_argument("--tau-range", type=_real(0.0, strict=True), nargs=2, default=(1e-3, 1.0), metavar=("LO", "HI"),
                    help="log-spaced thresholds from LO to HI, 1/s (default 1e-3 1)")
     p.add_argument("--scheduler", default=None, help="address of a running dask scheduler, e.g. tcp://host:8786 "
                    "(default: an embedded LocalCluster)")
-    p.add_argument("--workers", type=int, default=None, help="LocalCluster worker processes (default: CPU count)")
+    p.add_argument("--workers", type=_whole(1), default=None, help="LocalCluster worker processes (default: CPU count)")
     p.add_argument("--threads", action="store_true", help="LocalCluster workers as threads of this process")
-    p.add_argument("--table", default=None, help="results table (.csv or .parquet; default OUT/sweep_SCENE/METHOD.csv)")
+    p.add_argument("--table", default=None, help="results table (.csv or .parquet; default OUT/sweep/SCENE/METHOD.csv)")
     p.add_argument("--format", choices=("csv", "parquet"), default="csv", help="default table format (csv)")
     p.add_argument("--retry-failed", action="store_true", help="recompute cells recorded as failed")
     p.add_argument("--paired-timing", action="store_true",
@@ -454,12 +632,23 @@ def parser():
     _measure(p)
     p.set_defaults(func=cmd_sweep)
 
+    p = sub.add_parser("budget", help="the error-budget reducer at several budgets against full space: "
+                                      "achieved error, speedup, trade.png", description=cmd_budget.__doc__)
+    _common(p)
+    p.add_argument("--errors", type=_real(0.0, strict=True), nargs="+", default=[0.001, 0.01, 0.05],
+                   help="error budgets (max vertex distance / scene size), default 0.001 0.01 0.05")
+    p.add_argument("--method", choices=sorted(trade.REDUCERS), default="affinification")
+    p.add_argument("--never-slower", choices=("on", "off"), default=None,
+                   help="the fall-back to full space when reduction does not pay (default: on)")
+    p.set_defaults(func=cmd_budget)
+
     p = sub.add_parser("scaling", help="speedup and error against resolution (paper Table 2)",
                        description=cmd_scaling.__doc__)
-    _common(p, frames=False)
-    p.add_argument("--resolutions", type=int, nargs="+", default=[4, 6, 8, 10],
+    _common(p, frames=False, resolution=False)
+    p.add_argument("--resolutions", type=_whole(1), nargs="+", default=[4, 6, 8, 10],
                    help="values of the scene's resolution parameter (default 4 6 8 10)")
-    p.add_argument("--frames", type=int, nargs="+", default=None,
+    p.add_argument("--resolution", action=_Refuse, instead="--resolutions R [R ...] (one or more values)")
+    p.add_argument("--frames", type=_whole(1), nargs="+", default=None,
                    help="frames: one number, or one per resolution (default: the scene's own)")
     p.add_argument("--method", default="affinification", help=f"one of: {', '.join(runners.METHODS)}")
     _taus(p)
@@ -471,17 +660,57 @@ def parser():
     return top
 
 
+def _one_line(text):
+    return " ".join(str(text).split()) or "(no message)"
+
+
+def _scene_file_error(err, args):
+    """``scene file drop.py, line 3: ZeroDivisionError: ...`` when ``err`` came from the user's scene file."""
+    scene = getattr(args, "scene", None)
+    if not scene or not str(scene).endswith(".py"):
+        return None
+    path = os.path.abspath(scene)
+    if isinstance(err, SyntaxError) and err.filename and os.path.abspath(err.filename) == path:
+        line = err.lineno
+    else:
+        lines = [f.lineno for f in traceback.extract_tb(err.__traceback__) if os.path.abspath(f.filename) == path]
+        if not lines:
+            return None
+        line = lines[-1]
+    text = err.msg if isinstance(err, SyntaxError) else err
+    return f"scene file {scene}, line {line}: {type(err).__name__}: {_one_line(text)}"
+
+
 def main(argv=None):
+    """Run the command line on ``argv`` (default ``sys.argv[1:]``); returns the exit code.
+
+    0 success, 1 a run that failed or diverged, 2 a mistake in the command (one line on stderr),
+    130 interrupted.
+    """
     argv = list(sys.argv[1:] if argv is None else argv)
     top = parser()
     if not argv or argv[0].startswith("-") and argv[0] not in ("-h", "--help"):
         argv = ["demo"] + argv
-    args = top.parse_args(argv)
     try:
+        args = top.parse_args(argv)
+    except SystemExit as done:  # --help (0) or a one-line usage error (2), already printed
+        return done.code
+    name = f"skfem-affine {args.command}"
+    try:
+        if os.path.exists(getattr(args, "out", "")) and not os.path.isdir(args.out):
+            raise ValueError(f"--out {args.out} is a file; give a folder")
         return args.func(args)
-    except (ValueError, TypeError, ImportError) as err:
-        print(f"skfem-affine {args.command}: error: {err}", file=sys.stderr)
-        return 2
+    except KeyboardInterrupt:
+        print(f"{name}: interrupted", file=sys.stderr)
+        return 130
     except SimulationDiverged as err:
-        print(f"skfem-affine {args.command}: {err}", file=sys.stderr)
+        print(f"{name}: {_one_line(err)}", file=sys.stderr)
         return 1
+    except Exception as err:  # noqa: BLE001 (a mistake of the user's gets one line; a bug its traceback)
+        message = _scene_file_error(err, args)
+        if message is None and isinstance(err, (ValueError, TypeError, ImportError, OSError)):
+            message = _one_line(err)
+        if message is None:
+            raise
+        print(f"{name}: error: {message}", file=sys.stderr)
+        return 2

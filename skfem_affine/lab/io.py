@@ -20,57 +20,75 @@ def frame_mesh(sim, state):
     return meshio.Mesh(state.x, cells, point_data=point_data, cell_data=cell_data)
 
 
-class SeriesWriter:
-    """Write frames as ``<stem>_NNNNN.vtu`` and keep ``<stem>.pvd`` up to date."""
+class Series:
+    """A ParaView time series of ``sim``'s states, written as you pass them in::
 
-    def __init__(self, path):
+        series = Series("out/beam", sim)    # out/beam.pvd, out/beam_NNNNN.vtu
+        series.write(sim.state)             # frame 0
+        for state in sim.run(100):
+            series.write(state)             # frames 1 ... 100
+
+    Each state becomes ``<stem>_NNNNN.vtu`` (NNNNN = its frame) and ``<stem>.pvd``, the file
+    ParaView opens, is rewritten after every state, so an interrupted run still opens. Writing
+    the same frame again replaces it. Nothing is simulated here: the series holds exactly the
+    states written. Each VTU holds point ``velocity``, ``displacement`` and ``fixed`` and cell
+    ``cluster`` (body id, -1 elastic), ``affine`` (0/1), ``material`` and ``body``.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        ``folder/stem`` (a trailing ``.pvd`` is dropped); the folder is created.
+    sim : Simulation
+        The simulation the states belong to (its mesh, materials and fixed vertices).
+    """
+
+    def __init__(self, path, sim):
+        if not hasattr(sim, "system"):
+            raise TypeError(f"sim must be a skfem_affine.Simulation, got {type(sim).__name__}")
         path = os.fspath(path)
         if path.endswith(".pvd"):
             path = path[:-4]
+        self.sim = sim
         self.dir, self.stem = os.path.dirname(path) or ".", os.path.basename(path)
+        if not self.stem:
+            raise ValueError(f"path must end in a file stem (e.g. 'out/beam'), got {path!r}")
         os.makedirs(self.dir, exist_ok=True)
-        self.entries = []
+        self.entries = {}
 
     @property
     def pvd(self):
+        """The path of the ``.pvd`` index."""
         return os.path.join(self.dir, self.stem + ".pvd")
 
-    def write(self, sim, state):
+    def write(self, state):
+        """Write one state (e.g. from ``sim.run``, or ``sim.state``); returns the VTU's file name."""
+        x = getattr(state, "x", None)
+        if x is None or not hasattr(state, "frame") or not hasattr(state, "v"):
+            raise TypeError(f"state must be a skfem_affine.State, got {type(state).__name__}")
+        if np.shape(x) != self.sim.state.x.shape:
+            raise ValueError(f"state has positions of shape {np.shape(x)}, but the series' simulation has "
+                             f"{self.sim.state.x.shape}: the state is not one of this simulation's")
         name = f"{self.stem}_{state.frame:05d}.vtu"
-        meshio.write(os.path.join(self.dir, name), frame_mesh(sim, state), binary=True)
-        self.entries.append((state.time, name))
+        meshio.write(os.path.join(self.dir, name), frame_mesh(self.sim, state), binary=True)
+        self.entries[state.frame] = (state.time, name)
         with open(self.pvd, "w") as fh:
             fh.write('<?xml version="1.0"?>\n<VTKFile type="Collection" version="0.1">\n<Collection>\n')
-            for t, n in self.entries:
+            for _, (t, n) in sorted(self.entries.items()):
                 fh.write(f'<DataSet timestep="{t:.9g}" group="" part="0" file={quoteattr(n)}/>\n')
             fh.write("</Collection>\n</VTKFile>\n")
         return name
 
 
-def write_series(path, sim, frames=None, every=1):
-    """Run ``sim`` for ``frames`` (default ``sim.frames``) and write every ``every``-th state.
+def write_series(path, sim, *, states):
+    """Write already computed ``states`` of ``sim`` (e.g. ``runners.Run.states``) as a ParaView series.
 
-    Returns the path of the .pvd file that ParaView opens.
+    Nothing is simulated: to record a run as it goes, pass each state to a :class:`Series`.
+    Returns the path of the ``.pvd`` file that ParaView opens.
     """
-    frames = getattr(sim, "frames", 100) if frames is None else frames
-    writer = SeriesWriter(path)
-    writer.write(sim, sim.state)
-    for state in sim.run(frames):
-        if state.frame % every == 0 or state.frame == frames:
-            writer.write(sim, state)
-    return writer.pvd
-
-
-def write_states(path, sim, states):
-    """Write already computed states (e.g. ``runners.Run.states``) of ``sim`` as a ParaView series.
-
-    Each VTU holds point ``velocity`` and ``displacement`` and cell data ``cluster``
-    (body id, -1 elastic), ``affine`` (0/1) and ``material``; returns the .pvd path.
-    """
-    writer = SeriesWriter(path)
+    series = Series(path, sim)
     for state in states:
-        writer.write(sim, state)
-    return writer.pvd
+        series.write(state)
+    return series.pvd
 
 
 def load_mesh(path):

@@ -30,6 +30,8 @@ METHODS = {m.name: m for m in [
     Method("full", lambda tau_a, tau_e: None),
     Method("affinification", lambda tau_a, tau_e: Affinification(tau_a=tau_a, tau_e=tau_e), (0.1, 0.2)),
     Method("rigidification", lambda tau_a, tau_e: Rigidification(tau_r=tau_a, tau_e=tau_e), (1e-2, 2e-2)),
+    # the default reducer: thresholds chosen by its 1 % error budget (tau_a, tau_e unused)
+    Method("affinification-budget", lambda tau_a, tau_e: Affinification()),
     # needs a Newton integrator: run the scene with integrator="implicit_euler" (--set integrator=implicit_euler),
     # so that "full" is the full-space Newton reference it converges to; tau_a, tau_e = eps_nodal, eps_modal
     Method("subspace", lambda tau_a, tau_e: AdaptiveSubspace(eps_nodal=tau_a, eps_modal=tau_e), (1e-3, 3e-3)),

@@ -6,7 +6,8 @@
 - :func:`error_over_time`: distance and step distance error per frame;
 - :func:`clusters_picture`, :func:`animation`: the bodies with clusters coloured, one frame or a GIF;
 - :func:`sweep_heatmaps`: every metric over the tau_a x tau_e grid (paper Fig. 6);
-- :func:`scaling_plot`: speedup and time per frame against the number of elements (paper Table 2).
+- :func:`scaling_plot`: speedup and time per frame against the number of elements (paper Table 2);
+- :func:`trade_plot`: speedup against max distance error, one point per setting, the Pareto front.
 """
 import os
 
@@ -380,3 +381,70 @@ def pick_state(states, frame=None):
         score = np.array(moved) * np.array(reduced)
         return states[int(np.argmax(score))] if score.max() > 0 else states[int(np.argmax(moved))]
     return min(states, key=lambda s: abs(s.frame - frame))
+
+
+def pareto_front(points):
+    """Indices of the points (error, speedup) that no other point beats on both, by increasing error.
+
+    A point is on the front when every point with an error as small or smaller is slower.
+    """
+    pts = [(e, v, i) for i, (e, v) in enumerate(points) if e is not None and v is not None
+           and np.isfinite(e) and np.isfinite(v)]
+    front, best = [], -np.inf
+    for e, v, i in sorted(pts, key=lambda p: (p[0], -p[1])):
+        if v > best:
+            front.append(i)
+            best = v
+    return front
+
+
+def trade_plot(points, path, budgets=(), title=None):
+    """The trade at a glance: speedup over full space against max distance error / size.
+
+    Parameters
+    ----------
+    points : list of dict
+        One per setting: ``error`` (max distance error / size), ``speedup``, ``label`` (its
+        settings, written beside the point) and optionally ``method`` (the colour), ``budget``
+        (an error budget: drawn as a short vertical tick at the budget, joined to the point).
+    path : str
+        The PNG to write.
+    budgets : sequence of float
+        Error budgets to mark as vertical dashed lines.
+
+    The Pareto front (:func:`pareto_front`) is drawn as a step line; 1x (no gain) as a dotted line.
+    """
+    pts = [p for p in points if p.get("error") is not None and p.get("speedup") is not None
+           and np.isfinite(p["error"]) and np.isfinite(p["speedup"])]
+    fig = _figure(7.5, 4.8)
+    ax = fig.subplots()
+    methods = list(dict.fromkeys(p.get("method", "affinification") for p in pts))
+    for i, name in enumerate(methods):
+        mine = [p for p in pts if p.get("method", "affinification") == name]
+        ax.scatter([max(p["error"], 1e-12) for p in mine], [p["speedup"] for p in mine], s=28, zorder=3,
+                   color=_color(name, i), label=name)
+    for p in pts:
+        ax.annotate(p.get("label", ""), (max(p["error"], 1e-12), p["speedup"]), fontsize=7,
+                    textcoords="offset points", xytext=(5, 4))
+        if p.get("budget") is not None:
+            ax.plot([p["budget"], max(p["error"], 1e-12)], [p["speedup"]] * 2, color="0.6", lw=0.8, zorder=1)
+            ax.plot([p["budget"]], [p["speedup"]], marker="|", ms=10, color="0.3", zorder=2)
+    front = [pts[i] for i in pareto_front([(p["error"], p["speedup"]) for p in pts])]
+    if front:
+        xs = [max(p["error"], 1e-12) for p in front]
+        ys = [p["speedup"] for p in front]
+        ax.step(xs, ys, where="post", color="k", lw=1.0, alpha=0.6, zorder=2)
+        ax.scatter(xs, ys, s=90, facecolors="none", edgecolors="k", lw=0.9, zorder=4, label="Pareto front")
+    ax.axhline(1.0, color="k", lw=0.8, ls=":", label="1x (full space)")
+    for j, b in enumerate(budgets):
+        ax.axvline(b, color="C3", lw=0.9, ls="--", label="error budget" if j == 0 else None)
+    ax.set_xscale("log")
+    xs = [max(p["error"], 1e-12) for p in pts] + [float(b) for b in budgets]
+    if xs:  # room for the labels right of the points
+        ax.set_xlim(min(xs) / 2, max(xs) * 4)
+    ax.set_xlabel("max vertex distance to the full-space run / scene size")
+    ax.set_ylabel("speedup over full space (x)")
+    ax.set_title(title or "Speed against accuracy (up and left is better)", fontsize=10)
+    ax.legend(fontsize=8, loc="best")
+    fig.tight_layout()
+    return _save(fig, path)

@@ -22,7 +22,7 @@ def load_scene_file(path):
     try:
         namespace = runpy.run_path(path, run_name="skfem_affine_scene")
     except SyntaxError as err:  # also a file that is not UTF-8 text
-        raise ValueError(f"scene file {path}: not a readable Python file ({err.msg}, line {err.lineno})") from None
+        raise ValueError(f"scene file {path}, line {err.lineno}: SyntaxError: {err.msg} (not a readable Python file)") from None
     factory = namespace.get("scene")
     if not callable(factory):
         raise ValueError(f"{path} must define a function scene(**kwargs) returning a skfem_affine.Simulation "

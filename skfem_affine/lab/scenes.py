@@ -6,9 +6,17 @@ body or simulation, and records its default number of frames in ``sim.frames``
 and its name in ``sim.scene``.
 
 Contact scenes (paper sec. 4): :func:`drop`, :func:`stacked_beams`, :func:`pills`,
-:func:`bowling`, :func:`toothbrush`. Their meshes are procedural scikit-fem meshes
-(``MeshTet.init_tensor``, ``init_ball``, mapped or restricted), so no mesher is needed.
+:func:`bowling`, :func:`toothbrush`, :func:`wheel`, :func:`octopus`, :func:`armadillo`
+(resource-limited). Their meshes are procedural scikit-fem meshes (``MeshTet.init_tensor``,
+``init_ball``, mapped or restricted), so no mesher is needed; ``pills``, ``wheel``,
+``octopus`` and ``armadillo`` also take ``mesh=``, a mesh file such as the paper's own.
+
+The twisting beam (paper Fig. 9) is not a scene yet: turning one end needs prescribed
+motion in the frame path. :func:`twisting_beam_setup` builds its mesh, ends and
+:class:`TwistPath`, ready to be wired in.
 """
+import os
+
 import numpy as np
 import skfem
 
@@ -16,7 +24,10 @@ from skfem_affine.body import ElasticBody
 from skfem_affine.checks import integer
 from skfem_affine.contact.colliders import Bowl, Plane
 from skfem_affine.contact.pgs import PGS
-from skfem_affine.simulation import Simulation
+from skfem_affine.lab.io import load_mesh
+from skfem_affine.lab.loads import Pull, attach_force
+from skfem_affine.reducers.affine.affinification import Affinification
+from skfem_affine.simulation import Rayleigh, Simulation
 from skfem_affine.materials import NeoHookean
 
 SIM_KEYS = ("dt", "gravity", "damping", "reducer", "solver", "newton_iters", "newton_tol", "integrator",
@@ -36,23 +47,53 @@ def beam_mesh(resolution, length=4.0, width=1.0):
                                      np.linspace(0, width, k + 1))
 
 
-def cantilever(resolution=6, length=4.0, width=1.0, frames=370, **kwargs):
-    """A beam pinned at x = 0 falling under gravity (paper Fig. 17 / Table 1 "Beam").
+def cantilever(resolution=6, length=4.0, width=1.0, frames=370, E=2e7, nu=0.35, density=1000.0,
+               damping=Rayleigh(alpha=0.03, beta=0.02), **kwargs):
+    """A beam pinned at x = 0 swinging down under gravity and vibrating (paper Fig. 17 / Table 1 "Beam").
 
-    Defaults: Neo-Hookean E = 1e5 Pa, nu = 0.35, density 1000 kg/m^3, h = 0.01 s,
-    370 frames; ``resolution=k`` gives 24 k^3 tets (k=6: 5184, about the paper's 5.5k).
+    Defaults: a 4 x 1 x 1 m beam, Neo-Hookean E = 2e7 Pa (stiff rubber), nu = 0.35,
+    density 1000 kg/m^3, the paper's Rayleigh damping (alpha = 0.03, beta = 0.02),
+    h = 0.01 s, 370 frames. Euler-Bernoulli theory puts its static tip deflection
+    at :func:`euler_bernoulli_tip_deflection` = 0.19 m (under 5 % of the length)
+    and its first bending frequency at :func:`euler_bernoulli_frequency` = 1.4 Hz,
+    so the beam swings down, overshoots and rings for a few periods in 370 frames.
+    ``resolution=k`` gives 24 k^3 tets (k=6: 5184, about the paper's 5.5k).
+
+    ``material`` overrides ``E`` and ``nu``; ``damping`` is a Rayleigh, an
+    ``(alpha, beta)`` pair (so that the command line's ``--set "damping=(0, 0)"``
+    reaches it) or None (undamped). The earlier, rope-like defaults (the tip sinks
+    metres below the clamp) remain reachable as ``cantilever(E=1e5, damping=None)``.
     """
     sim_kw, body_kw = _split(dict(kwargs))
     sim_kw.setdefault("dt", 0.01)
     sim_kw.setdefault("gravity", (0.0, 0.0, -9.81))
+    sim_kw["damping"] = Rayleigh(*damping) if isinstance(damping, (tuple, list)) else damping
     mesh = beam_mesh(resolution, length, width)
-    body_kw.setdefault("material", NeoHookean(E=1e5, nu=0.35))
-    body_kw.setdefault("density", 1000.0)
+    body_kw.setdefault("material", NeoHookean(E=E, nu=nu))
+    body_kw["density"] = density
     body_kw.setdefault("fixed", mesh.nodes_satisfying(lambda p: p[0] < 1e-9 * length))
     sim = Simulation(ElasticBody(mesh, name="cantilever", **body_kw), **sim_kw)
     sim.frames = frames
     sim.scene = "cantilever"
     return sim
+
+
+def euler_bernoulli_tip_deflection(length=4.0, width=1.0, E=2e7, density=1000.0, g=9.81):
+    r"""Static tip deflection of a square cantilever under its own weight (Euler-Bernoulli).
+
+    .. math:: \delta = \frac{\rho g A L^4}{8 E I}, \qquad A = w^2,\ I = w^4 / 12.
+    """
+    area, inertia = width ** 2, width ** 4 / 12.0
+    return density * g * area * length ** 4 / (8.0 * E * inertia)
+
+
+def euler_bernoulli_frequency(length=4.0, width=1.0, E=2e7, density=1000.0):
+    r"""First bending frequency (Hz) of a square cantilever (Euler-Bernoulli).
+
+    .. math:: f_1 = \frac{1.8751^2}{2 \pi L^2} \sqrt{\frac{E I}{\rho A}}.
+    """
+    area, inertia = width ** 2, width ** 4 / 12.0
+    return 1.8751 ** 2 / (2 * np.pi * length ** 2) * np.sqrt(E * inertia / (density * area))
 
 
 def free_body(resolution=3, shape="cube", size=1.0, spin=(0.0, 0.0, 2.0), velocity=(0.5, 0.0, 0.0),
@@ -183,12 +224,15 @@ def stacked_beams(resolution=2, n=2, length=2.0, width=0.4, gap=0.02, frames=200
 
 
 def pills(n=8, resolution=1, radius=0.1, half_length=0.12, bowl_radius=0.6, frames=300,
-          materials=None, **kwargs):
+          materials=None, mesh=None, **kwargs):
     """``n`` capsules dropped into a bowl, alternating two materials (paper Table 1 "Pills").
 
     Pills lie in layers of four, each layer turned by 90 degrees, the lowest at the
     bowl's rim height. Defaults: Neo-Hookean (E = 2e4, nu = 0.34) and (E = 1e6,
     nu = 0.36), density 1000, h = 0.01, friction 0.3; ``materials`` overrides the pair.
+    ``mesh`` (a skfem.MeshTet or a mesh file, e.g. the paper's ``Pill.mesh``) replaces the
+    procedural capsule: its longest extent is laid along the pill's axis and scaled to
+    ``2 (half_length + radius)``.
     """
     bowl = Bowl(center=(0.0, 0.0, bowl_radius), radius=bowl_radius)
     sim_kw, body_kw = _contact_scene_kwargs(kwargs, 0.3, bowl)
@@ -198,6 +242,12 @@ def pills(n=8, resolution=1, radius=0.1, half_length=0.12, bowl_radius=0.6, fram
     if "material" in body_kw:
         mats = (body_kw.pop("material"),) * 2
     spacing = 2 * radius + 0.025 * bowl_radius
+    pill = None
+    if mesh is not None:  # centred, its long axis along x, scaled to the capsule's length
+        pill = _mesh_from(mesh)
+        q = pill.p - 0.5 * (pill.p.max(axis=1) + pill.p.min(axis=1))[:, None]
+        q = np.roll(q, -int(np.argmax(np.ptp(q, axis=1))), axis=0)
+        pill = _rebuilt(pill, q * 2 * (half_length + radius) / np.ptp(q[0]))
     bodies = []
     for i in range(n):
         layer, slot = divmod(i, 4)
@@ -206,8 +256,11 @@ def pills(n=8, resolution=1, radius=0.1, half_length=0.12, bowl_radius=0.6, fram
         centre = [0.0, 0.0, bowl_radius + layer * (2 * radius + 0.05 * bowl_radius)]
         centre[1 - axis] = offset
         centre[axis] = 0.02 * bowl_radius * (slot - 1.5)  # slightly staggered, so that pills roll
-        mesh = capsule_mesh(radius, half_length, resolution, centre, axis=axis)
-        bodies.append(ElasticBody(mesh, mats[i % 2], name=f"pill{i}", **body_kw))
+        if pill is None:
+            m = capsule_mesh(radius, half_length, resolution, centre, axis=axis)
+        else:
+            m = _rebuilt(pill, np.roll(pill.p, axis, axis=0) + np.asarray(centre)[:, None])
+        bodies.append(ElasticBody(m, mats[i % 2], name=f"pill{i}", **body_kw))
     return _scene(Simulation(bodies, **sim_kw), "pills", frames)
 
 
@@ -274,5 +327,281 @@ def toothbrush(resolution=1, speed=0.5, frames=150, **kwargs):
     return _scene(Simulation(ElasticBody(mesh, name="toothbrush", **body_kw), **sim_kw), "toothbrush", frames)
 
 
+# ---------------------------------------------------------------------------- meshes from files
+def _mesh_from(mesh):
+    """A skfem.MeshTet, given one or the path of a mesh file (MEDIT .mesh, ...; :func:`io.load_mesh`)."""
+    if isinstance(mesh, skfem.Mesh):
+        return mesh
+    if isinstance(mesh, (str, os.PathLike)):
+        if not os.path.isfile(mesh):
+            raise ValueError(f"mesh file {os.fspath(mesh)!r} does not exist")
+        return load_mesh(os.fspath(mesh))
+    raise TypeError(f"mesh must be a skfem.MeshTet or the path of a mesh file, got {type(mesh).__name__}")
+
+
+def _rebuilt(mesh, p):
+    return skfem.MeshTet(np.ascontiguousarray(p), mesh.t, _subdomains=mesh.subdomains)
+
+
+def _disc_map(q):
+    """Map points of the square [-1, 1]^2 ((2, n)) onto the unit disc: q -> q ||q||_inf / ||q||_2."""
+    r2 = np.linalg.norm(q, axis=0)
+    return q * np.where(r2 > 0, np.abs(q).max(axis=0) / np.maximum(r2, 1e-300), 1.0)
+
+
+# ---------------------------------------------------------------------------- wheel (paper Fig. 13)
+def wheel_mesh(resolution=1, radius=0.4, width=0.16, hub_fraction=0.75):
+    """A solid wheel (a disc of ``radius`` and ``width``, axle along y) and its hub elements.
+
+    A tensor box over the square [-1, 1]^2 (x, z) x [-width/2, width/2] (y) is mapped
+    onto the disc by q -> q ||q||_inf / ||q||_2, which sends square rings to circles
+    (no degenerate element at the axle). ``resolution=k`` has 8 k cells across the
+    diameter. Returns ``(mesh, is_hub)``: elements whose centroid lies within
+    ``hub_fraction * radius`` of the axle.
+    """
+    k = _resolution(resolution)
+    across = 8 * k
+    thick = max(1, int(round(across * width / (2 * radius))))
+    box = box_mesh((2.0, width, 2.0), (across, thick, across))
+    p = box.p.copy()
+    p[[0, 2]] = radius * _disc_map(p[[0, 2]])
+    mesh = skfem.MeshTet(np.ascontiguousarray(p), box.t)
+    return mesh, _hub(mesh, 1, hub_fraction)
+
+
+def _hub(mesh, axle, hub_fraction):
+    """Elements whose centroid is within ``hub_fraction`` of the largest distance to the axle."""
+    if not 0.0 < float(hub_fraction) < 1.0:
+        raise ValueError(f"hub_fraction must lie in (0, 1), got {hub_fraction}")
+    off = [a for a in range(3) if a != axle]
+    centre = 0.5 * (mesh.p.max(axis=1) + mesh.p.min(axis=1))
+    q = mesh.p[off] - centre[off, None]
+    radius = np.linalg.norm(q, axis=0).max()
+    mid = q[:, mesh.t].mean(axis=1)
+    return np.linalg.norm(mid, axis=0) < float(hub_fraction) * radius
+
+
+def wheel(resolution=1, mesh=None, radius=None, width=0.16, hub_fraction=0.75, height=0.1, frames=300, **kwargs):
+    """A two-material wheel (stiff hub, soft tyre) dropped onto a plane z = 0 (paper Fig. 13, Table 1 "Wheel").
+
+    Procedural by default (:func:`wheel_mesh`), or ``mesh``: a skfem.MeshTet or a mesh file
+    (e.g. the paper's ``wheelFatHD.mesh``). A file is turned so that its thinnest extent
+    (the axle) lies along y and centred, and scaled to ``radius`` when given (the procedural
+    wheel's default is 0.4 m, a file keeps its own units); its elements are split into hub and
+    tyre by the centroid's distance to the axle (``hub_fraction`` of the outer radius),
+    since the paper's files carry no material labels. The wheel starts ``height`` above
+    the plane. Defaults: hub Neo-Hookean E = 1e8, nu = 0.34; tyre E = 1e6, nu = 0.4
+    (the tyre's own weight squashes it by a few %); density 1000; h = 0.005 (as the
+    paper), friction 0.5. ``hub_material`` and ``tyre_material`` override the materials
+    (the paper's Table 1 lists E = 1.4e3 and 5e5, nu = 0.34 and 0.4); ``density`` is a
+    number or a (hub, tyre) pair.
+    """
+    kwargs.setdefault("dt", 0.005)
+    sim_kw, body_kw = _contact_scene_kwargs(kwargs, 0.5, Plane())
+    if mesh is None:
+        m, hub = wheel_mesh(resolution, 0.4 if radius is None else radius, width, hub_fraction)
+    else:
+        m = _mesh_from(mesh)
+        axle = int(np.argmin(np.ptp(m.p, axis=1)))
+        p = np.roll(m.p, 1 - axle, axis=0)  # cyclic: the axle becomes y
+        p = p - 0.5 * (p.max(axis=1) + p.min(axis=1))[:, None]
+        if radius is not None:
+            p *= radius / np.linalg.norm(p[[0, 2]], axis=0).max()
+        m = _rebuilt(m, p)
+        hub = _hub(m, 1, hub_fraction)
+    m = m.translated((0.0, 0.0, height - m.p[2].min()))
+    hard = body_kw.pop("hub_material", NeoHookean(E=1e8, nu=0.34))
+    soft = body_kw.pop("tyre_material", NeoHookean(E=1e6, nu=0.4))
+    body_kw.setdefault("material", [hard if h else soft for h in hub])
+    density = body_kw.pop("density", 1000.0)
+    if isinstance(density, (tuple, list)) and len(density) == 2:
+        density = np.where(hub, float(density[0]), float(density[1]))
+    body_kw["density"] = density
+    return _scene(Simulation(ElasticBody(m, name="wheel", **body_kw), **sim_kw), "wheel", frames)
+
+
+# ---------------------------------------------------------------------------- octopus (paper Fig. 11)
+def octopus_mesh(resolution=1, cell=0.05, head=(0.2, 0.2, 0.2), arm_length=0.15, arm_width=0.05):
+    """A head (box) on four flat arms along +-x and +-y, one conforming tet mesh.
+
+    A tensor grid of cells ``cell / resolution`` keeps the head's cells and the bottom
+    layer (``arm_width`` thick) of the arms. Returns the mesh; z = 0 is its bottom.
+    """
+    k = _resolution(resolution)
+    c = cell / k
+    hx, hy, hz = head
+    reach = max(hx, hy) / 2 + arm_length
+    n = int(round(2 * reach / c))
+    axis = np.linspace(-reach, reach, n + 1)
+    mesh = skfem.MeshTet.init_tensor(axis, axis, np.linspace(0.0, hz, int(round(hz / c)) + 1))
+    x, y, z = mesh.p[:, mesh.t].mean(axis=1)
+    in_head = (np.abs(x) < hx / 2) & (np.abs(y) < hy / 2)
+    a = arm_width / 2
+    in_arm = (z < arm_width) & (((np.abs(y) < a) & (np.abs(x) < reach)) | ((np.abs(x) < a) & (np.abs(y) < reach)))
+    return mesh.restrict(np.flatnonzero(in_head | in_arm))
+
+
+def tentacle_tip(mesh, fraction=0.2):
+    """Vertices near the one farthest from the vertical axis through the centre (a tentacle's tip).
+
+    ``fraction`` of the mesh's horizontal extent is the radius of the tip region.
+    """
+    p = mesh.p
+    centre = 0.5 * (p.max(axis=1) + p.min(axis=1))
+    d = np.linalg.norm(p[:2] - centre[:2, None], axis=0)
+    tip = int(np.argmax(d))
+    span = np.ptp(p[:2], axis=1).max()
+    return np.flatnonzero(np.linalg.norm(p - p[:, [tip]], axis=0) <= fraction * span)
+
+
+def octopus(resolution=1, mesh=None, height=0.25, bowl_radius=0.5, size=None, up=2, pull="tentacle", tug=0.25,
+            frames=300, **kwargs):
+    """A soft octopus dropped into a bowl, one tentacle tugged mid-run (paper Fig. 11, Table 1 "Octopus").
+
+    Procedural by default (:func:`octopus_mesh`: a head on four arms, about 0.5 m across),
+    or ``mesh``: a skfem.MeshTet or a mesh file (e.g. the paper's ``octopus.mesh``, in its
+    own units; ``up`` names its upward axis, 1 for the paper's), its longest horizontal
+    extent scaled to ``size`` when given. The body starts with its bottom ``height``
+    above the bowl's lowest point. ``pull``: "tentacle"
+    (default) tugs the tip of one tentacle (:func:`tentacle_tip`) up and outwards with
+    ``tug`` times the body's weight from 40 % to 55 % of the run; a
+    :class:`~skfem_affine.lab.loads.Pull` of your own; or None. The tug runs through
+    :func:`~skfem_affine.lab.loads.attach_force` (``sim.external_force``). Defaults:
+    Neo-Hookean E = 5e4, nu = 0.34, density 1000, h = 0.01, friction 0.3 (the paper
+    lists E = 4e3, nu = 0.34).
+    """
+    bowl = Bowl(center=(0.0, 0.0, bowl_radius), radius=bowl_radius)
+    sim_kw, body_kw = _contact_scene_kwargs(kwargs, 0.3, bowl)
+    if mesh is None:
+        m = octopus_mesh(resolution)
+    else:
+        m = _mesh_from(mesh)
+        if up not in (0, 1, 2):
+            raise ValueError(f"up must be the axis 0, 1 or 2 of the mesh that points up, got {up!r}")
+        m = _rebuilt(m, np.roll(m.p, 2 - up, axis=0))  # cyclic: keeps the elements' orientation
+    p = m.p - np.array([*(0.5 * (m.p[:2].max(axis=1) + m.p[:2].min(axis=1))), m.p[2].min()])[:, None]
+    if size is not None:
+        p *= float(size) / np.ptp(p[:2], axis=1).max()
+    m = _rebuilt(m, p + np.array([0.0, 0.0, height])[:, None])
+    body_kw.setdefault("material", NeoHookean(E=5e4, nu=0.34))
+    body_kw.setdefault("density", 1000.0)
+    sim = _scene(Simulation(ElasticBody(m, name="octopus", **body_kw), **sim_kw), "octopus", frames)
+    if isinstance(pull, str):
+        if pull != "tentacle":
+            raise ValueError(f"pull must be 'tentacle', a Pull or None, got {pull!r}")
+        tip = tentacle_tip(m)
+        out = m.p[:2, tip].mean(axis=1) - 0.5 * (m.p[:2].max(axis=1) + m.p[:2].min(axis=1))
+        direction = np.array([*(out / max(np.linalg.norm(out), 1e-300)), 2.0]) / np.sqrt(5.0)
+        weight = float(sim.system.lumped_mass.sum()) * float(np.linalg.norm(sim.gravity))
+        T = frames * sim.dt
+        pull = Pull(tip, float(tug) * weight * direction, 0.4 * T, 0.55 * T)
+    if pull is not None:
+        if not isinstance(pull, Pull):
+            raise TypeError(f"pull must be 'tentacle', a Pull or None, got {type(pull).__name__}")
+        attach_force(sim, pull)
+    return sim
+
+
+# ---------------------------------------------------------------------------- resource-limited (Fig. 16)
+def blob_mesh(resolution=2, radius=0.3, bumps=0.25):
+    """A closed, lumpy body: scikit-fem's ball with its radius modulated by smooth bumps.
+
+    Each point moves radially by the factor ``1 + bumps * s(direction)`` (s in [-1, 1]
+    built from low-order spherical harmonics, so the surface has head-, leg- and
+    tail-like lobes); centred at the origin.
+    """
+    ball = skfem.MeshTet.init_ball(nrefs=_resolution(resolution))
+    p = ball.p
+    r = np.linalg.norm(p, axis=0)
+    u = p / np.maximum(r, 1e-300)
+    s = 0.6 * u[0] * u[1] + 0.8 * (u[2] ** 2 - 1.0 / 3.0) + 0.5 * u[0] * (u[0] ** 2 - 3 * u[1] ** 2)
+    s /= np.abs(s).max()
+    return skfem.MeshTet(np.ascontiguousarray(radius * p * (1.0 + bumps * s)), ball.t)
+
+
+def armadillo(resolution=2, mesh=None, size=0.6, speed=3.0, min_affine_fraction=1 / 3, frames=300, **kwargs):
+    """A resource-limited run: a closed soft body thrown onto a plane (paper Fig. 16 "Armadillo").
+
+    Every element deforms on impact, and the reducer must still keep at least
+    ``min_affine_fraction`` of the elements affine (resource limiting, sec. 3.5: the
+    paper keeps a third). Procedural by default (:func:`blob_mesh`, a lumpy closed body)
+    or ``mesh``: a skfem.MeshTet or a mesh file, scaled to ``size`` (largest extent).
+    Unless ``reducer`` is given, the simulation uses
+    ``Affinification(tau_a=4e-13, tau_e=6e-12, min_affine_fraction=min_affine_fraction)``,
+    the paper's near-zero thresholds, so only the resource limit makes bodies affine;
+    a reducer passed in keeps its own settings. The body starts just above the plane
+    moving down at ``speed`` (m/s). Defaults: Neo-Hookean E = 5e4, nu = 0.35, density
+    1000, h = 0.005 (as the paper), friction 0.5 (the paper lists E = 1.2e2).
+    """
+    kwargs.setdefault("dt", 0.005)
+    sim_kw, body_kw = _contact_scene_kwargs(kwargs, 0.5, Plane())
+    if "reducer" not in sim_kw:
+        sim_kw["reducer"] = Affinification(tau_a=4e-13, tau_e=6e-12, min_affine_fraction=min_affine_fraction)
+    m = blob_mesh(resolution) if mesh is None else _mesh_from(mesh)
+    p = m.p - 0.5 * (m.p.max(axis=1) + m.p.min(axis=1))[:, None]
+    p *= float(size) / np.ptp(p, axis=1).max()
+    p[2] += 0.02 * size - p[2].min()
+    m = _rebuilt(m, p)
+    body_kw.setdefault("material", NeoHookean(E=5e4, nu=0.35))
+    body_kw.setdefault("density", 1000.0)
+    body_kw.setdefault("velocity", (0.0, 0.0, -float(speed)))
+    return _scene(Simulation(ElasticBody(m, name="armadillo", **body_kw), **sim_kw), "armadillo", frames)
+
+
+# ---------------------------------------------------------------------------- twisting beam (Fig. 9)
+class TwistPath:
+    """Positions of clamped vertices turned progressively about an axis (paper Fig. 9).
+
+    ``path(t)`` rotates the ``rest`` positions (k, 3) about the line through ``center``
+    along ``axis`` by the angle ``rate * t`` (rad); ``path.velocity(t)`` is its time
+    derivative. The twisting beam holds one end fixed and moves the other along this
+    path, which needs prescribed motion in the frame path.
+    """
+
+    def __init__(self, rest, center, axis=(1.0, 0.0, 0.0), rate=np.pi / 4):
+        self.rest = np.array(rest, dtype=float)
+        if self.rest.ndim != 2 or self.rest.shape[1] != 3:
+            raise ValueError(f"rest positions must have shape (k, 3), got {self.rest.shape}")
+        self.center = np.asarray(center, dtype=float)
+        a = np.asarray(axis, dtype=float)
+        if self.center.shape != (3,) or a.shape != (3,) or not np.linalg.norm(a) > 0:
+            raise ValueError("center must be a 3-vector and axis a non-zero 3-vector")
+        self.axis = a / np.linalg.norm(a)
+        self.rate = float(rate)
+
+    def angle(self, t):
+        return self.rate * float(t)
+
+    def rotation(self, t):
+        """The rotation matrix at time t (Rodrigues' formula)."""
+        th, k = self.angle(t), self.axis
+        K = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
+        return np.eye(3) + np.sin(th) * K + (1.0 - np.cos(th)) * (K @ K)
+
+    def __call__(self, t):
+        return self.center + (self.rest - self.center) @ self.rotation(t).T
+
+    def velocity(self, t):
+        """d path / dt = rate * axis x (x(t) - center)."""
+        return self.rate * np.cross(self.axis, self(t) - self.center)
+
+
+def twisting_beam_setup(resolution=2, length=4.0, width=1.0, rate=np.pi / 4):
+    """The twisting beam's mesh, its two clamped ends and the path of the turned one.
+
+    Returns ``(mesh, fixed_end, turned_end, path)``: vertex indices of the end held at
+    x = 0, of the end at x = ``length`` turned about the beam's axis, and the
+    :class:`TwistPath` of the latter. Not yet a scene: moving the turned end needs
+    prescribed motion in the frame path.
+    """
+    mesh = beam_mesh(resolution, length, width)
+    x = mesh.p[0]
+    fixed_end = np.flatnonzero(x < 1e-9 * length)
+    turned_end = np.flatnonzero(x > length * (1 - 1e-9))
+    path = TwistPath(mesh.p[:, turned_end].T, (length, width / 2, width / 2), (1.0, 0.0, 0.0), rate)
+    return mesh, fixed_end, turned_end, path
+
+
 SCENES = {"cantilever": cantilever, "free_body": free_body, "drop": drop, "stacked_beams": stacked_beams,
-          "pills": pills, "bowling": bowling, "toothbrush": toothbrush}
+          "pills": pills, "bowling": bowling, "toothbrush": toothbrush, "wheel": wheel, "octopus": octopus,
+          "armadillo": armadillo}

@@ -87,6 +87,13 @@ class Reducer(abc.ABC):
             frame's record.
         """
 
+    def end_frame(self, rec):
+        """Called by the simulation after each frame with the frame's record (``rec["wall"]`` set).
+
+        A reducer that budgets time reads the frame's wall time here and may add to ``rec``;
+        the default does nothing.
+        """
+
     def check_integrator(self, integrator, newton_iters=1):
         """Raise a ValueError unless this reducer runs under ``integrator`` (with ``newton_iters``)."""
         if integrator not in self.integrators:

@@ -4,7 +4,7 @@ import numpy as np
 
 from skfem_affine.reducers.affine import clustering
 from skfem_affine.reducers.affine import mapping as reduction
-from skfem_affine.reducers.affine.clustered import ClusteringReducer, check_threshold, forced_fraction
+from skfem_affine.reducers.affine.clustered import ClusteringReducer, forced_fraction, resolve_thresholds
 
 
 class Affinification(ClusteringReducer):
@@ -12,10 +12,22 @@ class Affinification(ClusteringReducer):
 
     Parameters
     ----------
-    tau_a : float
-        Threshold on the deformation-rate distance (eq. 6) to turn elastic elements affine.
-    tau_e : float
-        More permissive threshold for elements that were affine to stay affine.
+    tau_a : float, optional
+        Threshold on the deformation-rate distance (eq. 6) to turn elastic elements affine (1/s).
+    tau_e : float, optional
+        More permissive threshold for elements that were affine to stay affine (default 2 tau_a).
+    target_error : float, optional
+        The error budget: the largest vertex distance to the full-space run accepted, over the
+        scene size. The reducer then chooses tau_a (and tau_e = 2 tau_a) frame by frame
+        (:mod:`skfem_affine.reducers.budget`). Given no thresholds and no budget, the budget is
+        :data:`~skfem_affine.reducers.budget.DEFAULT_TARGET_ERROR` (1 %). Thresholds and a budget
+        together are refused.
+    time_budget : float, optional
+        Seconds per frame: the forced fraction (``min_fraction``) adapts each frame so that frames
+        stay under it; misses are recorded in ``sim.stats`` (``"time_budget_miss"``).
+    never_slower : bool, optional
+        Solve frames in full space while reduction does not pay (measured), probing it again
+        periodically. Default: on with an error budget, off with explicit thresholds.
     min_fraction : float
         Resource limiting (sec. 3.5): at least this fraction of the elements is forced into
         clusters. ``min_affine_fraction`` is its older name.
@@ -39,26 +51,46 @@ class Affinification(ClusteringReducer):
         vertices stay elastic.
 
     The thresholds come first and positionally; the arguments shared with
-    :class:`~skfem_affine.Rigidification` follow, keyword-only, in the same order.
+    :class:`~skfem_affine.Rigidification` follow, keyword-only, in the same order. With a
+    budget, ``sim.stats`` records per frame ``estimated_error``, ``tau_a``, ``tau_e``,
+    ``reduced`` (the frame returned the reduced solution), ``shadow`` and ``min_fraction``.
+
+    Examples
+    --------
+    >>> import skfem_affine as sa
+    >>> sa.Affinification(0.1, 0.2).target_error is None        # explicit thresholds, as given
+    True
+    >>> sa.Affinification().target_error                         # the default budget: 1 % of the scene size
+    0.01
+    >>> sa.Affinification(target_error=0.003, time_budget=0.05).time_budget
+    0.05
     """
 
     name = "affinification"
     kind = reduction.AFFINE
 
-    def __init__(self, tau_a=1e-4, tau_e=2e-4, *, min_fraction=None, seeding="random", preconditioner="ichol",
-                 seed=0, solver=None, min_body_elements=2, min_affine_fraction=None, refresh=False, refresh_tol=0.2,
-                 refresh_background=False, pinned_bodies=False):
-        self.tau_a = check_threshold(tau_a, "tau_a")
+    threshold = "tau_a"
+    tau_start = 1e-3
+
+    def __init__(self, tau_a=None, tau_e=None, *, target_error=None, time_budget=None, never_slower=None,
+                 min_fraction=None, seeding="random", preconditioner="ichol", seed=0, solver=None,
+                 min_body_elements=2, min_affine_fraction=None, shadow_every=10, memory=0.5, refresh=False,
+                 refresh_tol=0.2, refresh_background=False, pinned_bodies=False):
+        self.tau_a, tau_e, target_error = resolve_thresholds(tau_a, tau_e, target_error, "tau_a")
         if int(min_body_elements) < 2:
             raise ValueError(f"min_body_elements must be >= 2 (singletons are always dissolved), got {min_body_elements}")
         self.min_body_elements = int(min_body_elements)
         super().__init__(tau_e, min_fraction=forced_fraction(min_fraction, min_affine_fraction, "min_affine_fraction"),
                          seeding=seeding, preconditioner=preconditioner, seed=seed, solver=solver,
-                         refresh=refresh, refresh_tol=refresh_tol, refresh_background=refresh_background,
-                         pinned_bodies=pinned_bodies)
+                         target_error=target_error, time_budget=time_budget, never_slower=never_slower,
+                         shadow_every=shadow_every, memory=memory, refresh=refresh, refresh_tol=refresh_tol,
+                         refresh_background=refresh_background, pinned_bodies=pinned_bodies)
 
     def __repr__(self):
-        return (f"Affinification(tau_a={self.tau_a:g}, tau_e={self.tau_e:g}, min_fraction={self.min_fraction:g}, "
+        what = (f"target_error={self.target_error:g}" if self.target_error is not None
+                else f"tau_a={self.tau_a:g}, tau_e={self.tau_e:g}")
+        budget = f", time_budget={self.time_budget:g}" if self.time_budget is not None else ""
+        return (f"Affinification({what}{budget}, min_fraction={self.min_fraction:g}, "
                 f"seeding={self.seeding!r}, preconditioner={self.preconditioner_kind!r})")
 
     def _labels(self, problem, v_pred):

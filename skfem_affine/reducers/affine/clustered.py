@@ -15,16 +15,26 @@ integrator's, in the :class:`~skfem_affine.integrators.problem.StepProblem`):
    inherited from the mesh (:meth:`mapping.Mapping.elimination_order`);
 5. ``factorization`` and ``solve``: the reduced system, direct solver;
 6. dv = G dq + d (eq. 12); the positions are integrated by the mapping's body kind.
+
+With an error budget, a time budget or ``never_slower`` (:mod:`skfem_affine.reducers.budget`),
+the frame is first planned: solved in full space (reduction does not pay), or reduced, with
+the thresholds and forced fraction the controllers chose; a reduced frame then estimates its
+error (one preconditioned CG step on the full-space residual) and, every ``shadow_every``
+reduced frames (up to four times that while the estimate's calibration holds), is also solved in full space (a *shadow* frame: the full solution is returned,
+the difference calibrates the estimate and the full solve's time tells whether reduction pays).
 """
 import time
 
 import numpy as np
 
+from skfem_affine.checks import positive, real
 from skfem_affine.threads import serial_blas
 from skfem_affine.integrators.problem import Operator, StepResult
+from skfem_affine.reducers import budget as budgets
 from skfem_affine.reducers.affine import clustering, oracle, pinned
 from skfem_affine.reducers.affine import mapping as reduction
 from skfem_affine.reducers.base import Reducer
+from skfem_affine.reducers.full import factorize_and_solve
 from skfem_affine.solvers import make_solver
 
 SEEDINGS = ("random", "index", "temporal")
@@ -55,6 +65,23 @@ def forced_fraction(min_fraction, old_value, old_name):
     return min_fraction
 
 
+def resolve_thresholds(tau, tau_e, target_error, name):
+    """(tau, tau_e, target_error) from what the user gave: thresholds, a budget, or neither.
+
+    Explicit thresholds switch the error budget off (a missing one is the other's half or
+    double); none gives the default budget, :data:`~skfem_affine.reducers.budget.DEFAULT_TARGET_ERROR`.
+    """
+    explicit = tau is not None or tau_e is not None
+    if explicit and target_error is not None:
+        raise ValueError(f"give the thresholds ({name}, tau_e) or target_error, not both")
+    if not explicit:
+        target = budgets.DEFAULT_TARGET_ERROR if target_error is None else target_error
+        return None, None, real(target, "target_error", low=0.0, high=1.0, include_low=False)
+    tau_e = None if tau_e is None else check_threshold(tau_e, "tau_e")
+    tau = check_threshold(tau if tau is not None else 0.5 * tau_e, name)
+    return tau, (tau_e if tau_e is not None else 2.0 * tau), None
+
+
 def elements_touching(system, mask):
     """Elements with at least one vertex in the vertex mask."""
     return np.any(mask[system.t], axis=0)
@@ -81,6 +108,17 @@ class ClusteringReducer(Reducer):
         Seed of the random seeding (reproducible runs).
     solver : str or solver object, optional
         Solver of the reduced system (default: the fastest direct solver).
+    target_error : float or None
+        The error budget (None: explicit thresholds); see :mod:`skfem_affine.reducers.budget`.
+    time_budget : float or None
+        Seconds per frame; the forced fraction adapts to it.
+    never_slower : bool
+        Solve frames in full space while reduction does not pay.
+    shadow_every : int
+        Reduced frames per shadow frame (error budget, never slower); the period doubles, up to
+        4 shadow_every, while shadow frames confirm the error estimate's calibration.
+    memory : float
+        Memory time T (s) of the error estimate.
     refresh : {False, True, "laplacian", "tangent"}
         Whether the oracle's preconditioner follows the pose (see Notes). False (default) keeps
         the paper's: A_p factorised once at rest. When the oracle stops predicting well,
@@ -115,10 +153,25 @@ class ClusteringReducer(Reducer):
     """
 
     integrators = ("linearized",)
+    #: The threshold the error budget drives, its start and bounds (the subclass's unit).
+    threshold = "tau"
+    tau_start, tau_min, tau_max = 1e-3, 1e-8, 1e3
 
     def __init__(self, tau_e, *, min_fraction=0.0, seeding="random", preconditioner="ichol", seed=0, solver=None,
+                 target_error=None, time_budget=None, never_slower=None, shadow_every=10, memory=0.5,
                  refresh=False, refresh_tol=0.2, refresh_background=False, pinned_bodies=False):
+        self.target_error = target_error
+        if target_error is not None:
+            tau_e = 2.0 * self.tau_start
+            setattr(self, self.threshold, self.tau_start)
         self.tau_e = check_threshold(tau_e, "tau_e")
+        self.time_budget = None if time_budget is None else positive(time_budget, "time_budget")
+        self.never_slower = (target_error is not None) if never_slower is None else bool(never_slower)
+        self.shadow_every = int(shadow_every)
+        if self.shadow_every < 1:
+            raise ValueError(f"shadow_every must be >= 1, got {shadow_every}")
+        self.memory = positive(memory, "memory")
+        self.controlled = target_error is not None or self.time_budget is not None or self.never_slower
         if preconditioner not in oracle.KINDS:
             raise ValueError(f"preconditioner must be 'ichol' or 'amg', got {preconditioner!r}")
         self.preconditioner_kind = preconditioner
@@ -149,7 +202,7 @@ class ClusteringReducer(Reducer):
         self.adjacency = clustering.element_adjacency(sysm.t)
         # the paper's: elements touching fixed or prescribed vertices stay elastic; with pinned_bodies
         # they may join bodies, whose DOFs are then constrained (:mod:`.pinned`)
-        self.excluded = None if self.pinned_bodies else elements_touching(sysm, sysm.fixed)
+        self.excluded = np.zeros(sysm.m, dtype=bool) if self.pinned_bodies else elements_touching(sysm, sysm.fixed)
         self.was_reduced = np.zeros(sysm.m, dtype=bool)
         self.previous_seeds = None
         self.labels = np.full(sysm.m, -1, dtype=np.int64)
@@ -165,12 +218,175 @@ class ClusteringReducer(Reducer):
         self.vertex_rank = reduction.nested_dissection_rank(sysm) if self.upper else None
         self.mdiag = sysm.Mff.diagonal()
         self.gravity_dv = np.tile(model.gravity, sysm.n)[sysm.free] * model.dt
+        self._setup_controllers()
+
+    def _setup_controllers(self):
+        """The controllers of :mod:`~skfem_affine.reducers.budget` (plain-number state) and the shadow solver."""
+        self.error_budget = self.timer = self.pays = self.shadows = self.full_solver = None
+        self.min_fraction_floor = self.min_fraction
+        if not self.controlled:
+            return
+        if self.target_error is not None:
+            self.error_budget = budgets.ErrorBudget(self.target_error, self.tau_start, memory=self.memory,
+                                                    tau_min=self.tau_min, tau_max=self.tau_max)
+            self._set_thresholds(self.tau_start)
+        if self.time_budget is not None:
+            self.timer = budgets.TimeBudget(self.time_budget, self.min_fraction)
+        if self.never_slower:
+            self.pays = budgets.PaysOff()
+        if self.error_budget is not None or self.pays is not None:
+            self.shadows = budgets.ShadowClock(self.shadow_every)
+            spec = self.solver_spec if self.solver_spec is None or isinstance(self.solver_spec, str) else "direct"
+            self.full_solver = make_solver(spec if spec is not None else "direct")
+
+    #: The controllers' attribute names; their state is plain numbers (checkpoints save it).
+    CONTROLLERS = ("error_budget", "timer", "pays", "shadows")
+
+    def controller_state(self):
+        """The budgets' state as plain numbers: {controller: {attribute: value}} plus the thresholds.
+
+        With :meth:`restore_controller_state`, what a checkpoint saves to resume a controlled run.
+        """
+        state = {name: dict(vars(obj)) for name in self.CONTROLLERS
+                 if (obj := getattr(self, name, None)) is not None}
+        state["thresholds"] = {self.threshold: float(getattr(self, self.threshold)), "tau_e": float(self.tau_e),
+                               "min_fraction": float(self.min_fraction)}
+        return state
+
+    def restore_controller_state(self, state):
+        """Set the state :meth:`controller_state` returned (after :meth:`attach`)."""
+        for name, values in state.items():
+            target = self if name == "thresholds" else getattr(self, name, None)
+            if target is None:
+                raise ValueError(f"this reducer has no controller {name!r} to restore")
+            for key, value in values.items():
+                setattr(target, key, value)
+
+    def _set_thresholds(self, tau):
+        """The error budget's threshold: ``tau`` to become reduced, 2 tau to stay."""
+        setattr(self, self.threshold, float(tau))
+        self.tau_e = 2.0 * float(tau)
+
+    def end_frame(self, rec):
+        """The time budget takes the frame's wall time; ``rec["time_budget_miss"]`` records a miss."""
+        if self.timer is not None and "wall" in rec:
+            rec["time_budget_miss"] = bool(self.timer.observe(rec["wall"]))
+            rec["min_fraction_next"] = float(self.timer.fraction)
 
     # -------------------------------------------------------------- frame
     def solve(self, problem):
         """Algorithm 1 on one :class:`~skfem_affine.integrators.problem.StepProblem`."""
         with serial_blas():
+            if self.controlled:
+                return self._controlled_frame(problem)
             return self._frame(problem)
+
+    # ------------------------------------------------------- controlled frame
+    def _full(self, problem, stats):
+        """A dv = b in full space with the shadow solver; returns (dv, operator, seconds)."""
+        t0 = time.perf_counter()
+        A = problem.matrix()
+        b = problem.b
+        t1 = time.perf_counter()
+        part = {}
+        dv = factorize_and_solve(self.full_solver, A, b, part)
+        seconds = time.perf_counter() - t0
+        for key in ("factorization", "solve"):
+            stats[key] = stats.get(key, 0.0) + part[key]
+        stats["assembly"] = stats.get("assembly", 0.0) + t1 - t0
+        stats["full_solve"] = seconds
+        return dv, Operator(self.full_solver, A), seconds
+
+    def _controlled_frame(self, problem):
+        """Plan the frame (full, reduced, or reduced with a shadow), solve it, feed the controllers."""
+        model, sysm = problem.model, problem.system
+        h, eb, pays = model.dt, self.error_budget, self.pays
+        if self.timer is not None:
+            self.min_fraction = self.timer.fraction
+        mode = pays.plan() if pays is not None else "reduced"
+        if eb is not None and mode != "full" and self._new_contacts(problem):
+            mode = "impact"
+        if mode in ("full", "impact"):
+            stats = {}
+            dv, op, seconds = self._full(problem, stats)
+            if pays is not None:
+                pays.full_solved(seconds)
+            if eb is not None:
+                eb.decay(h)
+            self.was_reduced = np.zeros(sysm.m, dtype=bool)
+            self.labels = np.full(sysm.m, -1, dtype=np.int64)
+            stats.update(dofs=op.shape[0], solver=self.full_solver.name, n_clusters=0, elastic_dofs=op.shape[0],
+                         reduced_fraction=0.0, reduced=False, shadow=False, impact=mode == "impact")
+            self._record(stats)
+            return StepResult(dv=dv, operator=op, clusters=self.labels, stats=stats)
+        if eb is not None:
+            self._set_thresholds(eb.tau)
+        t0 = time.perf_counter()
+        result = self._frame(problem)
+        stats = result.stats
+        proxy = 0.0
+        if eb is not None and stats["n_clusters"]:
+            t_est = time.perf_counter()
+            apply_A = oracle.system_operator(self.mdiag, problem.Hmat, model.coefficients)
+            e = oracle.predict(apply_A, problem.b - apply_A(result.dv), self.precond)
+            proxy = budgets.vertex_max_norm(e, sysm.free, sysm.n)
+            stats["estimation"] = time.perf_counter() - t_est
+            stats["prediction"] += stats["estimation"]
+        reduced_seconds = time.perf_counter() - t0
+        shadow = mode == "probe" or (self.shadows is not None and self.shadows.due())
+        stats.update(reduced_dofs=stats["dofs"], shadow=bool(shadow), reduced=not shadow)
+        measured = None
+        if shadow:
+            dv, op, seconds = self._full(problem, stats)
+            if pays is not None:
+                pays.full_solved(seconds)
+            measured = budgets.vertex_max_norm(result.dv - dv, sysm.free, sysm.n) if stats["n_clusters"] else 0.0
+            stats.update(dofs=op.shape[0], solver=self.full_solver.name, local_error_measured=measured / model.size)
+            result = StepResult(dv=dv, operator=op, clusters=np.full(sysm.m, -1, dtype=np.int64), stats=stats)
+        if eb is not None:
+            delta = eb.local(proxy, measured)
+            if shadow and self.shadows is not None:
+                self.shadows.settled(eb.stable and eb.estimate < eb.goal)
+            eb.advance(delta, h, model.size, introduced=not shadow)
+            stats["local_error"] = delta / model.size
+            reducible = 1.0 - float(np.mean(self.excluded)) if sysm.m else 0.0
+            eb.adapt(saturated=stats["reduced_fraction"] >= reducible - 1e-9)
+        if pays is not None:
+            pays.reduced_solved(reduced_seconds, stats["reduced_dofs"] / max(sysm.free.size, 1))
+            pays.decide(self.shadows.every, probed=mode == "probe")
+        self._record(stats)
+        return result
+
+    @staticmethod
+    def _new_contacts(problem):
+        """Whether a contact of the frame has no predicted impulse: the oracle cannot foresee the impact.
+
+        Such a frame is solved in full space under an error budget: the reduced step's error is
+        estimated before contact is resolved, so a body reduced whole through an impact would
+        carry the impact's error unseen.
+        """
+        cs = problem.contacts
+        if cs is None or not cs.size:
+            return False
+        sysm = problem.system
+        imp = np.zeros(3 * sysm.n)
+        imp[sysm.free] = problem.contact_impulse
+        touched = np.abs(imp.reshape(-1, 3)).sum(axis=1) > 0
+        free = np.zeros(sysm.n, dtype=bool)
+        free[sysm.free // 3] = True
+        vertices = cs.vertex[free[cs.vertex]]
+        return bool(np.any(~touched[vertices]))
+
+    def _record(self, stats):
+        """The controllers' state in the frame's statistics."""
+        eb = self.error_budget
+        if eb is not None:
+            stats["estimated_error"] = float(eb.estimate)
+        stats["tau_a"] = float(getattr(self, self.threshold))
+        stats["tau_e"] = float(self.tau_e)
+        stats["min_fraction"] = float(self.min_fraction)
+        if self.pays is not None:
+            stats["reduction_pays"] = not self.pays.in_full
 
     def _frame(self, problem):
         model, sysm = problem.model, problem.system

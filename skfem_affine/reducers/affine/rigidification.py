@@ -5,7 +5,7 @@ import numpy as np
 from skfem_affine._kernels import strain_rate_norms
 from skfem_affine.reducers.affine import clustering
 from skfem_affine.reducers.affine import mapping as reduction
-from skfem_affine.reducers.affine.clustered import ClusteringReducer, check_threshold, forced_fraction
+from skfem_affine.reducers.affine.clustered import ClusteringReducer, forced_fraction, resolve_thresholds
 
 
 def strain_rates(system, x, v, dt):
@@ -28,10 +28,14 @@ class Rigidification(ClusteringReducer):
 
     Parameters
     ----------
-    tau_r : float
+    tau_r : float, optional
         Strain-rate threshold to turn elastic elements rigid.
-    tau_e : float
-        Predicted strain-rate threshold for rigid elements to stay rigid.
+    tau_e : float, optional
+        Predicted strain-rate threshold for rigid elements to stay rigid (default 2 tau_r).
+    target_error, time_budget, never_slower
+        The error budget (default 1 % when no threshold is given), the time budget (s per
+        frame) and the fall-back to full space, as for :class:`~skfem_affine.Affinification`;
+        the budget drives tau_r (recorded as ``tau_a`` in ``sim.stats``) and tau_e = 2 tau_r.
     warmup_frames : int
         Frames an element must stay calm before it may turn rigid.
     min_fraction : float
@@ -44,20 +48,27 @@ class Rigidification(ClusteringReducer):
     name = "rigidification"
     kind = reduction.RIGID
 
-    def __init__(self, tau_r=1e-3, tau_e=2e-3, *, warmup_frames=3, min_fraction=None, seeding="random",
-                 preconditioner="ichol", seed=0, solver=None, min_rigid_fraction=None, refresh=False, refresh_tol=0.2,
+    threshold = "tau_r"
+    tau_start = 1e-6
+
+    def __init__(self, tau_r=None, tau_e=None, *, target_error=None, time_budget=None, never_slower=None,
+                 warmup_frames=3, min_fraction=None, seeding="random", preconditioner="ichol", seed=0, solver=None,
+                 min_rigid_fraction=None, shadow_every=10, memory=0.5, refresh=False, refresh_tol=0.2,
                  refresh_background=False):
-        self.tau_r = check_threshold(tau_r, "tau_r")
+        self.tau_r, tau_e, target_error = resolve_thresholds(tau_r, tau_e, target_error, "tau_r")
         if int(warmup_frames) < 0:
             raise ValueError(f"warmup_frames must be >= 0, got {warmup_frames}")
         self.warmup_frames = int(warmup_frames)
         super().__init__(tau_e, min_fraction=forced_fraction(min_fraction, min_rigid_fraction, "min_rigid_fraction"),
                          seeding=seeding, preconditioner=preconditioner, seed=seed, solver=solver,
-                         refresh=refresh, refresh_tol=refresh_tol, refresh_background=refresh_background)
+                         target_error=target_error, time_budget=time_budget, never_slower=never_slower,
+                         shadow_every=shadow_every, memory=memory, refresh=refresh, refresh_tol=refresh_tol,
+                         refresh_background=refresh_background)
 
     def __repr__(self):
-        return (f"Rigidification(tau_r={self.tau_r:g}, tau_e={self.tau_e:g}, "
-                f"warmup_frames={self.warmup_frames}, min_fraction={self.min_fraction:g})")
+        what = (f"target_error={self.target_error:g}" if self.target_error is not None
+                else f"tau_r={self.tau_r:g}, tau_e={self.tau_e:g}")
+        return f"Rigidification({what}, warmup_frames={self.warmup_frames}, min_fraction={self.min_fraction:g})"
 
     def _setup(self, model):
         super()._setup(model)

@@ -360,6 +360,9 @@ class _Iteration:
         self.Y_prev = sub.projected_gradients(ge, Ua)
         Meff, UMU = self.Meff, self.UMU
         Mk = Meff if ip.barrier is None else Meff + sysm.pattern.matrix(ip.barrier_data(x))  # exact contact
+        extra = ip.contact_hessian(x)  # body-body / self contact, off the elastic pattern
+        if extra is not None:
+            Mk = (Mk + extra).tocsr()
         Hu = masked_sandwich(UMU, cols, Mk - Meff, Ua) + w * red._elastic(self.Hl, invalid, F, He, he_valid, Ua)
         t2 = time.perf_counter()
         rec["reduced_assembly"] = rec.get("reduced_assembly", 0.0) + t2 - t1
@@ -386,7 +389,7 @@ class _Iteration:
         if S.size:
             elems = red._elements_of(invalid)
             Hpart = red._partial_data(He, elems)
-            Acols = sysm.pattern.matrix(ip.hessian_data(Hpart, x)).tocsc()[:, S]
+            Acols = ip.hessian(Hpart, x).tocsc()[:, S]
             Hx = Acols[S, :].tocsr()
             C = np.asarray((Acols.T @ Ba).T)
         else:

@@ -1,0 +1,104 @@
+"""The trade as points: speedup against max distance error, per threshold pair or per error budget.
+
+:func:`budget_runs` runs a reducer at several error budgets, interleaved frame by frame with the
+full-space run (:func:`~skfem_affine.lab.runs.interleaved`), and measures each against it;
+:func:`points_from_rows` and :func:`points_from_runs` turn sweep rows and compare runs into the
+points of :func:`~skfem_affine.lab.plots.trade_plot`.
+"""
+import numpy as np
+
+from skfem_affine.lab import metrics
+from skfem_affine.lab.runs import interleaved, warm_up
+from skfem_affine.lab.scene_spec import default_frames
+from skfem_affine.reducers.affine.affinification import Affinification
+from skfem_affine.reducers.affine.rigidification import Rigidification
+
+REDUCERS = {"affinification": Affinification, "rigidification": Rigidification}
+
+
+def _label(tau_a, tau_e):
+    return f"{tau_a:.3g}, {tau_e:.3g}"
+
+
+def points_from_rows(rows):
+    """Trade points of sweep rows (one per finished cell), labelled with their thresholds."""
+    return [{"error": r.get("max_distance_error"), "speedup": r.get("speedup"), "method": r.get("method"),
+             "label": _label(float(r["tau_a"]), float(r["tau_e"]))}
+            for r in rows if r.get("status") == "ok"]
+
+
+def points_from_runs(runs):
+    """Trade points of compare runs (the full-space reference left out), labelled with their settings."""
+    out = []
+    for name, run in runs.items():
+        s = run.summary
+        if name == "full" or s.get("status") != "ok":
+            continue
+        if s.get("tau_a") is not None:
+            label = f"{name} {_label(float(s['tau_a']), float(s['tau_e']))}"
+        else:
+            target = getattr(run.sim.reducer, "target_error", None)
+            label = f"{name}, budget {target:g}" if target is not None else name
+        out.append({"error": s.get("max_distance_error"), "speedup": s.get("speedup"), "method": name,
+                    "label": label.strip()})
+    return out
+
+
+def budget_runs(spec, budgets, frames=None, method="affinification", warm=True, progress=False, **options):
+    """The reducer at each error budget, interleaved with the full-space run of ``spec``.
+
+    Parameters
+    ----------
+    budgets : sequence of float
+        Error budgets (``target_error``).
+    method : {"affinification", "rigidification"}
+    options
+        Passed to the reducer (e.g. ``never_slower=False``).
+
+    Returns
+    -------
+    list of dict
+        Per budget: ``budget``, ``error`` (measured max distance error), ``speedup`` (interleaved
+        wall-time ratio), ``dof_ratio``, ``reduced_frames`` (fraction of frames that returned the
+        reduced solution), ``max_estimated_error``, ``mean_tau_a``, ``status``.
+    """
+    if method not in REDUCERS:
+        raise ValueError(f"method must be one of {sorted(REDUCERS)}, got {method!r}")
+    budgets = [float(b) for b in budgets]
+    if not budgets:
+        raise ValueError("give at least one error budget")
+    if warm:
+        warm_up(spec, ("full",))
+    sims = {"full": spec.build()}
+    for b in budgets:
+        sims[f"budget {b:g}"] = spec.build(reducer=REDUCERS[method](target_error=b, **options))
+    frames = default_frames(sims["full"], frames)
+    full, size = sims["full"], sims["full"].size
+    errors = {name: 0.0 for name in sims}
+
+    def on_frame(frame, running):
+        if "full" not in running:
+            return
+        for name, sim in running.items():
+            if name != "full":
+                errors[name] = max(errors[name], metrics.distance_error(sim.state.x, full.state.x, size))
+
+    runs = interleaved(sims, frames, on_frame=on_frame, progress=progress)
+    rows = []
+    for b in budgets:
+        run = runs[f"budget {b:g}"]
+        recs = run.records
+        rows.append({"scene": spec.label, "method": method, "budget": b, "error": errors[f"budget {b:g}"],
+                     "speedup": run.summary.get("speedup"), "dof_ratio": run.summary.get("dof_ratio"),
+                     "reduced_frames": float(np.mean([bool(r.get("reduced")) for r in recs])) if recs else 0.0,
+                     "max_estimated_error": float(max((r.get("estimated_error", 0.0) for r in recs), default=0.0)),
+                     "mean_tau_a": float(np.mean([r.get("tau_a", np.nan) for r in recs])) if recs else None,
+                     "frames": len(recs), "elements": int(full.system.m), "status": run.summary["status"],
+                     "timing": "interleaved"})
+    return rows
+
+
+def budget_points(rows):
+    """Trade points of :func:`budget_runs` rows, each with its budget marked beside it."""
+    return [{"error": r["error"], "speedup": r["speedup"], "method": r["method"], "budget": r["budget"],
+             "label": f"budget {r['budget']:g} -> {r['error']:.1e}"} for r in rows if r["status"] == "ok"]

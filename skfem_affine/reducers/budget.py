@@ -1,0 +1,319 @@
+r"""The trade in the user's terms: an error budget, a time budget, and never slower than full space.
+
+Three small controllers a reducer consults once per frame. None of them knows what a body or
+a threshold means: a reducer hands them measurements (a velocity error, phase times, the
+frame's wall time) and reads back a scale for its threshold, a forced reduced fraction, and
+whether to solve the frame in full space. Their state is plain numbers, so a checkpoint can
+save it (``vars(controller)``).
+
+**Error budget** (:class:`ErrorBudget`). The user states the largest vertex distance to the
+full-space run they accept, relative to the scene size L (``max_distance_error`` of
+:mod:`skfem_affine.lab.metrics`). What is estimated:
+
+* the *local* error of a reduced frame, the largest vertex norm of
+  :math:`\delta = \Delta v_{red} - \Delta v_{full}` (m/s), where both solve the same frame
+  from the same state. On *shadow* frames the reducer also solves the full system
+  :math:`A\,\Delta v = b` and measures :math:`\delta` exactly; on the other frames it is
+  estimated from the full-space residual :math:`r = b - A\,\Delta v_{red}` by one
+  preconditioned CG step on :math:`A\,e = r` (the oracle's), scaled by a calibration factor
+  that the shadow frames keep up to date (:meth:`ErrorBudget.local`);
+* the *global* position error, accumulated as
+
+  .. math:: E_{t+1} = \rho\,E_t + h\,\|\delta_t\|_\infty / L,
+            \qquad \rho = e^{-h/T},
+
+  a velocity error moving the vertices by h delta per step, forgotten over the memory time T
+  (an error in an oscillating scene comes back rather than growing without bound; T is
+  the scale of the slowest motion that still builds up drift). Shadow frames return the full
+  solution, so they add no error.
+
+The controller keeps the *steady-state* contribution of the current local error,
+S = T ||delta|| / L (what E would settle at), at ``safety`` times the budget: each reduced frame
+the threshold is multiplied by (goal / S)^(1/2), clipped to [``shrink``, ``grow``]; when the
+accumulated E itself is over the goal it shrinks by at least ``shrink_over``. How well the
+estimate follows the measured error is in ``docs/budget.md``.
+
+**Time budget** (:class:`TimeBudget`): seconds per frame. After each frame the forced reduced
+fraction (resource limiting, paper sec. 3.5) rises in proportion to how much the frame
+overran, and falls slowly while frames are well under, so that as many elements stay elastic
+as the budget allows. The frame's wall time is what ``Simulation.step`` measured
+(:meth:`Reducer.end_frame`), so that tests can feed it any clock.
+
+**Never slower** (:class:`PaysOff`): the reducer times its own reduced frames (oracle,
+clustering, reduced assembly and solve) and the full solves of its shadow frames; when the
+reduced frames, shadows included, cost more than a full solve, or keep nearly every DOF, it
+solves the next frames in full space, and probes reduction again after ``probe_every`` frames
+(doubling while probes keep failing). A probe is a shadow frame: it returns the full solution,
+so a run that never reduces equals the full-space run.
+"""
+import math
+
+import numpy as np
+
+from skfem_affine.checks import positive, real
+
+#: The error budget of a reducer given no threshold: 1 % of the scene size.
+DEFAULT_TARGET_ERROR = 0.01
+
+
+def vertex_max_norm(free_values, free, n):
+    """Largest vertex norm of a free-DOF vector (fixed DOFs count as zero)."""
+    full = np.zeros(3 * n)
+    full[free] = free_values
+    return float(np.sqrt(np.max(np.einsum("ij,ij->i", full.reshape(n, 3), full.reshape(n, 3))))) if n else 0.0
+
+
+class ErrorBudget:
+    """Estimator of the distance error and multiplicative controller of one threshold.
+
+    Parameters
+    ----------
+    target : float
+        The accepted max vertex distance to the full-space run over the scene size, in (0, 1].
+    tau : float
+        The threshold to start from (the reducer's unit; small: the first frames reduce little).
+    memory : float
+        T (s): how long a velocity error keeps moving the vertices (module docstring).
+    safety : float
+        The controller keeps the estimate at ``safety * target``.
+    tau_min, tau_max : float
+        Bounds of the threshold.
+
+    Attributes
+    ----------
+    estimate : float
+        E, the accumulated position error estimate (relative to the scene size).
+    calibration : float
+        Measured / proxy local error of the latest shadow frames (>= 1 is typical: one CG step
+        underestimates the smooth part of the error).
+    local_rate : float
+        The latest local error ||delta|| / L (1/s).
+    """
+
+    def __init__(self, target, tau, memory=0.5, safety=0.5, tau_min=1e-8, tau_max=1e3,
+                 shrink=0.5, grow=2.0, shrink_over=0.7):
+        self.target = real(target, "target_error", low=0.0, high=1.0, include_low=False)
+        self.tau = positive(tau, "tau")
+        self.memory = positive(memory, "memory")
+        self.safety = real(safety, "safety", low=0.0, high=1.0, include_low=False)
+        self.tau_min, self.tau_max = float(tau_min), float(tau_max)
+        self.shrink, self.grow, self.shrink_over = float(shrink), float(grow), float(shrink_over)
+        self.estimate = 0.0
+        self.calibration = 1.0
+        self.calibrated = 0  # shadow frames that measured a nonzero proxy
+        self.local_rate = 0.0
+        self.stable = False  # the latest shadow frame confirmed the calibration
+
+    @property
+    def goal(self):
+        return self.safety * self.target
+
+    def local(self, proxy, measured=None):
+        """The local velocity error (m/s) of this frame; calibrates the proxy when ``measured``.
+
+        Parameters
+        ----------
+        proxy : float
+            ||e||_inf of one preconditioned CG step on A e = b - A dv_red.
+        measured : float, optional
+            ||dv_red - dv_full||_inf of a shadow frame.
+        """
+        if measured is None:
+            return self.calibration * proxy
+        self.stable = False
+        if proxy > 0 and measured > 0:
+            ratio = measured / proxy
+            self.stable = bool(self.calibrated) and 0.7 <= ratio / self.calibration <= 1.4
+            # the larger of the newest ratio and a slowly forgotten history: a safe side estimate
+            self.calibration = ratio if not self.calibrated else max(ratio, math.sqrt(self.calibration * ratio))
+            self.calibrated += 1
+        return measured
+
+    def advance(self, delta, dt, size, introduced=True):
+        """E <- rho E + h delta / L (``introduced=False``: the frame returned the full solution)."""
+        rho = math.exp(-dt / self.memory)
+        self.local_rate = delta / size
+        self.estimate = rho * self.estimate + (dt * delta / size if introduced else 0.0)
+        return self.estimate
+
+    def decay(self, dt):
+        """A frame solved in full space: E only decays."""
+        self.estimate *= math.exp(-dt / self.memory)
+        return self.estimate
+
+    def adapt(self, saturated=False):
+        """Scale the threshold from the latest local error and the estimate; returns the new tau.
+
+        ``saturated``: the frame reduced every element it may, so a larger threshold would
+        gain nothing and only let the next event (an impact) find everything reduced; tau
+        does not grow then.
+        """
+        steady = self.memory * self.local_rate
+        ratio = self.goal / steady if steady > 0 else self.grow ** 2
+        factor = min(max(math.sqrt(ratio), self.shrink), self.grow)
+        if saturated:
+            factor = min(factor, 1.0)
+        if self.estimate > self.goal:
+            factor = min(factor, self.shrink_over)
+        self.tau = min(max(self.tau * factor, self.tau_min), self.tau_max)
+        return self.tau
+
+
+class ShadowClock:
+    """Every ``every``-th reduced frame is a shadow frame (also solved in full space); the ``first`` ones are.
+
+    Parameters
+    ----------
+    every : int
+        Reduced frames per shadow frame (>= 1).
+    """
+
+    def __init__(self, every=10, first=2, longest=4):
+        self.every = int(every)
+        if self.every < 1:
+            raise ValueError(f"shadow_every must be >= 1, got {every}")
+        self.shortest, self.longest = self.every, self.every * int(longest)
+        self.since = self.every
+        self.first = int(first)  # the first frames are all shadows: the first full solve pays the analysis
+
+    def settled(self, stable):
+        """After a shadow frame: a calibration that held (``stable``) doubles the period, up to
+        ``longest`` times ``every``; one that moved brings it back to ``every``."""
+        self.every = min(2 * self.every, self.longest) if stable else self.shortest
+
+    def due(self):
+        """Whether the coming reduced frame is a shadow frame (counts it)."""
+        if self.first > 0:
+            self.first -= 1
+            self.since = 1
+            return True
+        if self.since >= self.every:
+            self.since = 1
+            return True
+        self.since += 1
+        return False
+
+
+class TimeBudget:
+    """Controller of the forced reduced fraction from measured frame wall times.
+
+    Parameters
+    ----------
+    budget : float
+        Seconds per frame.
+    fraction : float
+        The forced fraction to start from.
+    gain : float
+        The fraction rises by ``gain * (wall / budget - 1)`` (at least ``step``) after a miss.
+    step : float
+        Smallest rise after a miss; the fall per frame while frames take under ``low`` budgets.
+    low : float
+        Frames under ``low * budget`` give elastic DOFs back.
+    """
+
+    def __init__(self, budget, fraction=0.0, gain=0.5, step=0.02, low=0.85):
+        self.budget = positive(budget, "time_budget")
+        self.fraction = real(fraction, "min_fraction", low=0.0, high=1.0)
+        self.floor = self.fraction
+        self.gain, self.step, self.low = float(gain), float(step), float(low)
+        self.frames = 0
+        self.misses = 0
+
+    def observe(self, wall):
+        """Take one frame's wall time (s); returns whether it missed the budget."""
+        self.frames += 1
+        ratio = float(wall) / self.budget
+        miss = ratio > 1.0
+        if miss:
+            self.misses += 1
+            self.fraction = min(1.0, self.fraction + max(self.step, self.gain * (ratio - 1.0)))
+        elif ratio < self.low:
+            self.fraction = max(self.floor, self.fraction - 0.5 * self.step)
+        return miss
+
+
+class PaysOff:
+    """Whether reduction pays, from measured costs of reduced frames and full solves.
+
+    Parameters
+    ----------
+    probe_every : int
+        Full-space frames before the first probe of reduction; doubles after each failed probe,
+        up to ``probe_max``.
+    keep_dofs : float
+        Reduced frames that keep at least this fraction of the DOFs, ``patience`` in a row, do
+        not pay whatever their time.
+    patience : int
+        Reduced frames measured before reduction may be judged (thresholds chosen by an error
+        budget start small and grow over the first frames).
+    margin : float
+        Return to reduction only when a probe costs at most ``1 - margin`` of a full solve.
+    smoothing : float
+        Weight of the newest measurement in the running costs.
+    """
+
+    def __init__(self, probe_every=20, probe_max=160, keep_dofs=0.95, patience=5, margin=0.05, smoothing=0.3):
+        self.probe_every, self.probe_max, self.patience = int(probe_every), int(probe_max), int(patience)
+        self.keep_dofs, self.margin, self.smoothing = float(keep_dofs), float(margin), float(smoothing)
+        self.full_cost = 0.0   # s per full solve (matrix, factorisation, solve)
+        self.reduced_cost = 0.0  # s per reduced frame (oracle to solve, the error proxy)
+        self.full_samples = 0
+        self.full_seen = 0     # full solves timed; the first (with the solver's symbolic analysis) is not a sample
+        self.reduced_samples = 0
+        self.dof_ratio = 0.0
+        self.kept_all = 0      # reduced frames in a row that kept at least keep_dofs of the DOFs
+        self.in_full = False
+        self.wait = 0          # full-space frames left before the next probe
+        self.period = self.probe_every
+
+    def _mix(self, old, new, n):
+        return new if n == 0 else (1 - self.smoothing) * old + self.smoothing * new
+
+    def full_solved(self, seconds):
+        self.full_seen += 1
+        if self.full_seen == 1:
+            return
+        self.full_cost = self._mix(self.full_cost, seconds, self.full_samples)
+        self.full_samples += 1
+
+    def reduced_solved(self, seconds, dof_ratio):
+        self.reduced_cost = self._mix(self.reduced_cost, seconds, self.reduced_samples)
+        self.reduced_samples += 1
+        self.dof_ratio = float(dof_ratio)
+        self.kept_all = self.kept_all + 1 if self.dof_ratio >= self.keep_dofs else 0
+
+    def overhead(self, shadow_every):
+        """Per reduced frame, the shadow frames' share of a full solve."""
+        return self.full_cost / max(shadow_every, 1)
+
+    def pays(self, shadow_every=None, margin=0.0):
+        """Whether the measured reduced frames (with their shadows) beat a full solve by ``margin``."""
+        if self.kept_all >= self.patience or (self.kept_all and self.in_full):
+            return False
+        if not (self.full_samples and self.reduced_samples):
+            return True
+        extra = self.overhead(shadow_every) if shadow_every else 0.0
+        return self.reduced_cost + extra <= (1.0 - margin) * self.full_cost
+
+    def plan(self):
+        """"full" (solve this frame in full space), "probe" (a reduced frame with a shadow) or "reduced"."""
+        if not self.in_full:
+            return "reduced"
+        if self.wait > 0:
+            self.wait -= 1
+            return "full"
+        return "probe"
+
+    def decide(self, shadow_every=None, probed=False):
+        """After a reduced frame or a probe: stay reduced, or go to full space until the next probe."""
+        warm = self.reduced_samples >= self.patience and self.full_samples >= 1
+        if probed:
+            if self.pays(shadow_every, self.margin):
+                self.in_full, self.period = False, self.probe_every
+            else:
+                self.in_full = True
+                self.period = min(2 * self.period, self.probe_max)
+                self.wait = self.period
+        elif (warm or self.kept_all >= self.patience) and not self.pays(shadow_every):
+            self.in_full, self.wait, self.period = True, self.probe_every, self.probe_every
+        return self.in_full
