@@ -11,9 +11,11 @@ beam's size, max over those frames), the oracle's mean residual and the number o
 each averaged over ``--seeds`` clustering seeds (single runs differ by seed as much as by method).
 Timings are not reported (compare them on an idle machine with ``sim.stats``).
 
-    python benchmarks/twist_refresh.py --resolution 3 --frames 300
+    python benchmarks/twist_refresh.py --resolution 3 --frames 400 --tau 5e-2 2.5e-2
+    python benchmarks/twist_refresh.py --scene --resolution 2 --frames 400 --tau 1.1e-3 1e-3
 """
 import argparse
+import sys
 
 import numpy as np
 import skfem
@@ -65,14 +67,23 @@ def main(argv=None):
     ap.add_argument("--tau", type=float, nargs=2, default=(2e-4, 1e-4), help="tau_a tau_e")
     ap.add_argument("--late", type=float, default=1 / 3, help="fraction of the frames reported")
     ap.add_argument("--seeds", type=int, default=3, help="clustering seeds averaged over (runs differ by seed)")
+    ap.add_argument("--scene", action="store_true",
+                    help="the registered scene sa.scenes.twisting_beam instead (continuous twist at pi/4 rad/s, "
+                         "the paper's E 5e3 unless --E is given)")
     args = ap.parse_args(argv)
-    body = twisting_beam(args.resolution, step=np.radians(args.step), period=args.period, E=args.E)
     damping = sa.Rayleigh(*args.damping)
+    if args.scene:
+        E = args.E if "--E" in (argv if argv is not None else sys.argv) else 5e3
+        body = sa.scenes.twisting_beam(args.resolution, E=E, damping=damping).bodies[0]
+        args.E = E
+    else:
+        body = twisting_beam(args.resolution, step=np.radians(args.step), period=args.period, E=args.E)
     full, xf = run(body, args.frames, None, damping=damping)
     n_full = full.stats[-1]["dofs"]
     late = slice(int(round((1 - args.late) * args.frames)), args.frames)
     size = full.size
-    print(f"twisting beam: {full.system.m} tets, {n_full} full DOFs, {args.frames} frames, {args.step:g} deg every {args.period:g} s, "
+    how = "sa.scenes.twisting_beam" if args.scene else f"{args.step:g} deg every {args.period:g} s"
+    print(f"twisting beam: {full.system.m} tets, {n_full} full DOFs, {args.frames} frames, {how}, "
           f"E {args.E:g}; late frames {late.start}-{late.stop}")
     print(f"{'refresh':>10} {'DOF ratio':>10} {'max err':>10} {'oracle res':>11} {'refreshes':>10}")
     for refresh in (False, "laplacian", "tangent"):
