@@ -1,7 +1,7 @@
 """Per-step cost of IPC contact (ipctk, contact/ipc.py) against the plain barrier (contact/barrier.py).
 
 The same drop scene (a soft cube or ball thrown at a plane, full-space implicit Euler) runs
-with both contact models, interleaved in chunks of frames in one process so that the machine's
+with both contact models (``Simulation(..., contact=None)`` and ``contact=sa.IPC(...)``), interleaved in chunks of frames in one process so that the machine's
 load hits both alike. Prints per run: ms per step, Newton iterations per step, ms per Newton
 iteration, the share of the step spent in the contact calls (energy, gradient, Hessian, CCD) and
 the lowest gap to the plane. Usage::
@@ -11,6 +11,7 @@ the lowest gap to the plane. Usage::
 import argparse
 import os
 import sys
+sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 import time
 
 THREADS = sys.argv[sys.argv.index("--threads") + 1] if "--threads" in sys.argv else "1"
@@ -21,8 +22,6 @@ import ipctk  # noqa: E402
 import numpy as np  # noqa: E402
 
 import skfem_affine as sa  # noqa: E402
-from skfem_affine.contact import ipc  # noqa: E402
-from skfem_affine.integrators import newton  # noqa: E402
 
 
 class Timed:
@@ -45,38 +44,24 @@ class Timed:
         return call
 
 
-class IPCPotential(newton.IncrementalPotential):
-    """The incremental potential with IPC contact (the wiring the Simulation is to get)."""
-
-    def __init__(self, sim, x_t, v_t, contact):
-        super().__init__(sim, x_t, v_t, contact=contact)
-        contact.begin_step(self.x_t, self.x_hat, self.c)
-
-    def hessian(self, H, x=None):
-        A = super().hessian(H, x)
-        if x is not None:
-            A = A + self.weight * self.contact.hessian(x)
-        return A.tocsr()
-
-
-def scene(args):
+def scene(args, contact):
+    """The drop scene with ``contact=None`` (the plain barrier) or ``sa.IPC(...)``."""
+    plane = sa.Plane((0, 0, -0.3), (0, 0, 1))
     sim = sa.scenes.free_body(resolution=args.resolution, shape=args.shape, size=0.5, velocity=(0, 0, -2.0),
                               spin=(0, 0, 0), gravity=(0, 0, -9.81), integrator="implicit_euler",
-                              dt=args.dt, solver="direct")
-    plane = sa.Plane((0, 0, -0.3), (0, 0, 1))
+                              dt=args.dt, solver="direct", colliders=[plane], contact=contact)
     return sim, plane
 
 
-class BarrierRun:
-    name = "barrier"
+class Run:
+    """One contact model's simulation, its contact calls timed (the integrator's contact object wrapped)."""
 
-    def __init__(self, args):
-        self.sim, self.plane = scene(args)
-        self.sim.colliders = [self.plane]
-        self.sim.step()  # builds the stepper's contact, which is then timed
-        self.contact = Timed(self.sim.stepper.contact)
-        self.sim.stepper.contact = self.contact
-        self.sim.stepper._colliders = tuple(self.sim.colliders)
+    def __init__(self, name, args, contact):
+        self.name = name
+        self.sim, self.plane = scene(args, contact)
+        self.sim.step()  # not timed: first-step set-up
+        self.contact = Timed(self.sim.integrator.barrier)
+        self.sim.integrator.barrier = self.contact
         self.steps, self.seconds, self.iters, self.gap = 0, 0.0, 0, np.inf
 
     def frames(self, n):
@@ -87,31 +72,6 @@ class BarrierRun:
             self.iters += self.sim.stats[-1]["newton_iters"]
             self.steps += 1
             self.gap = min(self.gap, float(self.plane.query(self.sim.state.x)[0].min()))
-
-
-class IPCRun(BarrierRun):
-    name = "ipc"
-
-    def __init__(self, args):
-        self.sim, self.plane = scene(args)
-        self.contact = Timed(ipc.IPCContact(self.sim, [self.plane], ipc.IPC(friction=args.friction)))
-        self.x = self.sim.state.x.reshape(-1).copy()
-        self.v = self.sim.state.v.reshape(-1).copy()
-        self.steps, self.seconds, self.iters, self.gap = 0, 0.0, 0, np.inf
-        self.frames(1)  # as the barrier run: the first step is not timed
-        self.steps, self.seconds, self.iters, self.gap, self.contact.seconds = 0, 0.0, 0, np.inf, 0.0
-
-    def frames(self, n):
-        for _ in range(n):
-            t0 = time.perf_counter()
-            ip = IPCPotential(self.sim, self.x, self.v, self.contact)
-            rec = {}
-            x = newton.newton_solve(ip, self.sim.newton_tol, self.sim.newton_iters, self.sim.solve, rec)
-            self.v, self.x = ip.velocity(x), x
-            self.seconds += time.perf_counter() - t0
-            self.iters += rec["newton_iters"]
-            self.steps += 1
-            self.gap = min(self.gap, float(self.plane.query(self.x.reshape(-1, 3))[0].min()))
 
 
 def main(argv=None):
@@ -125,7 +85,7 @@ def main(argv=None):
     ap.add_argument("--threads", default="1", help="BLAS/MKL and ipctk (TBB) threads")
     args = ap.parse_args(argv)
     ipctk.set_num_threads(int(args.threads))
-    runs = [BarrierRun(args), IPCRun(args)]
+    runs = [Run("barrier", args, None), Run("ipc", args, sa.IPC(friction=args.friction))]
     for _ in range(0, args.frames, args.chunk):
         for r in runs:
             r.frames(args.chunk)

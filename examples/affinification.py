@@ -1,4 +1,5 @@
-r"""Affinification: the same beam three ways, and what the speed/accuracy knob costs.
+r"""Affinification: the speed/accuracy knob
+=======================================
 
 The cantilever of ``cantilever.py`` is simulated
 

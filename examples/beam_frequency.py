@@ -1,4 +1,5 @@
-r"""First bending frequency of a cantilever against Euler-Bernoulli theory.
+r"""Verification: the first bending frequency against beam theory
+=============================================================
 
 A stiff beam (E = 100 MPa, nu = 0, rho = 1000 kg/m^3, length L = 4 m, square
 section a = 0.5 m) starts from rest under gravity and oscillates about its
@@ -48,3 +49,12 @@ if __name__ == "__main__":
     print(f"Euler-Bernoulli f1 = {f_theory:.3f} Hz")
     for k, f in ((2, f2), (3, f3), ("inf", f_extrapolated)):
         print(f"k = {k}: f1 = {f:.3f} Hz ({100 * (f / f_theory - 1):+.1f} %)")
+
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6, 3.2))
+    ax.bar(["k = 2", "k = 3", "extrapolated"], [f2, f3, f_extrapolated], color=["tab:gray", "tab:gray", "tab:blue"])
+    ax.axhline(f_theory, color="tab:red", label="Euler-Bernoulli")
+    ax.set_ylabel("first bending frequency (Hz)")
+    ax.legend(fontsize=8)
+    fig.tight_layout()

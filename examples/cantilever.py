@@ -1,4 +1,5 @@
-r"""Cantilever beam swinging under gravity.
+r"""A first simulation: a cantilever swinging under gravity
+=======================================================
 
 A 4 m x 1 m x 1 m beam of stable Neo-Hookean rubber (E = 100 kPa,
 nu = 0.35, rho = 1000 kg/m^3) is clamped at x = 0 and released from rest.
@@ -50,7 +51,7 @@ def simulate(resolution=3, frames=100, dt=0.01, out=None):
     return sim, np.array(heights)
 
 
-parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+parser = argparse.ArgumentParser(description="A cantilever beam swinging under gravity.")  # no __doc__ under sphinx-gallery
 parser.add_argument("--resolution", type=int, default=3, help="cells across the beam (24 k^3 tets)")
 parser.add_argument("--frames", type=int, default=100)
 parser.add_argument("--out", default=os.path.join("out", "cantilever"), help="output folder (default out/cantilever)")

@@ -1,4 +1,7 @@
-r"""Measuring the trade: one scene three ways, with speedup, error and a picture.
+r"""Measuring the trade: speedup, error and a picture
+=================================================
+
+One scene three ways, with speedup, error and a picture.
 
 Affinification trades accuracy for speed through two thresholds on deformation
 rates (1/s): tau_a, below which elastic elements merge into affine bodies, and
@@ -43,5 +46,13 @@ if __name__ == "__main__":
         step = "-" if s["max_step_error"] is None else f"{s['max_step_error']:.1e}"
         print(f"{name:>15} {s['speedup']:8.2f} {s['dof_ratio']:9.2f} {s['mean_clusters']:7.1f} "
               f"{s['max_distance_error']:9.1e} {step:>10}")
-    for path in plots.compare_plots(runs, os.path.join("out", "compare", "cantilever")):
+    paths = plots.compare_plots(runs, os.path.join("out", "compare", "cantilever"))
+    for path in paths:
         print("wrote", path)  # where `skfem-affine compare cantilever` writes its plots too
+
+    import matplotlib.pyplot as plt
+
+    for path in paths[:1] + paths[-1:]:          # the speedup per frame and the clusters picture
+        image = plt.imread(path)
+        fig, ax = plt.subplots(figsize=(image.shape[1] / 120, image.shape[0] / 120))
+        ax.imshow(image)

@@ -1,4 +1,5 @@
-r"""Contact, part 3: stiff against soft, bowling balls on a mattress and a toothbrush.
+r"""Stiff against soft: bowling balls on a mattress, a toothbrush
+=============================================================
 
 Two scenes mix materials. In ``bowling``, stiff balls (E = 1e7 Pa) fall from
 different heights onto a soft mattress (E = 2e4 Pa) lying on the floor; the
@@ -45,3 +46,14 @@ if __name__ == "__main__":
     for i, frac in enumerate(peak_elastic):
         print(f"ball {i}: at most {100 * frac:.0f} % of the mattress elements under it elastic")
     print(f"toothbrush: bristle tips trail the handle by {1e3 * trail:.1f} mm after 0.4 s of brushing")
+
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 3.2))
+    for i, values in elastic_under.items():
+        ax.plot(bowling.dt * np.arange(1, len(values) + 1), values, label=f"under ball {i}")
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel("elastic share of the mattress")
+    ax.set_title("Bowling balls on a mattress: the impact keeps its region elastic")
+    ax.legend(fontsize=8)
+    fig.tight_layout()

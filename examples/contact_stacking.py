@@ -1,4 +1,5 @@
-r"""Contact, part 2: several bodies, stacked beams and pills in a bowl.
+r"""Contact between bodies: stacked beams and pills in a bowl
+=========================================================
 
 With several bodies, contact is on by default (``contact=sa.PGS()``): every
 surface vertex of one body is tested against the boundary triangles of every
@@ -46,3 +47,13 @@ if __name__ == "__main__":
     print(f"pills: {pills.system.m} tets in {len(pills.bodies)} bodies, "
           f"{pills_contacts:.0f} contacts per frame at the end, "
           f"deepest {pills_depth * 1e3:.2f} mm, largest speed {pills_speed:.3f} m/s")
+
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 3.2))
+    for name, sim in (("stacked beams", beams), ("pills in a bowl", pills)):
+        ax.plot(sim.dt * np.arange(1, len(sim.stats) + 1), [r["n_contacts"] for r in sim.stats], label=name)
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel("contacts per frame")
+    ax.legend(fontsize=8)
+    fig.tight_layout()

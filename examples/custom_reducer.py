@@ -1,4 +1,5 @@
-r"""Writing your own reducer: fixed affine bodies from a k-means of the rest mesh.
+r"""Writing your own reducer: fixed affine bodies from a k-means
+============================================================
 
 A reducer decides in which subspace each frame is solved (:mod:`skfem_affine.reducers.base`).
 It subclasses :class:`~skfem_affine.reducers.base.Reducer`, declares the integrators it runs

@@ -1,4 +1,5 @@
-r"""A beam twisted by a rotating clamp, and pulled at its tip.
+r"""Moving boundaries and pulling forces
+=====================================
 
 A 2 m x 0.5 m x 0.5 m Neo-Hookean beam (E = 50 kPa, nu = 0.35, rho = 100 kg/m^3) is held by two
 clamps: the one at x = 0 is fixed, the one at x = 2 turns about the beam's axis at
@@ -12,7 +13,8 @@ The same scene runs in full space and with affinification (``sa.Affinification``
 touching the clamps stay elastic (the paper's choice; ``pinned_bodies=True`` lets them join
 affine bodies constrained by the clamp).
 
-Run ``python examples/rotating_clamp.py`` (a few seconds).
+Run ``python examples/rotating_clamp.py`` (a few seconds). The user guide's page on bodies
+and boundaries says how each integrator and reducer treats prescribed vertices.
 """
 import numpy as np
 import skfem

@@ -1,9 +1,9 @@
 """Compiled per-element kernels (numba) for the few hot spots numpy batches poorly.
 
-numpy's batched 3 x 3 SVD and eigh pay a LAPACK call per element (40 ms for
-24k tets); these kernels do the same work in registers. The element loops are ``nogil``
-kernels over work units, run in parallel by :func:`skfem_affine.threads.run_chunks` (no
-numba parallel regions: see :mod:`skfem_affine.threads`).
+numpy's batched 3 x 3 SVD and eigh pay a LAPACK call per element; these kernels do the
+same work in registers (timings: the user guide's Materials page). The element loops are
+``nogil`` kernels over work units, run in parallel by :func:`skfem_affine.threads.run_chunks`
+(no numba parallel regions: see :mod:`skfem_affine.threads`).
 """
 import numpy as np
 from numba import njit
@@ -131,8 +131,8 @@ def svd3_lanes(F, e0, stop, U, s, V, a, v, A, W, sweeps=4):
     """:func:`svd3` of F[e0 : min(e0 + _LANES, stop)] into U[b], s[b], V[b], b = e - e0.
 
     ``sweeps`` (4) Jacobi sweeps run on all lanes at once, so the rotations of different
-    elements overlap (the scalar sweep is latency-bound: 0.47 against 0.68 ms at 5.5k tets;
-    4 sweeps converged every random F we tried); a lane not yet converged finishes with
+    elements overlap (the scalar sweep is latency-bound); a lane not yet converged after
+    ``sweeps`` (enough for the random, near-singular and inverted F of the tests) finishes with
     :func:`_sym_eig3` on V^T A V. ``a`` (6, lanes),
     ``v`` (9, lanes), ``A``, ``W`` (3, 3) are scratch. Unused lanes repeat the last element.
     """
@@ -350,8 +350,8 @@ def scatter_add(slot, values, nnz):
 def deformation_gradients(x, t, grads, out):
     """out[e] = sum_k x[t[k, e]] (x) grad phi_k (eq. 3; velocities give F_dot, eq. 4), (m, 3, 3).
 
-    The compiled twin of :func:`kinematics.deformation_gradient` (numpy's einsum routes the
-    batched product through multi-threaded BLAS: 0.65 against 0.04 ms at 5k tets).
+    The compiled twin of :func:`kinematics.deformation_gradient`: numpy's einsum routes the
+    batched product through multi-threaded BLAS, which is slow for many 3 x 3 products.
     """
     run_chunks(_deformation_gradients, _CHUNKS, x, t, grads, out)
 

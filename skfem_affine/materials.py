@@ -12,10 +12,10 @@ element), so a heterogeneous body is evaluated in one call per material kind.
 Lame parameters come from :func:`lame_parameters`, the one place they are computed.
 Each material is also available as scikit-fem forms, :meth:`Material.forms`.
 
-Models (paper sec. 4, [SGK18]):
+Models (paper sec. 4; stable Neo-Hookean: Smith, de Goes & Kim 2018):
 
-* :class:`StVK`: psi = mu E:E + lam/2 tr(E)^2, E = (F^T F - I)/2;
-* :class:`Corotational`: psi = mu |F - R|^2 + lam/2 tr(R^T F - I)^2, F = R S;
+* :class:`StVK`: ``psi = mu E:E + lam/2 tr(E)^2``, ``E = (F^T F - I)/2``;
+* :class:`Corotational`: ``psi = mu |F - R|^2 + lam/2 tr(R^T F - I)^2``, ``F = R S``;
 * :class:`NeoHookean` (stable Neo-Hookean, Smith, de Goes & Kim 2018):
   psi = mu/2 (tr F^T F - 3) - mu (J - 1) + lam'/2 (J - 1)^2, lam' = lam + mu
   so that it linearises to the same Lame parameters; defined for J <= 0.
@@ -249,7 +249,7 @@ class StVK(Material):
 
 
 class NeoHookean(Material):
-    """Stable Neo-Hookean [SGK18], psi = mu/2 (I_C - 3) - mu (J - 1) + lam'/2 (J - 1)^2.
+    """Stable Neo-Hookean (Smith, de Goes & Kim 2018), psi = mu/2 (I_C - 3) - mu (J - 1) + lam'/2 (J - 1)^2.
 
     lam' = lam + mu makes the small-strain limit match linear elasticity with
     the Lame parameters of (E, nu). Rest-stable and defined for inverted F.
@@ -293,7 +293,7 @@ def rotation_svd(F):
 
 
 class Corotational(Material):
-    """Corotational: psi = mu |F - R|^2 + lam/2 (tr(R^T F) - 3)^2 with F = R S (polar).
+    """Corotational: ``psi = mu |F - R|^2 + lam/2 (tr(R^T F) - 3)^2`` with ``F = R S`` (polar).
 
     The exact Hessian differentiates R: dR = U Omega V^T with
     Omega_ij = ((U^T dF V)_ij - (U^T dF V)_ji) / (s_i + s_j).

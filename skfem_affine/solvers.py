@@ -71,10 +71,10 @@ class Pardiso:
     degree's is the cheaper one. The positions of the upper triangle in a full
     symmetric CSR input are cached with its pattern, so a full-space frame costs one
     gather instead of ``triu`` and a sort. ``factorize`` also accepts an upper triangle
-    directly (``upper=True``), as :func:`reduction.reduced_matrix` builds.
+    directly (``upper=True``), as :func:`skfem_affine.reducers.affine.mapping.reduced_matrix` builds.
 
     Systems below :data:`PARDISO_THREADED_MIN` unknowns are factorised and solved on one
-    MKL thread (more threads were slower there on 2 cores), larger ones on MKL's default
+    MKL thread (on such systems MKL's threads cost more than they save), larger ones on MKL's default
     count, through :func:`skfem_affine.threads.mkl_threads` around each call (restored
     afterwards). All calls into pypardiso's private parts go through one adapter,
     :class:`_PardisoLibrary`. Measurements: ``docs/solvers.md``.

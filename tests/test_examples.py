@@ -4,7 +4,6 @@ import runpy
 import sys
 
 import meshio
-
 import numpy as np
 import pytest
 
@@ -20,7 +19,8 @@ def run(name):
 def test_every_example_is_tested():
     tested = {"cantilever.py", "beam_frequency.py", "affinification.py", "contact_drop.py",
               "contact_stacking.py", "contact_materials.py", "compare.py", "adaptive_subspace.py",
-              "custom_reducer.py", "rotating_clamp.py"}
+              "custom_reducer.py", "own_mesh.py", "boundaries.py", "threshold_sweep.py", "output.py",
+              "rotating_clamp.py"}
     assert set(f for f in os.listdir(EXAMPLES) if f.endswith(".py")) <= tested
 
 
@@ -125,3 +125,48 @@ def test_custom_reducer_example_runs_beside_full_and_affinification():
     assert mine["dof_ratio"] < 0.5
     assert 0 < mine["max_distance_error"] < 0.05
     assert all(r["n_clusters"] == 3 and r["dofs"] == 81 for r in g["runs"]["static-kmeans"].records)
+
+
+def test_own_mesh_example_loads_regions_and_assigns_their_materials():
+    g = run("own_mesh.py")
+    assert g["regions"] == {"ref1": 324, "ref2": 324}
+    sysm = g["two_materials"].system
+    assert len(g["two_materials"].bodies[0].materials) == 2
+    left = sysm.p0[sysm.t].mean(axis=0)[:, 0] < 2.0
+    assert np.unique(sysm.material_index[left]).size == 1 and np.unique(sysm.material_index[~left]).size == 1
+    assert sysm.material_index[left][0] != sysm.material_index[~left][0]
+    # a stiff root holds the bar up: the tip sags far less than when all of it is soft
+    assert -1.0 < g["sag_two_materials"] < 0 and g["sag_soft"] < 3 * g["sag_two_materials"]
+
+
+def test_boundaries_example_holds_fixed_vertices():
+    g = run("boundaries.py")
+    r = g["results"]
+    assert all(v["fixed_moved"] == 0.0 for v in r.values())
+    assert (r["cantilever"]["n_fixed"], r["bridge"]["n_fixed"], r["hinge"]["n_fixed"]) == (16, 32, 4)
+    assert r["bridge"]["tip"] == 0.0                       # the far end is held too
+    assert r["bridge"]["middle"] > r["cantilever"]["middle"] > r["hinge"]["middle"]
+    assert r["hinge"]["tip"] < r["cantilever"]["tip"] < 0
+
+
+def test_threshold_sweep_example_trades_dofs_for_error():
+    g = run("threshold_sweep.py")
+    assert np.all(np.diff(g["dof_ratio"]) < 0)            # larger thresholds solve fewer DOFs
+    assert g["error"][-1] > g["error"][0] > 0              # and pay with accuracy
+    assert np.all(g["dof_ratio"] < 1) and np.all(np.isfinite(g["speedup"]))
+    assert all(row["status"] == "ok" for row in g["rows"])
+
+
+def test_output_example_writes_paraview_and_gif(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    g = run("output.py")
+    out = tmp_path / "out" / "output"
+    pvd = (out / "drop.pvd").read_text()
+    assert pvd.count("<DataSet") == 31 == len(g["frames"])
+    frame = meshio.read(out / "drop_00060.vtu")
+    assert {"cluster", "affine", "material"} <= set(frame.cell_data)
+    assert np.asarray(frame.cell_data["cluster"][0]).max() >= 0     # affine bodies were written
+    from PIL import Image
+    with Image.open(out / "drop.gif") as gif:
+        assert gif.n_frames == len(g["states"]) == 16
+    assert (out / "drop_clusters.png").stat().st_size > 0

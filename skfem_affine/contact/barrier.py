@@ -18,7 +18,7 @@ cross a collider. Gradient :math:`\kappa b'(d) n`; Hessian :math:`\kappa b''(d) 
 :math:`\kappa b'(d) \nabla^2 d` (exact for planes). Defaults: :math:`\hat d` = 1e-3 of the scene
 size, :math:`\kappa` = 100 m_avg 9.81 / :math:`\hat d` (m_avg the mean vertex mass), so that the
 barrier's stiffness scales with a vertex's weight and a body resting under gravity settles inside
-the barrier's range (docs/subspace.md, "Contact").
+the barrier's range (measured in docs/subspace.md, "Contact").
 
 The barrier is built once per run from the model (``model.system``, ``model.size``) and the
 colliders; it holds no simulation.

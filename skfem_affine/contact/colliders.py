@@ -110,7 +110,7 @@ class Plane(Collider):
 
 
 class Sphere(Collider):
-    """A solid ball: d = |x - c| - r, normal (x - c) / |x - c| (+z at the centre)."""
+    """A solid ball: ``d = |x - c| - r``, normal ``(x - c) / |x - c|`` (+z at the centre)."""
 
     def __init__(self, center=(0.0, 0.0, 0.0), radius=1.0):
         self.center = _vector(center, "sphere center")

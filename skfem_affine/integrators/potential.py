@@ -40,7 +40,8 @@ def vdot(a, b):
     """a . b for 1-D arrays, summed by einsum's loop rather than a BLAS call.
 
     A BLAS dot hands the work to the BLAS thread pool; for the vector lengths here the
-    hand-off costs more than the sum (docs/subspace.md, "Speed notes").
+    hand-off costs more than the sum (measurements: docs/threads.md, "One OpenBLAS thread
+    during a frame").
     """
     return float(np.einsum("i,i->", a, b))
 

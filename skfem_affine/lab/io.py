@@ -80,10 +80,24 @@ class Series:
 
 
 def write_series(path, sim, *, states):
-    """Write already computed ``states`` of ``sim`` (e.g. ``runners.Run.states``) as a ParaView series.
+    """Write already computed ``states`` of ``sim`` as a ParaView series.
 
     Nothing is simulated: to record a run as it goes, pass each state to a :class:`Series`.
-    Returns the path of the ``.pvd`` file that ParaView opens.
+
+    Parameters
+    ----------
+    path : str or path-like
+        Where to write: ``<path>.pvd`` and ``<stem>_NNNNN.vtu`` beside it (a trailing
+        ``.pvd`` is optional); the folder is created.
+    sim : Simulation
+        The simulation the states belong to (its mesh and bodies).
+    states : iterable of State
+        The states to write, e.g. ``runners.Run.states`` or ``list(sim.run(60))``.
+
+    Returns
+    -------
+    str
+        The path of the ``.pvd`` file that ParaView opens as a time series.
     """
     series = Series(path, sim)
     for state in states:
@@ -92,10 +106,29 @@ def write_series(path, sim, *, states):
 
 
 def load_mesh(path):
-    """Read a tetrahedral mesh file (e.g. MEDIT .mesh) into a skfem.MeshTet.
+    """Read a tetrahedral mesh file into a ``skfem.MeshTet``.
 
-    Region labels (``medit:ref`` or ``gmsh:physical``) become ``mesh.subdomains``
-    named ``"ref<label>"``.
+    Any format meshio reads (Gmsh ``.msh``, MEDIT ``.mesh``, VTK/VTU, ...). Only the
+    tetrahedra are kept (other cells are ignored) and vertices no tetrahedron uses are
+    dropped.
+
+    Parameters
+    ----------
+    path : str or path-like
+        The mesh file.
+
+    Returns
+    -------
+    skfem.MeshTet
+        With ``mesh.subdomains`` named ``"ref<label>"`` when the file labels its
+        tetrahedra with more than one region (``medit:ref`` or ``gmsh:physical``), so
+        that ``ElasticBody(mesh, material={"ref1": ..., "ref2": ...})`` assigns a
+        material per region.
+
+    Raises
+    ------
+    ValueError
+        If the file holds no tetrahedra.
     """
     import skfem
     m = meshio.read(path)

@@ -4,19 +4,19 @@ Per frame t, with x the reduced run's vertex positions, x^ref the full-space
 reference started from the same initial state, L the scene's size (diagonal of
 its rest bounding box) and h the time step:
 
-- distance error     max_i ||x_i(t) - x^ref_i(t)|| / L                     (Fig. 6, "distance error")
-- step distance error  the same, with the reference re-started from the reduced
-  state at t - 1 for one step, which discounts phase drift       (Fig. 6, "step distance error")
-- residual           ||A dv - b|| / ||b||, the full-space system (eq. 1-2) at the
-  reduced run's state t - 1 applied to the velocity change it took   (Fig. 6, "residual error")
-- energy error       |Psi(x(t)) - Psi(x^ref(t))| / max_s Psi(x^ref(s))  (Fig. 6, "strain energy")
+- distance error: ``max_i ||x_i(t) - x^ref_i(t)|| / L`` (Fig. 6, "distance error");
+- step distance error: the same, with the reference re-started from the reduced
+  state at t - 1 for one step, which discounts phase drift (Fig. 6, "step distance error");
+- residual: ``||A dv - b|| / ||b||``, the full-space system (eq. 1-2) at the
+  reduced run's state t - 1 applied to the velocity change it took (Fig. 6, "residual error");
+- energy error: ``|Psi(x(t)) - Psi(x^ref(t))| / max_s Psi(x^ref(s))`` (Fig. 6, "strain energy");
 
 and over a run:
 
-- DOF ratio          sum_t dofs(t) / sum_t dofs^ref(t)                   (Fig. 6, "DOFs ratio")
-- mean clusters      mean_t n_clusters(t)                                 (Fig. 6)
-- speedup            sum_t wall^ref(t) / sum_t wall(t); per frame wall^ref(t) / wall(t)  (Fig. 1, Table 1)
-- per-phase wall time, summed over frames                                (Fig. 12)
+- DOF ratio: ``sum_t dofs(t) / sum_t dofs^ref(t)`` (Fig. 6, "DOFs ratio");
+- mean clusters: ``mean_t n_clusters(t)`` (Fig. 6);
+- speedup: ``sum_t wall^ref(t) / sum_t wall(t)``; per frame ``wall^ref(t) / wall(t)`` (Fig. 1, Table 1);
+- per-phase wall time, summed over frames (Fig. 12).
 
 Each function takes plain arrays or per-frame record lists (``sim.stats``) and
 is tested against a hand-computed case in ``tests/test_metrics.py``.
@@ -27,7 +27,7 @@ from skfem_affine.simulation import State, Stats
 
 
 def distance_error(x, x_ref, size):
-    """Largest vertex distance ||x_i - x_ref_i|| (Euclidean, (n, 3) arrays) divided by ``size``."""
+    """Largest vertex distance ``||x_i - x_ref_i||`` (Euclidean, (n, 3) arrays) divided by ``size``."""
     x, x_ref = np.asarray(x, float), np.asarray(x_ref, float)
     if x.shape != x_ref.shape:
         raise ValueError(f"positions of shape {x.shape} cannot be compared with a reference of shape {x_ref.shape}")
@@ -49,7 +49,7 @@ def reference_step(evaluator, state):
 
 
 def residual_norm(A, dv, b):
-    """||A dv - b|| / ||b|| (||A dv|| when b = 0): the part of the system the step did not resolve."""
+    """``||A dv - b|| / ||b||`` (``||A dv||`` when b = 0): the part of the system the step did not resolve."""
     r = A @ dv - b
     nb = float(np.linalg.norm(b))
     return float(np.linalg.norm(r)) / nb if nb > 0 else float(np.linalg.norm(r))
@@ -70,7 +70,7 @@ def full_space_residual(evaluator, before, after):
 
 
 def energy_error(strain, strain_ref, scale):
-    """|Psi - Psi_ref| / scale per frame; ``scale`` is the reference's largest strain energy."""
+    """``|Psi - Psi_ref| / scale`` per frame; ``scale`` is the reference's largest strain energy."""
     strain, strain_ref = np.asarray(strain, float), np.asarray(strain_ref, float)
     if not scale > 0:
         return np.abs(strain - strain_ref)

@@ -245,9 +245,9 @@ class Mapping:
         the free vertices, :func:`nested_dissection_rank`); a body's DOFs come right after its
         latest vertex, as if the body were part of the separator that vertex belongs to. Our
         choice (the paper is silent): it spares the direct solver its ordering step, which on
-        reduced systems whose clusters change every frame costs about as much as the
-        factorisation (measurements in docs/affinification.md). Returns the reduced DOFs in
-        elimination order (int32).
+        reduced systems whose clusters change every frame costs as much as the factorisation,
+        and the resulting order is as good as the solver's own (measurements: the user guide's
+        Affinification page). Returns the reduced DOFs in elimination order (int32).
         """
         free, vcluster = self.free, self.vcluster
         ne, w = self.n_elastic, self.width

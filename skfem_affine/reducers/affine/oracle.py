@@ -51,7 +51,7 @@ def element_moduli(system):
 
 
 def laplacian_weights(system):
-    """Weights w_e = V_e mu_e of A_p (eq. 14); see :class:`Preconditioner` for the measurement."""
+    """Weights w_e = V_e mu_e of A_p (eq. 14); see :class:`Preconditioner` for the choice."""
     mu, _ = element_moduli(system)
     return system.volumes * mu
 
@@ -202,19 +202,22 @@ class Preconditioner:
     Notes
     -----
     **Weights.** w_e = V_e mu_e, the shear part mu grad u : grad v of the linearised tangent
-    (the vector Laplacian of [MK23]): of the candidates mu / 2, mu, 2 mu, mu + lam and
-    2 mu + lam it gives the smallest prediction residual, undamped and damped.
+    (the Laplacian-based approximation of Mercier-Aubin & Kry 2023): of the candidates
+    mu / 2, mu, 2 mu, mu + lam and 2 mu + lam it gives the smallest prediction residual,
+    undamped and damped, and mu / 2 to mu stay best in the energy norm for stiff bodies.
 
     **ichol.** Threshold IC after RCM rather than IC(0): on the bent cantilever it
     predicts about as well as an exact A_p solve, where IC(0) is clearly worse and
     collapses on a badly numbered mesh; RCM makes the result independent of the
-    input vertex order. A factor that breaks down is retried on S + s diag(S)
-    (:data:`ICHOL_SHIFTS`); S, a mass-augmented P1 Laplacian, has not needed it.
+    input vertex order, and for a threshold IC whose dropping depends on the elimination
+    order the bandwidth reduction is what matters. A factor that breaks down is retried on
+    S + s diag(S) (:data:`ICHOL_SHIFTS`); S, a mass-augmented P1 Laplacian, has not needed it.
 
     **amg.** As good a prediction as an exact A_p solve but costlier per application
-    than ichol (three V-cycles, one per component).
+    than ichol (three V-cycles, one per component), so ichol is the default; Jacobi
+    smoothing would halve the cost for a worse prediction.
 
-    Measurements behind these choices: ``docs/affinification.md``, "The oracle's
+    Measurements behind these choices: the user guide's Affinification page, "The oracle's
     preconditioner".
     """
 

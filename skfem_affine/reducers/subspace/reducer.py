@@ -35,7 +35,7 @@ interface averaging is needed in eq. 20; the BFGS update is skipped when y^T s <
 every H_l positive semi-definite) and reduces to y y^T / y^T s when s^T H_l s = 0; the characteristic
 length l of sec. 3.11 is the scene's bounding-box diagonal; the step runs with one BLAS thread by
 default, since its dense products are small (a few hundred modes) and the BLAS thread hand-off
-costs more than it saves (docs/subspace.md, "Speed notes").
+costs more than it saves (measurements: docs/threads.md, "Adaptive subspace").
 """
 import time
 
