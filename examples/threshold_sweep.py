@@ -31,7 +31,7 @@ frames = 60
 runners.warm_up(spec, ("full", "affinification"))   # compile and load once, outside the timings
 reference, full = runners.reference_run(spec, frames)
 
-taus = [0.03, 0.1, 0.3, 1.0]
+taus = [0.003, 0.01, 0.03, 0.1]
 rows = []
 for tau_a in taus:
     result = runners.run(spec, "affinification", frames, tau_a, 2 * tau_a, reference=reference,

@@ -27,7 +27,7 @@ import numpy as np
 
 from skfem_affine.checks import real_array
 
-__all__ = ["Prescribed", "VertexForce", "Motion", "Targets", "coupling"]
+__all__ = ["Prescribed", "VertexForce", "Motion", "Targets", "coupling", "work"]
 
 
 def _indices(vertices, n, name):
@@ -279,3 +279,26 @@ def coupling(problem, targets):
         w[targets.vertices] = (targets.v - problem.v[targets.vertices]) + h * alpha * targets.v
         out += sysm.M @ w.reshape(-1)
     return out[sysm.free]
+
+
+def work(system, f_gravity, targets, f_ext, x0, v0, x, v, dt):
+    r"""The work (J) the vertex forces and the prescribed vertices did on the body over one step.
+
+    For the simulation's energy check (:mod:`skfem_affine.monitor`), which refuses a step that
+    creates energy: a moving clamp and a pull put energy in.
+
+    * Vertex forces alone: :math:`f_{ext}\cdot\Delta x`.
+    * With prescribed vertices, the clamp's force reaches the body through the elements next to
+      it and, with ``pinned_bodies``, through a body's constraints; both are in the step's force
+      balance, so the work is that of everything but the elastic forces and gravity,
+      :math:`\sum (M\Delta v/h - f(x_{t+1}) - Mg)\cdot\Delta x` over all DOFs (vertex forces and
+      damping included, the latter negative). A first-order estimate that also credits an
+      integrator's own energy error as work, so with prescribed vertices the check is weaker:
+      it still refuses non-finite states and torn bodies.
+    """
+    dx = (np.asarray(x) - np.asarray(x0)).reshape(-1)
+    if targets is None:
+        return 0.0 if f_ext is None else float(f_ext @ dx)
+    dv = (np.asarray(v) - np.asarray(v0)).reshape(-1)
+    f_int = system.forces_and_stiffness(np.asarray(x).reshape(-1, 3), tangent=False)[0]
+    return float((system.M @ dv / dt - f_int - f_gravity) @ dx)

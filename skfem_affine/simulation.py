@@ -18,9 +18,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+import skfem_affine
+from skfem_affine import checkpoint
+
 from skfem_affine.assembly import ElasticSystem
-from skfem_affine.body import ElasticBody
-from skfem_affine.checks import positive
+from skfem_affine.checks import check_bodies, choice, flag, integer, positive, real_array
 from skfem_affine.contact import pgs
 from skfem_affine.contact.colliders import check_colliders
 from skfem_affine.contact.ipc import IPC, IPCContact
@@ -30,17 +32,22 @@ from skfem_affine.integrators.linearized import LinearizedEuler
 from skfem_affine.integrators.newton_integrator import NewtonIntegrator
 from skfem_affine.integrators.problem import PHASES, Model, Rayleigh, StepProblem, StepResult
 from skfem_affine.motion import Motion
+from skfem_affine.motion import work as motion_work
+from skfem_affine.monitor import Diverged, Monitor, SimulationWarning
 from skfem_affine.reducers.base import Reducer
 from skfem_affine.reducers.full import FullSpace, factorize_and_solve
 from skfem_affine.solvers import SolverError, make_solver
 
 INTEGRATORS = ("linearized",) + newton.SCHEMES
 
-__all__ = ["Simulation", "SimulationDiverged", "State", "Stats", "Rayleigh", "INTEGRATORS"]
+__all__ = ["Simulation", "SimulationDiverged", "SimulationWarning", "State", "Stats", "Rayleigh", "INTEGRATORS"]
 
 
 class SimulationDiverged(RuntimeError):
-    """The state became non-finite (or the linear system stopped being solvable)."""
+    """A step failed the divergence policy (:mod:`skfem_affine.monitor`): a non-finite state, a
+    failed linear solve, energy created by the step, a body torn apart, or (when asked to raise)
+    inverted elements or a Newton solve that did not converge. ``frame`` is the frame that failed;
+    the simulation's state stays at the frame before it."""
 
     def __init__(self, frame, reason="non-finite state detected"):
         self.frame = frame
@@ -72,6 +79,14 @@ class Stats(list):
 
     def mean(self, key):
         return self.total(key) / max(len(self), 1)
+
+    def problems(self):
+        """Frames accepted with a defect the divergence policy warns about: ``{"inverted_frames":
+        frames with inverted elements, "unconverged_frames": frames whose Newton solve stopped
+        before its tolerance, "max_penetration": the largest penetration (m) recorded}``."""
+        return {"inverted_frames": sum(1 for r in self if r.get("inverted_elements")),
+                "unconverged_frames": sum(1 for r in self if "newton_converged" in r and not r["newton_converged"]),
+                "max_penetration": max((r.get("max_penetration", 0.0) for r in self), default=0.0)}
 
     def phase_totals(self):
         return {k: self.total(k) for k in self.PHASES if any(k in r for r in self)}
@@ -120,6 +135,13 @@ class Simulation:
     contact : PGS or IPC, optional
         Contact settings: :class:`skfem_affine.contact.pgs.PGS` under the linearized integrator,
         :class:`skfem_affine.contact.ipc.IPC` under the Newton integrators (see Notes).
+    on_inverted, on_nonconvergence : {"warn", "raise", "ignore"}
+        What a frame with inverted elements (det F <= 0), resp. a Newton solve that stopped before
+        its tolerance, does: ``"warn"`` (default; one :class:`SimulationWarning` per run, every
+        frame counted in ``sim.stats``), ``"raise"`` :class:`SimulationDiverged`, or ``"ignore"``
+        (counted only).
+    check_energy : bool
+        Refuse a step that creates energy (default True; :mod:`skfem_affine.monitor`).
     forces : list of VertexForce, optional
         External forces on vertices as functions of time and state
         (``sa.VertexForce(vertices, force(t, x, v))``, :mod:`skfem_affine.motion`), added to gravity.
@@ -149,18 +171,13 @@ class Simulation:
 
     def __init__(self, bodies, dt=0.01, gravity=(0.0, 0.0, 0.0), damping=None, reducer=None,
                  solver="auto", newton_iters=None, newton_tol=None, project_hessian=True, mass="lumped",
-                 colliders=None, contact=None, integrator="linearized", forces=None):
-        bodies = [bodies] if isinstance(bodies, ElasticBody) else list(bodies)
-        if not bodies or not all(isinstance(b, ElasticBody) for b in bodies):
-            raise TypeError("Simulation needs an ElasticBody or a non-empty list of them")
-        integrator = "linearized" if integrator is None else integrator
-        if integrator not in INTEGRATORS:
-            raise ValueError(f"integrator must be one of {INTEGRATORS}, got {integrator!r}")
+                 colliders=None, contact=None, integrator="linearized", on_inverted="warn",
+                 on_nonconvergence="warn", check_energy=True, forces=None):
+        bodies = check_bodies(bodies)
+        integrator = choice("linearized" if integrator is None else integrator, "integrator", INTEGRATORS)
         self.integrator_name = integrator
         self.dt = positive(dt, "time step dt")
-        self.gravity = np.asarray(gravity, dtype=float)
-        if self.gravity.shape != (3,) or not np.all(np.isfinite(self.gravity)):
-            raise ValueError(f"gravity must be a finite 3-vector, got {gravity!r}")
+        self.gravity = real_array(gravity, "gravity", shape=(3,))
         if damping is not None and not isinstance(damping, Rayleigh):
             raise TypeError("damping must be a Rayleigh(alpha, beta) or None")
         self.damping = damping or Rayleigh()
@@ -173,11 +190,9 @@ class Simulation:
         newton_tol, newton_iters = newton.resolve_newton_settings(newton_tol, newton_iters, reducer)
         newton_iters = (1 if linearized else 50) if newton_iters is None else newton_iters
         newton_tol = (1e-9 if linearized else 1e-6) if newton_tol is None else newton_tol
-        if int(newton_iters) < 1:
-            raise ValueError(f"newton_iters must be >= 1, got {newton_iters}")
-        self.newton_iters = int(newton_iters)
+        self.newton_iters = integer(newton_iters, "newton_iters", low=1)
         self.newton_tol = positive(newton_tol, "newton_tol")
-        self.project_hessian = bool(project_hessian)
+        self.project_hessian = flag(project_hessian, "project_hessian")
         self.system = ElasticSystem(bodies, mass=mass)
         self.bodies = self.system.bodies
         self.size = float(np.linalg.norm(np.ptp(self.system.p0, axis=0)))
@@ -218,6 +233,7 @@ class Simulation:
             self.colliders = colliders  # the barrier of the colliders (property setter)
         if self.system.free.size:  # a scene whose vertices all follow paths has nothing to reduce
             active.attach(self.model)
+        self.monitor = Monitor(self.system, self.f_gravity, self.size, on_inverted, on_nonconvergence, check_energy)
 
     # ------------------------------------------------------------------ public
     @property
@@ -237,7 +253,10 @@ class Simulation:
                 self.integrator.barrier = IPCContact(self.model, colliders, self._ipc, x0=self.state.x)
                 self.contact_model = "ipc"
             else:
-                self.integrator.barrier = barrier_of(self.model, colliders)
+                barrier = barrier_of(self.model, colliders)
+                if barrier is not None:
+                    barrier.check_state(self.state.x)
+                self.integrator.barrier = barrier
                 self.contact_model = "ipc-barrier" if colliders else "none"
         elif hasattr(self, "_colliders"):
             raise ValueError("the colliders of a simulation with integrator='linearized' are fixed at "
@@ -246,9 +265,7 @@ class Simulation:
 
     def run(self, frames):
         """Advance ``frames`` steps, yielding a copy of the state after each one."""
-        frames = int(frames)
-        if frames < 0:
-            raise ValueError(f"frames must be >= 0, got {frames}")
+        frames = integer(frames, "frames", low=0)
         for _ in range(frames):
             self.step()
             yield self.state.copy()
@@ -257,19 +274,118 @@ class Simulation:
         """Advance one time step; returns the new state."""
         t0 = time.perf_counter()
         s = self.state
-        rec = {"frame": s.frame + 1, "contact": 0.0, "contact_model": self.contact_model}
+        frame = s.frame + 1
+        if not (np.all(np.isfinite(s.x)) and np.all(np.isfinite(s.v))):
+            raise SimulationDiverged(frame)  # e.g. a state set from outside: before contact detection
+        rec = {"frame": frame, "contact": 0.0, "contact_model": self.contact_model}
+        barrier = getattr(self.integrator, "barrier", None)
+        self.monitor.start(s, barrier)
         try:
             x, v, result = self.integrator.step(s, rec)
         except SolverError as err:
-            raise SimulationDiverged(s.frame + 1, f"linear solve failed ({err})") from err
+            raise SimulationDiverged(frame, f"linear solve failed ({err})") from err
+        except np.linalg.LinAlgError as err:
+            raise SimulationDiverged(frame, f"a dense factorisation failed ({err})") from err
         if not (np.all(np.isfinite(x)) and np.all(np.isfinite(v))):
-            raise SimulationDiverged(s.frame + 1)
-        self.state = State(x, v, s.frame + 1, s.time + self.dt, result.clusters)
+            raise SimulationDiverged(frame)
+        t1 = time.perf_counter()
+        uncorrected = getattr(self.integrator, "uncorrected", None)
+        if uncorrected is not None and self.monitor.check_energy:
+            # contact pushed penetrations out through the positions: the energy it moved counts as work
+            work = self.monitor.energies(x, v, barrier)[0] - self.monitor.energies(uncorrected, v, barrier)[0]
+            rec["contact_work"] = work
+            rec["external_work"] = rec.get("external_work", 0.0) + work
+        moved = getattr(self.integrator, "last_motion", None)
+        if moved is not None and self.monitor.check_energy:
+            # a moving clamp and vertex forces put energy in: their work counts as external work
+            work = motion_work(self.system, self.f_gravity, *moved, s.x, s.v, x, v, self.dt)
+            rec["motion_work"] = work
+            rec["external_work"] = rec.get("external_work", 0.0) + work
+        try:
+            self.monitor.check(frame, s.x, x, v, rec, barrier)
+        except Diverged as err:
+            raise SimulationDiverged(frame, str(err)) from None
+        if self.contact is not None:  # colliders at x_{t+1}; bodies at the frame's detection (x_t)
+            rec["max_penetration"] = max(self.contact.detector.max_penetration(x, bodies=False),
+                                         rec.get("body_penetration", 0.0))
+        elif self.colliders:
+            rec["max_penetration"] = self.max_penetration(x)
+        rec["checks"] = time.perf_counter() - t1
+        self.monitor.accept()
+        self.state = State(x, v, frame, s.time + self.dt, result.clusters)
         rec["wall"] = time.perf_counter() - t0
         end_frame = getattr(self.reducer, "end_frame", None)  # a time budget reads the frame's wall time
         if end_frame is not None and self.system.free.size:  # (a reducer with nothing to solve is not attached)
             end_frame(rec)
         self.stats.append(rec)
+        return self.state
+
+    def max_penetration(self, x=None):
+        """Largest penetration depth (m, >= 0) of a surface vertex into a collider or another body
+        at positions x (default: the current state)."""
+        x = self.state.x if x is None else x
+        if self.contact is not None:
+            return self.contact.detector.max_penetration(x)
+        depth = 0.0
+        for c in self.colliders:
+            d, _ = c.query(x)
+            depth = max(depth, float(-d.min(initial=0.0)))
+        return depth
+
+    # ------------------------------------------------------------------ checkpoints
+    def _components(self):
+        """The parts whose state later frames depend on, by checkpoint name."""
+        comps = {"integrator": self.integrator, "reducer": self.integrator.reducer, "contact": self.contact,
+                 "solver": self.solver, "monitor": self.monitor}
+        return {k: c for k, c in comps.items() if c is not None and hasattr(c, "state_dict")}
+
+    def _signature(self):
+        """What a checkpoint must match to be loaded into this simulation."""
+        return {"integrator": self.integrator_name, "reducer": type(self.integrator.reducer).__name__,
+                "contact_model": self.contact_model, "n_vertices": int(self.system.n),
+                "n_elements": int(self.system.m), "dt": float(self.dt), "mesh": checkpoint.mesh_hash(self.system)}
+
+    def save(self, path):
+        """Write a checkpoint of the run to ``path`` (an ``.npz``; :mod:`skfem_affine.checkpoint`).
+
+        Resume it with :meth:`load_state` on a simulation built with the same arguments: the
+        frames after it are then bit-identical to those of an uninterrupted run. Returns the path.
+        """
+        s = self.state
+        comps = {"state": {"x": s.x, "v": s.v, "frame": int(s.frame), "time": float(s.time),
+                           "clusters": s.clusters if s.clusters is not None else None}}
+        comps.update({k: c.state_dict() for k, c in self._components().items()})
+        stats = []
+        for r in self.stats:
+            rec = {}
+            for k, val in r.items():
+                try:
+                    rec[k] = checkpoint._jsonable(val)
+                except TypeError:  # a statistic that is no plain value is not kept
+                    pass
+            stats.append(rec)
+        header = dict(self._signature(), package=skfem_affine.__version__, frame=int(s.frame), stats=stats)
+        return checkpoint.write(path, header, comps)
+
+    def load_state(self, path):
+        """Resume from a checkpoint written by :meth:`save` of a simulation built the same way.
+
+        Raises
+        ------
+        ValueError
+            The file is no checkpoint, comes from an incompatible format version, or does not
+            match this simulation (mesh, integrator, reducer, contact model, time step).
+        """
+        header, arrays = checkpoint.read(path)
+        checkpoint.check_matches(path, header, self._signature())
+        values = header["values"]
+        st = checkpoint.unflatten(arrays, values, "state")
+        clusters = st.get("clusters")
+        self.state = State(np.array(st["x"]), np.array(st["v"]), int(st["frame"]), float(st["time"]),
+                           None if clusters is None else np.array(clusters))
+        for name, comp in self._components().items():
+            comp.load_state_dict(checkpoint.unflatten(arrays, values, name))
+        self.stats = Stats(header.get("stats", []))
         return self.state
 
     def energy(self, state=None):

@@ -14,6 +14,8 @@ solver for good when a freshly built hierarchy still needs more than
 :data:`AMG_MAX_ITERATIONS` CG iterations. Reduced systems always use a direct solver (their
 affine blocks do not suit AMG). Measurements: ``docs/solvers.md``.
 """
+import contextlib
+
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
@@ -89,7 +91,26 @@ class Pardiso:
         self._threads = 1         # MKL threads for the current pattern's factorisation and solves
         self._pattern = None      # (indptr, indices) of the last analysed upper triangle
         self._source = None       # (indptr, indices, upper positions) of the last full input
+        self._analysed = False    # whether a pattern was analysed before (later analyses use "md")
+        self._ordering = None     # "metis", "md" or "given": how the current pattern was ordered
+        self._resume = None       # a checkpoint's (indptr, indices, ordering, perm), for the next analysis
         self.last_iterations = 1
+
+    def state_dict(self):
+        """The ordering history later factorisations depend on: whether a pattern was analysed
+        before, and the current pattern with its ordering (another ordering rounds differently)."""
+        out = {"analysed": bool(self._analysed), "pattern": self._pattern is not None}
+        if self._pattern is not None:
+            out.update(indptr=self._pattern[0].copy(), indices=self._pattern[1].copy(), ordering=self._ordering,
+                       perm=np.array(self._lib.perm(), dtype=np.int32))
+        return out
+
+    def load_state_dict(self, state):
+        self._analysed = bool(state["analysed"])
+        self._resume = None
+        if state["pattern"]:
+            self._resume = (np.asarray(state["indptr"], np.int32), np.asarray(state["indices"], np.int32),
+                            state["ordering"], np.asarray(state["perm"], np.int32))
 
     def _upper(self, A, upper):
         """Upper triangle of A as sorted CSR (int32), reusing the positions of the last pattern."""
@@ -123,19 +144,30 @@ class Pardiso:
         pat = self._pattern
         phase = 22 if pat is not None and _same(pat[0], indptr) and _same(pat[1], indices) else 12
         if phase == 12:
-            churn = self._pattern is not None  # a second analysis: the pattern changes
-            if churn:  # release the previous factors first (MKL crashed on a re-analysis with a new order)
-                self._lib.release()
-            if order is not None:
+            churn = self._analysed  # a second analysis: the pattern changes
+            if self._pattern is not None:  # release the previous factors first (MKL crashed on a re-analysis
+                self._lib.release()        # with a new order)
+            resume, self._resume = self._resume, None
+            if resume is not None and _same(resume[0], indptr) and _same(resume[1], indices):
+                # the pattern a checkpoint was factorised with: order it as the saved run did
+                if resume[2] == "given":
+                    self._lib.use_order(resume[3])
+                else:
+                    self._lib.use_ordering(resume[2])
+                self._ordering = resume[2]
+            elif order is not None:
                 order = np.ascontiguousarray(order, dtype=np.int32)
                 if order.shape != (n,) or (n and (order.min() < 0 or order.max() >= n)) or \
                         not np.all(np.bincount(order, minlength=n) == 1):
                     raise ValueError(f"order must list each of the {n} unknowns exactly once "
                                      f"(got {order.size} entries)")
                 self._lib.use_order(order)
+                self._ordering = "given"
             else:
-                self._lib.use_ordering("md" if churn and n < PARDISO_METIS_MIN else "metis")
+                self._ordering = "md" if churn and n < PARDISO_METIS_MIN else "metis"
+                self._lib.use_ordering(self._ordering)
             self._pattern = (indptr, indices)
+            self._analysed = True
         self._threads = 1 if n < PARDISO_THREADED_MIN else self._lib.max_threads
         self._arrays = (np.ascontiguousarray(data, dtype=float), indptr, indices, n)
         try:
@@ -193,6 +225,10 @@ class _PardisoLibrary:
         self._ps.set_iparm(5, 0)
         self._ps.set_iparm(2, {"md": 0, "metis": 2}[kind])
 
+    def perm(self):
+        """The permutation array handed to Pardiso (the given order, when one was)."""
+        return self._ps.perm
+
     def release(self):
         """Free the factors and the analysis."""
         self._ps.free_memory(everything=True)
@@ -215,6 +251,24 @@ class _PardisoLibrary:
         if error.value != 0:
             raise SolverError(f"Pardiso error {error.value}")
         return x
+
+
+@contextlib.contextmanager
+def seeded_global_random(seed=0):
+    """Run a block with NumPy's global random state seeded, restoring the caller's state after.
+
+    pyamg estimates spectral radii (for its prolongation smoother) by Arnoldi/Lanczos from a
+    ``np.random.rand`` start vector, so two hierarchies built from one matrix differ in the last
+    bits unless the global state is fixed. Seeding it here makes every hierarchy, and hence every
+    AMG-CG solve and AMG oracle prediction, reproducible run to run, without disturbing the
+    random numbers of the user's own code.
+    """
+    saved = np.random.get_state()
+    np.random.seed(seed)
+    try:
+        yield
+    finally:
+        np.random.set_state(saved)
 
 
 def _same(a, b):
@@ -243,15 +297,40 @@ class AMGCG:
         self.rebuilds = 0
 
     def factorize(self, A):
-        import pyamg
         self._A = sp.csr_matrix(A)
         if self._ml is None or self._ml.levels[0].A.shape != A.shape or self._stale:
-            B = np.kron(np.ones((A.shape[0] // 3, 1)), np.eye(3)) if A.shape[0] % 3 == 0 else None
-            self._ml = pyamg.smoothed_aggregation_solver(self._A, B=B, strength="symmetric", max_coarse=500)
-            self._M = self._ml.aspreconditioner(cycle="V")
+            self._build(self._A)
             self._stale = False
             self.fresh_iterations = None
             self.rebuilds += 1
+
+    def _build(self, A):
+        """The hierarchy of A (reproducible: :func:`seeded_global_random`)."""
+        import pyamg
+        B = np.kron(np.ones((A.shape[0] // 3, 1)), np.eye(3)) if A.shape[0] % 3 == 0 else None
+        with seeded_global_random():
+            self._ml = pyamg.smoothed_aggregation_solver(A, B=B, strength="symmetric", max_coarse=500)
+            self._M = self._ml.aspreconditioner(cycle="V")
+        self._built_from = A.copy()
+
+    def state_dict(self):
+        """What later solves depend on: the matrix the current hierarchy was built from, and the
+        rebuild bookkeeping (the hierarchy itself is rebuilt from the matrix, bit-identically)."""
+        A = getattr(self, "_built_from", None) if self._ml is not None else None
+        out = {"stale": bool(self._stale), "fresh_iterations": self.fresh_iterations, "rebuilds": int(self.rebuilds)}
+        if A is not None:
+            out.update(A_data=A.data.copy(), A_indices=A.indices.copy(), A_indptr=A.indptr.copy(),
+                       A_shape=np.array(A.shape))
+        return out
+
+    def load_state_dict(self, state):
+        self._ml = None
+        if "A_data" in state:
+            A = sp.csr_matrix((state["A_data"], state["A_indices"], state["A_indptr"]), shape=tuple(state["A_shape"]))
+            self._build(A)
+        self._stale = bool(state["stale"])
+        self.fresh_iterations = state["fresh_iterations"]
+        self.rebuilds = int(state["rebuilds"])
 
     def solve(self, b):
         count = [0]
@@ -325,6 +404,31 @@ class AutoSolver:
 
     def solve(self, b):
         return self._current.solve(b)
+
+    def state_dict(self):
+        """The AMG/direct choice and the AMG solver's state (:meth:`AMGCG.state_dict`)."""
+        out = {"amg_abandoned": bool(self.amg_abandoned),
+               "current": None if self._current is None else ("amg" if self._current is self._amg else "direct")}
+        if self._amg is not None:
+            out.update({f"amg.{k}": v for k, v in self._amg.state_dict().items()})
+        if self._direct is not None and hasattr(self._direct, "state_dict"):
+            out.update({f"direct.{k}": v for k, v in self._direct.state_dict().items()})
+        out["has_direct"] = self._direct is not None
+        return out
+
+    def load_state_dict(self, state):
+        self.amg_abandoned = bool(state["amg_abandoned"])
+        amg = {k[4:]: v for k, v in state.items() if k.startswith("amg.")}
+        self._amg = None
+        if amg:
+            self._amg = AMGCG()
+            self._amg.load_state_dict(amg)
+        if state["has_direct"]:
+            self._direct = self._direct or direct_solver()
+            direct = {k[7:]: v for k, v in state.items() if k.startswith("direct.")}
+            if direct and hasattr(self._direct, "load_state_dict"):
+                self._direct.load_state_dict(direct)
+        self._current = {"amg": self._amg, "direct": self._direct, None: None}[state["current"]]
 
 
 SOLVERS = {"superlu": SuperLU, "pardiso": Pardiso, "amg": AMGCG, "auto": AutoSolver, "direct": direct_solver}

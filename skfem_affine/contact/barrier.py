@@ -25,6 +25,9 @@ colliders; it holds no simulation.
 """
 import numpy as np
 
+from skfem_affine.checks import positive
+from skfem_affine.contact.colliders import check_colliders
+
 
 def barrier(d, dhat):
     """b(d), b'(d), b''(d) elementwise (b = inf for d <= 0, 0 for d >= dhat)."""
@@ -57,15 +60,10 @@ class Barrier:
 
     def __init__(self, model, colliders, dhat=None, kappa=None):
         sysm = model.system
-        self.colliders = list(colliders)
-        for c in self.colliders:
-            if not callable(getattr(c, "query", None)):
-                raise TypeError(f"a collider needs query(points) -> (distance, normal), got {type(c).__name__}")
-        self.dhat = 1e-3 * model.size if dhat is None else float(dhat)
-        if not self.dhat > 0:
-            raise ValueError(f"barrier distance dhat must be > 0, got {dhat}")
+        self.colliders = check_colliders(colliders)
+        self.dhat = 1e-3 * model.size if dhat is None else positive(dhat, "barrier distance dhat")
         m_avg = float(sysm.lumped_mass.mean())
-        self.kappa = 100.0 * m_avg * 9.81 / self.dhat if kappa is None else float(kappa)
+        self.kappa = 100.0 * m_avg * 9.81 / self.dhat if kappa is None else positive(kappa, "barrier stiffness kappa")
         self.vertices = np.flatnonzero(~sysm.fixed)
         # positions of each free vertex's diagonal 3 x 3 block in the free-DOF pattern
         pat = sysm.pattern
@@ -79,6 +77,26 @@ class Barrier:
         self.rows = dof_map[3 * self.vertices[:, None] + np.arange(3)]  # (k, 3) free-DOF rows
         self.nnz = pat.nnz
         self.nfree = sysm.free.size
+
+    def check_state(self, x):
+        """Raise a ValueError naming the colliders and vertices when a free vertex of x (n, 3) is on
+        or inside a collider (distance <= 0): the barrier is infinite there, so Newton could never
+        move such a vertex (the body would stay frozen)."""
+        pts = np.asarray(x, float).reshape(-1, 3)[self.vertices]
+        problems = []
+        for i, c in enumerate(self.colliders):
+            d, _ = c.query(pts)
+            bad = np.flatnonzero(np.asarray(d) <= 0)
+            if bad.size:
+                worst = bad[np.argsort(d[bad])[:5]]
+                listed = ", ".join(f"{int(self.vertices[j])} (distance {float(d[j]):.3g} m)" for j in worst)
+                problems.append(f"collider {i} ({type(c).__name__}): {bad.size} vertices on or inside it, "
+                                f"e.g. {listed}")
+        if problems:
+            raise ValueError("the IPC barrier needs every free vertex strictly outside the colliders (gap > 0); "
+                             + "; ".join(problems) + f". Move the bodies out by at least dhat = {self.dhat:.3g} m "
+                             "(the barrier's range), or use integrator='linearized', whose PGS contact pushes "
+                             "penetrations out")
 
     def _query(self, x):
         pts = x.reshape(-1, 3)[self.vertices]

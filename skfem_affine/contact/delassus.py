@@ -42,6 +42,12 @@ def jacobian(contacts, n_vertices, free):
     return J
 
 
+def block_solver(size):
+    """The solver of one body's block of ``size`` unknowns: SuperLU below :data:`BLOCK_DIRECT_MIN`,
+    else the fastest direct solver."""
+    return SuperLU() if size < BLOCK_DIRECT_MIN else direct_solver()
+
+
 class Resolvent:
     """A^-1 applied to the columns of J^T with the frame's system, through G when reduced (sec. 3.3).
 
@@ -83,7 +89,7 @@ class Resolvent:
     def _block_solver(self, idx):
         key = (idx.size, int(idx[0]))  # components keep their unknowns while the pattern is fixed
         if key not in self.cache:
-            self.cache[key] = SuperLU() if idx.size < BLOCK_DIRECT_MIN else direct_solver()
+            self.cache[key] = block_solver(idx.size)
         return self.cache[key]
 
     def delassus(self, J):

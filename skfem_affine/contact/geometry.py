@@ -1,8 +1,8 @@
 """Contact detection: boundary surfaces, closest points, and the contacts of one frame (Algorithm 1).
 
-Surface vertices are tested against the static colliders (signed distance queries,
-:mod:`skfem_affine.contact.colliders`) and against the boundary triangles of the *other*
-bodies (a KD-tree on each body's triangle centroids as broad phase, exact point-triangle
+Every free vertex (interior ones too) is tested against the static colliders (signed distance
+queries, :mod:`skfem_affine.contact.colliders`), and surface vertices against the boundary
+triangles of the *other* bodies (a KD-tree on each body's triangle centroids as broad phase, exact point-triangle
 distance as narrow phase; self-contact is not detected). A contact i has a signed gap d_i
 (negative: penetration), a normal n_i pointing from the obstacle towards the vertex, and two
 tangents. A vertex becomes a contact when its gap is below ``margin + 2 h`` times its normal
@@ -163,6 +163,10 @@ class Detector:
         self.colliders = colliders
         self.tris, self.tri_body = boundary_surface(system)
         self.surface = np.unique(self.tris)
+        # every vertex that can move is tested against the colliders, interior ones too: an impact
+        # faster than the material's wave speed inverts elements and would carry interior vertices
+        # through a collider that the surface vertices never cross
+        self.collider_vertices = np.flatnonzero(~system.fixed)
         self.body_of_vertex = np.repeat(np.arange(len(system.bodies)), np.diff(system.vertex_offsets))
         self.n_kinds = len(self.colliders) + len(system.bodies)
         p0 = system.p0
@@ -176,22 +180,37 @@ class Detector:
 
         A surface vertex is a contact when its gap is below ``margin + 2 h`` times its
         normal approach speed (towards a collider, or relative to the other body)."""
-        sv = self.surface
-        xs, vs = x[sv], v[sv]
         sets = []
+        cv = self.collider_vertices
+        xc, vc = x[cv], v[cv]
         for ci, col in enumerate(self.colliders):
-            d, n = col.query(xs)
-            approach = np.maximum(0.0, -np.einsum("ij,ij->i", vs, n))
+            d, n = col.query(xc)
+            approach = np.maximum(0.0, -np.einsum("ij,ij->i", vc, n))
             hit = np.flatnonzero(d < self.margin + 2.0 * dt * approach)
             if hit.size:
-                vtx = sv[hit]
+                vtx = cv[hit]
                 sets.append(ContactSet(vtx, np.repeat(vtx[:, None], 3, axis=1), np.zeros((hit.size, 3)), n[hit],
                                        d[hit], vtx * self.n_kinds + ci))
         if self.body_pairs:
-            sets += self._body_contacts(x, v, xs, vs, dt)
+            sv = self.surface
+            sets += self._body_contacts(x, v, x[sv], v[sv], dt)
         if not sets:
             return None
         return concat(sets)
+
+    def max_penetration(self, x, bodies=True):
+        """Largest penetration depth (m, >= 0) of a vertex into a collider or (``bodies``) of a
+        surface vertex into another body at x."""
+        depth = 0.0
+        for col in self.colliders:
+            d, _ = col.query(x[self.collider_vertices])
+            depth = max(depth, float(-d.min(initial=0.0)))
+        if bodies and self.body_pairs:
+            xs = x[self.surface]
+            zero = np.zeros_like(xs)
+            for cs in self._body_contacts(x, np.zeros_like(x), xs, zero, 0.0):
+                depth = max(depth, float(-cs.distance.min(initial=0.0)))
+        return depth
 
     def _body_contacts(self, x, v, xs, vs, dt):
         """Surface vertices of every body against the boundary triangles of each other body.

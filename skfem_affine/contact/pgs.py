@@ -23,9 +23,21 @@ One frame, in the order of Algorithm 1:
              \|\lambda_t\| \le \mu \lambda_n \ (\text{Coulomb cone, maximal dissipation}),
 
    with the bias ``b_n = d / h`` for a gap (speculative contact: the vertex may close it
-   within the step but not cross) and ``b_n = erp d / h`` for a penetration (Baumgarte).
+   within the step but not cross) and ``b_n = 0`` for a penetration (it may not deepen).
    Restitution is zero. The velocity correction is ``dv_c = A^-1 J^T lambda`` (one
-   more solve), and v_{t+1} = v_t + dv + dv_c, x_{t+1} = x_t + h v_{t+1}.
+   more solve), and v_{t+1} = v_t + dv + dv_c.
+5. **Penetration** (split impulse, :meth:`Contact.resolve` sets :attr:`Contact.correction`):
+   when a contact penetrates (d < 0, e.g. bodies that start overlapping or inside a collider),
+   a second, frictionless PGS finds a pseudo-velocity ``w = G M_G^-1 G^T J^T mu`` of the *rigid
+   motions* G of the bodies without fixed vertices (M_G = G^T M G) with
+   ``0 <= mu_n _|_ J(v_{t+1} + w) + b' >= 0``, ``b'_n = max(erp d, -push_limit) / h`` for a
+   penetration and ``d / h`` for a gap, and the positions move by it,
+   x_{t+1} = x_t + h (v_{t+1} + w), while the velocities keep v_{t+1}. Pushing out thus adds
+   no kinetic energy (Baumgarte on the velocities launched bodies out of a penetration) and,
+   being rigid, no strain energy (which would make the body spring off): a penetration shrinks
+   by the fraction ``erp`` per step, by at most ``push_limit`` (default one mean surface edge),
+   and stops when it is resolved. Bodies with fixed vertices are held by them and are not
+   moved by the correction (their penetrations may not deepen, by the velocity constraint).
 
 Friction is the isotropic Coulomb *cone*: each PGS step projects the tangential
 impulse pair onto the disk of radius ``mu lambda_n`` (not a box per tangent).
@@ -38,10 +50,12 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
+import scipy.sparse as sp
 from numba import njit
 
+from skfem_affine.checks import flag, integer, nonnegative, positive, real
 from skfem_affine.contact.colliders import check_colliders
-from skfem_affine.contact.delassus import Resolvent, jacobian
+from skfem_affine.contact.delassus import Resolvent, block_solver, jacobian
 from skfem_affine.contact.geometry import Detector
 
 # The contact model this module implements, as recorded in ``sim.stats`` ("contact_model").
@@ -62,8 +76,11 @@ class PGS:
         A sweep whose largest impulse change is below ``tolerance`` times the largest
         impulse ends the iteration.
     erp : float
-        Baumgarte error reduction in [0, 1]: a penetration d < 0 is pushed out at
-        ``erp |d| / h`` per step.
+        Error reduction in [0, 1]: a penetration d < 0 shrinks by ``erp |d|`` per step (a
+        position correction that adds no velocity; see the module docstring).
+    push_limit : float, optional
+        Largest position correction of a penetration per step (m, > 0); default the mean
+        surface edge length.
     margin : float, optional
         Speculative contact distance (m); default a fifth of the mean surface edge
         length. A vertex becomes a contact when its gap is below ``margin + 2 h`` times its
@@ -81,23 +98,24 @@ class PGS:
     tolerance: float = 1e-6
     erp: float = 0.2
     margin: float = None
+    push_limit: float = None
     warm_start: bool = True
     body_contact: bool = True
     block: int = 64
 
     def __post_init__(self):
+        put = object.__setattr__  # frozen: store the checked values
         for name in ("friction", "tolerance"):
-            v = getattr(self, name)
-            if not isinstance(v, (int, float, np.floating, np.integer)) or not np.isfinite(v) or v < 0:
-                raise ValueError(f"PGS {name} must be a finite number >= 0, got {v!r}")
-        if not isinstance(self.iterations, (int, np.integer)) or self.iterations < 1:
-            raise ValueError(f"PGS iterations must be an integer >= 1, got {self.iterations!r}")
-        if not 0.0 <= float(self.erp) <= 1.0:
-            raise ValueError(f"PGS erp must lie in [0, 1], got {self.erp!r}")
-        if self.margin is not None and not (np.isfinite(self.margin) and self.margin >= 0):
-            raise ValueError(f"PGS margin must be finite and >= 0, got {self.margin!r}")
-        if int(self.block) < 1:
-            raise ValueError(f"PGS block must be >= 1, got {self.block!r}")
+            put(self, name, nonnegative(getattr(self, name), f"PGS {name}"))
+        put(self, "iterations", integer(self.iterations, "PGS iterations", low=1))
+        put(self, "erp", real(self.erp, "PGS erp", low=0.0, high=1.0))
+        if self.margin is not None:
+            put(self, "margin", nonnegative(self.margin, "PGS margin"))
+        if self.push_limit is not None:
+            put(self, "push_limit", positive(self.push_limit, "PGS push_limit"))
+        put(self, "warm_start", flag(self.warm_start, "PGS warm_start"))
+        put(self, "body_contact", flag(self.body_contact, "PGS body_contact"))
+        put(self, "block", integer(self.block, "PGS block", low=1))
 
 
 @njit(cache=True)
@@ -176,6 +194,69 @@ class Contact:
         self.block_solvers = {}  # per-body factorizations of the Delassus operator, reused across frames
         self.current = None
         self.prediction = None
+        self.correction = None
+        self.push_limit = self.detector.mean_edge if self.settings.push_limit is None else self.settings.push_limit
+        self._rigid_setup(sysm)
+
+    def _rigid_setup(self, sysm):
+        """Which vertices belong to bodies without fixed vertices, their body and free-DOF rows."""
+        body = np.repeat(np.arange(len(sysm.bodies)), np.diff(sysm.vertex_offsets))
+        pinned = np.zeros(len(sysm.bodies), dtype=bool)
+        np.logical_or.at(pinned, body, sysm.fixed)
+        movable = np.flatnonzero(~pinned[body])
+        dof_map = np.full(3 * sysm.n, -1, dtype=np.int64)
+        dof_map[sysm.free] = np.arange(sysm.free.size)
+        rank = np.full(len(sysm.bodies), -1)
+        rank[~pinned] = np.arange(int((~pinned).sum()))
+        self.rigid = (movable, rank[body[movable]], dof_map[3 * movable[:, None] + np.arange(3)],
+                      int((~pinned).sum()), sysm)
+
+    def _rigid_motions(self, x):
+        """G (n_free x 6B, sparse): v_i = c_b + omega_b x (x_i - x_b) for the B movable bodies
+        (x_b their centres of mass at x), and M_G^-1 (6B x 6B) with M_G = G^T M G."""
+        movable, body, rows, nb, sysm = self.rigid
+        m = sysm.lumped_mass[movable]
+        mass = np.bincount(body, m, nb)
+        centre = np.stack([np.bincount(body, m * x[movable, k], nb) for k in range(3)], axis=1) / mass[:, None]
+        r = x[movable] - centre[body]
+        k = movable.size
+        vals = np.zeros((k, 3, 6))
+        vals[:, :, :3] = np.eye(3)
+        # omega x r = -[r]_x omega
+        vals[:, 0, 4], vals[:, 0, 5] = r[:, 2], -r[:, 1]
+        vals[:, 1, 3], vals[:, 1, 5] = -r[:, 2], r[:, 0]
+        vals[:, 2, 3], vals[:, 2, 4] = r[:, 1], -r[:, 0]
+        cols = 6 * body[:, None, None] + np.arange(6)[None, None, :]
+        G = sp.csr_matrix((vals.ravel(), (np.broadcast_to(rows[:, :, None], vals.shape).ravel(),
+                                          np.broadcast_to(cols, vals.shape).ravel())),
+                          shape=(sysm.free.size, 6 * nb))
+        MG = (G.T @ (sysm.Mff @ G)).toarray()
+        return G, np.linalg.inv(MG)
+
+    # -------------------------------------------------------------- checkpoint
+    def state_dict(self):
+        """The warm start carried to the next frame: impulses (world frame) by contact identity."""
+        out = {"previous": self.previous is not None}
+        if self.previous is not None:
+            out.update(previous_keys=self.previous[0].copy(), previous_world=self.previous[1].copy())
+        # the per-body solvers of the Delassus operator (a direct solver's ordering history)
+        out["blocks"] = [list(key) for key in self.block_solvers]
+        for i, solver in enumerate(self.block_solvers.values()):
+            if hasattr(solver, "state_dict"):
+                out.update({f"block{i}.{k}": v for k, v in solver.state_dict().items()})
+        return out
+
+    def load_state_dict(self, state):
+        self.previous = ((np.asarray(state["previous_keys"]).copy(), np.asarray(state["previous_world"]).copy())
+                         if state["previous"] else None)
+        self.block_solvers = {}
+        for i, key in enumerate(state["blocks"]):
+            key = tuple(int(k) for k in key)
+            solver = block_solver(key[0])
+            sub = {k[len(f"block{i}."):]: v for k, v in state.items() if k.startswith(f"block{i}.")}
+            if sub and hasattr(solver, "load_state_dict"):
+                solver.load_state_dict(sub)
+            self.block_solvers[key] = solver
 
     # -------------------------------------------------------------- frame hooks
     def detect(self, model, x, v, rec):
@@ -192,14 +273,18 @@ class Contact:
             vg = v.reshape(-1)[sysm.free] + h * np.tile(model.gravity, sysm.n)[sysm.free]
             self.prediction = cs.J.T @ self._predicted_impulses(cs, vg)
         rec["n_contacts"] = 0 if cs is None else cs.size
+        # penetrations between bodies at x_t (every penetrating pair is a contact): the frame's record
+        # reports them without a second detection at x_{t+1}
+        rec["body_penetration"] = 0.0 if cs is None else float(-cs.distance[cs.key % self.detector.n_kinds
+                                                                             >= len(self.colliders)].min(initial=0.0))
         rec["contact"] = rec.get("contact", 0.0) + time.perf_counter() - t0
         return cs
 
     def _bias(self, cs, h):
-        """b_n = d / h for a gap (speculative), erp d / h for a penetration (Baumgarte); tangents 0."""
+        """b_n = d / h for a gap (speculative), 0 for a penetration (it may not deepen); tangents 0."""
         d = cs.distance
         b = np.zeros(3 * cs.size)
-        b[0::3] = np.where(d > 0, d, self.settings.erp * d) / h
+        b[0::3] = np.maximum(d, 0.0) / h
         return b
 
     def _warm_start(self, cs):
@@ -240,6 +325,7 @@ class Contact:
         factorised system, through which the Delassus operator is applied.
         """
         cs, dv = self.current, result.dv
+        self.correction = None
         if cs is None:
             rec["pgs_iterations"] = 0
             self.previous = None
@@ -256,6 +342,18 @@ class Contact:
         u0 = cs.J @ v_star + self.bias
         sweeps = projected_gauss_seidel(W, u0, lam, float(st.friction), int(st.iterations), float(st.tolerance))
         dvc = resolvent.apply(lam)
+        d = cs.distance
+        if np.any(d < 0) and self.rigid[3]:  # split impulse: push penetrations out through x, rigidly
+            h = problem.model.dt
+            b = np.zeros(3 * cs.size)
+            b[0::3] = np.where(d < 0, np.maximum(st.erp * d, -self.push_limit), d) / h
+            u1 = cs.J @ (v_star + dvc) + b
+            G, MGinv = self._rigid_motions(problem.x)
+            JG = np.asarray((cs.J @ G).todense())
+            Wr = JG @ MGinv @ JG.T
+            mu = np.zeros(3 * cs.size)
+            projected_gauss_seidel(0.5 * (Wr + Wr.T), u1, mu, 0.0, int(st.iterations), float(st.tolerance))
+            self.correction = G @ (MGinv @ (JG.T @ mu))
         local = lam.reshape(-1, 3)
         world = np.einsum("kij,ki->kj", cs.frames(), local)
         order = np.argsort(cs.key)

@@ -51,10 +51,11 @@ class LinearizedEuler:
         if contact is not None:  # Algorithm 1: find contacts at x_t
             contacts = contact.detect(model, state.x, state.v, rec)
             impulse = contact.prediction_impulse()
-        motion = {}
+        motion, self.last_motion = {}, None
         if getattr(model, "motion", None) is not None and model.motion.active:  # the frame's prescribed positions and forces
             motion = dict(targets=model.motion.targets(state.time + model.dt, state.x, model.dt),
                           f_ext=model.motion.force(state.time, state.x, state.v))
+            self.last_motion = (motion["targets"], motion["f_ext"])  # for the simulation's energy check
         if not free.size:  # every vertex fixed or prescribed: nothing to solve
             problem = StepProblem(model, state.x, state.v, state.frame + 1, None, None, impulse, contacts, **motion)
             result = StepResult(dv=np.zeros(0))
@@ -74,10 +75,21 @@ class LinearizedEuler:
         targets = problem.targets
         if targets is not None:
             v[targets.vertices] = targets.v
-        x = result.positions(state.x, v, model.dt)
-        if targets is not None:  # exactly on the path, not integrated
-            x[targets.vertices] = targets.x
-        return x, v, result
+        self.uncorrected = None
+        correction = None if contact is None else contact.correction
+        if correction is not None:  # contact's split impulse: penetrations move out through x only
+            self.uncorrected = self._positions(result, state.x, v, targets)
+            w = v.copy()
+            w.reshape(-1)[free] += correction
+            return self._positions(result, state.x, w, targets), v, result
+        return self._positions(result, state.x, v, targets), v, result
+
+    def _positions(self, result, x, v, targets):
+        """x_{t+1}: the reducer's position update, and prescribed vertices exactly on their path."""
+        x_new = result.positions(x, v, self.model.dt)
+        if targets is not None:
+            x_new[targets.vertices] = targets.x
+        return x_new
 
     # ------------------------------------------------------------------ newton_iters > 1
     def _newton(self, state, problem):

@@ -23,6 +23,7 @@ import time
 import numpy as np
 
 from skfem_affine.checks import positive
+from skfem_affine.solvers import SolverError
 from skfem_affine.integrators.potential import SCHEMES, IncrementalPotential, vdot  # noqa: F401 (re-exported)
 
 
@@ -37,7 +38,8 @@ def line_search(problem, x, d, g, e0=None, c1=1e-4, min_step=1e-10):
     slope = vdot(g, d)
     alpha = problem.max_step(x, d)
     while alpha >= min_step:
-        e = problem.energy(problem.with_step(x, alpha * d))
+        y = problem.with_step(x, alpha * d)
+        e = problem.energy(y) if np.all(np.isfinite(y)) else np.inf  # an overflowing trial is no decrease
         if e <= e0 + c1 * alpha * min(slope, 0.0):
             return alpha, e
         alpha *= 0.5
@@ -93,6 +95,8 @@ def newton(problem, direction, rec, after_step=None, blocks=True, stop_on="direc
         g = problem.gradient(x, data.f)
         _add(rec, "assembly", time.perf_counter() - t0)
         d = direction(x, g, data, rec, e)
+        if not np.all(np.isfinite(d)):
+            raise SolverError(f"the Newton direction is not finite (iteration {it + 1})")
         t0 = time.perf_counter()
         alpha, e = line_search(problem, x, d, g, e)
         x = problem.with_step(x, alpha * d)

@@ -9,6 +9,8 @@ and the scheme's velocities. Contact is the IPC barrier in the potential
 """
 import time
 
+import numpy as np
+
 from skfem_affine.integrators.newton import newton_solve
 from skfem_affine.integrators.potential import SCHEMES, IncrementalPotential
 from skfem_affine.integrators.problem import StepResult, merge_stats
@@ -44,15 +46,28 @@ class NewtonIntegrator:
         self.tol, self.max_iters = tol, max_iters
         self.history = None  # (frame, x_prev, v_prev)
 
+    def state_dict(self):
+        """BDF2's history: the state the last step started from."""
+        if self.history is None:
+            return {"history": False}
+        frame, x, v = self.history
+        return {"history": True, "frame": int(frame), "x_prev": x.copy(), "v_prev": v.copy()}
+
+    def load_state_dict(self, state):
+        self.history = ((int(state["frame"]), np.array(state["x_prev"]), np.array(state["v_prev"]))
+                        if state["history"] else None)
+
     def potential(self, state):
         """The :class:`IncrementalPotential` of one step from ``state``."""
         prev = (None, None)
         if self.scheme == "bdf2" and self.history is not None and self.history[0] == state.frame - 1:
             prev = self.history[1:]
         motion, extra = getattr(self.model, "motion", None), {}
+        self.last_motion = None
         if motion is not None and motion.active:  # the step's prescribed positions and vertex forces
             extra = dict(targets=motion.targets(state.time + self.model.dt, state.x, self.model.dt),
                          f_ext=motion.force(state.time, state.x, state.v))
+            self.last_motion = (extra["targets"], extra["f_ext"])  # for the simulation's energy check
         return IncrementalPotential(self.model, state.x, state.v, *prev, barrier=self.barrier,
                                     tol=self.tol, max_iters=self.max_iters, **extra)
 

@@ -23,6 +23,8 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse as sp
 
+from skfem_affine.checks import nonnegative
+
 # Per-frame timing keys of ``sim.stats`` (seconds); a reducer's stats add to the integrator's.
 PHASES = ("assembly", "prediction", "clustering", "map_assembly", "reduced_assembly",
           "factorization", "solve", "line_search", "contact", "oracle_refresh")
@@ -36,10 +38,8 @@ class Rayleigh:
     beta: float = 0.0
 
     def __post_init__(self):
-        for name in ("alpha", "beta"):
-            val = getattr(self, name)
-            if not np.isfinite(val) or val < 0:
-                raise ValueError(f"Rayleigh {name} must be finite and >= 0, got {val}")
+        for name in ("alpha", "beta"):  # frozen: store the checked float
+            object.__setattr__(self, name, nonnegative(getattr(self, name), f"Rayleigh {name}"))
 
 
 def system_coefficients(dt, damping=None):

@@ -32,7 +32,7 @@ from skfem_affine.simulation import Rayleigh, Simulation
 from skfem_affine.materials import NeoHookean
 
 SIM_KEYS = ("dt", "gravity", "damping", "reducer", "solver", "newton_iters", "newton_tol", "integrator",
-            "project_hessian", "mass", "colliders", "contact")
+            "project_hessian", "mass", "colliders", "contact", "on_inverted", "on_nonconvergence", "check_energy")
 
 
 def _split(kwargs):

@@ -21,7 +21,10 @@ A minimal reducer (see ``examples/custom_reducer.py`` for one that builds affine
             return StepResult(dv=self.solver.solve(problem.b), operator=Operator(self.solver, A))
 """
 import abc
+import copy
 import time
+
+import numpy as np
 
 
 class Reducer(abc.ABC):
@@ -42,12 +45,31 @@ class Reducer(abc.ABC):
         Newton solve of implicit Euler); only the full space does.
     setup_time : float
         Seconds spent in :meth:`attach` (set by it).
+    _state_keys : tuple of str
+        Attributes that carry state from one frame to the next (arrays, numbers, None, or
+        JSON-like values); :meth:`state_dict` saves them for a checkpoint
+        (:mod:`skfem_affine.checkpoint`). A subclass extends the tuple of its base.
     """
 
     name = "reducer"
     integrators = ("linearized",)
     iterates_linearized = False
     setup_time = 0.0
+    _state_keys = ()
+
+    def state_dict(self):
+        """The state later frames depend on: ``{key: copy of self.key}`` over :attr:`_state_keys`
+        (after :meth:`attach`)."""
+        return {key: copy.deepcopy(getattr(self, key)) for key in self._state_keys}
+
+    def load_state_dict(self, state):
+        """Restore what :meth:`state_dict` saved (after :meth:`attach`); ValueError on missing keys."""
+        missing = [key for key in self._state_keys if key not in state]
+        if missing:
+            raise ValueError(f"{type(self).__name__} state is missing {missing}")
+        for key in self._state_keys:
+            value = state[key]
+            setattr(self, key, value.copy() if isinstance(value, np.ndarray) else copy.deepcopy(value))
 
     def attach(self, model):
         """Rest-state set-up, once per run, before the first frame.

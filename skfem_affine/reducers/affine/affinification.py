@@ -2,6 +2,7 @@
 become affine bodies of 12 DOFs for one frame."""
 import numpy as np
 
+from skfem_affine.checks import integer
 from skfem_affine.reducers.affine import clustering
 from skfem_affine.reducers.affine import mapping as reduction
 from skfem_affine.reducers.affine.clustered import ClusteringReducer, forced_fraction, resolve_thresholds
@@ -77,9 +78,8 @@ class Affinification(ClusteringReducer):
                  min_body_elements=2, min_affine_fraction=None, shadow_every=10, memory=0.5, refresh=False,
                  refresh_tol=0.2, refresh_background=False, pinned_bodies=False):
         self.tau_a, tau_e, target_error = resolve_thresholds(tau_a, tau_e, target_error, "tau_a")
-        if int(min_body_elements) < 2:
-            raise ValueError(f"min_body_elements must be >= 2 (singletons are always dissolved), got {min_body_elements}")
-        self.min_body_elements = int(min_body_elements)
+        # >= 2: singletons are always dissolved
+        self.min_body_elements = integer(min_body_elements, "min_body_elements", low=2)
         super().__init__(tau_e, min_fraction=forced_fraction(min_fraction, min_affine_fraction, "min_affine_fraction"),
                          seeding=seeding, preconditioner=preconditioner, seed=seed, solver=solver,
                          target_error=target_error, time_budget=time_budget, never_slower=never_slower,

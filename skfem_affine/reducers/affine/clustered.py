@@ -27,7 +27,7 @@ import time
 
 import numpy as np
 
-from skfem_affine.checks import positive, real
+from skfem_affine.checks import choice, integer, positive, real
 from skfem_affine.threads import serial_blas
 from skfem_affine.integrators.problem import Operator, StepResult
 from skfem_affine.reducers import budget as budgets
@@ -46,11 +46,8 @@ RESIDUAL_FLOOR = 0.1
 
 
 def check_threshold(value, name):
-    """A finite threshold >= 0, or a ValueError naming it."""
-    value = float(value)
-    if not np.isfinite(value) or value < 0:
-        raise ValueError(f"threshold {name} must be finite and >= 0, got {value}")
-    return value
+    """A finite threshold >= 0, or a TypeError/ValueError naming it."""
+    return real(value, f"threshold {name}", low=0.0)
 
 
 def forced_fraction(min_fraction, old_value, old_name):
@@ -59,10 +56,8 @@ def forced_fraction(min_fraction, old_value, old_name):
         if min_fraction is not None:
             raise ValueError(f"give min_fraction or its older name {old_name}, not both")
         min_fraction = old_value
-    min_fraction = 0.0 if min_fraction is None else float(min_fraction)
-    if not 0.0 <= min_fraction <= 1.0:
-        raise ValueError(f"resource limit fraction min_fraction must lie in [0, 1], got {min_fraction}")
-    return min_fraction
+    name = "min_fraction" if old_value is None else old_name
+    return 0.0 if min_fraction is None else real(min_fraction, name, low=0.0, high=1.0)
 
 
 def resolve_thresholds(tau, tau_e, target_error, name):
@@ -157,6 +152,39 @@ class ClusteringReducer(Reducer):
     threshold = "tau"
     tau_start, tau_min, tau_max = 1e-3, 1e-8, 1e3
 
+    # carried across frames: who was reduced, the clusters and seeds, the random seeding's generator
+    _state_keys = ("was_reduced", "labels", "previous_seeds", "rng_state", "controllers")
+
+    @property
+    def controllers(self):
+        """The budgets' controllers and thresholds as plain numbers (:meth:`controller_state`)."""
+        return self.controller_state()
+
+    @controllers.setter
+    def controllers(self, state):
+        self.restore_controller_state(state)
+
+    @property
+    def rng_state(self):
+        """The random seeding generator's state (a dict of integers)."""
+        return self.rng.bit_generator.state
+
+    @rng_state.setter
+    def rng_state(self, state):
+        self.rng.bit_generator.state = state
+
+    def state_dict(self):
+        state = super().state_dict()
+        if hasattr(self.solver, "state_dict"):  # e.g. an AMG hierarchy reused across frames
+            state.update({f"solver.{k}": v for k, v in self.solver.state_dict().items()})
+        return state
+
+    def load_state_dict(self, state):
+        super().load_state_dict(state)
+        solver = {k[7:]: v for k, v in state.items() if k.startswith("solver.")}
+        if solver and hasattr(self.solver, "load_state_dict"):
+            self.solver.load_state_dict(solver)
+
     def __init__(self, tau_e, *, min_fraction=0.0, seeding="random", preconditioner="ichol", seed=0, solver=None,
                  target_error=None, time_budget=None, never_slower=None, shadow_every=10, memory=0.5,
                  refresh=False, refresh_tol=0.2, refresh_background=False, pinned_bodies=False):
@@ -167,19 +195,13 @@ class ClusteringReducer(Reducer):
         self.tau_e = check_threshold(tau_e, "tau_e")
         self.time_budget = None if time_budget is None else positive(time_budget, "time_budget")
         self.never_slower = (target_error is not None) if never_slower is None else bool(never_slower)
-        self.shadow_every = int(shadow_every)
-        if self.shadow_every < 1:
-            raise ValueError(f"shadow_every must be >= 1, got {shadow_every}")
+        self.shadow_every = integer(shadow_every, "shadow_every", low=1)
         self.memory = positive(memory, "memory")
         self.controlled = target_error is not None or self.time_budget is not None or self.never_slower
-        if preconditioner not in oracle.KINDS:
-            raise ValueError(f"preconditioner must be 'ichol' or 'amg', got {preconditioner!r}")
-        self.preconditioner_kind = preconditioner
+        self.preconditioner_kind = choice(preconditioner, "preconditioner", tuple(oracle.KINDS))
         self.min_fraction = min_fraction
-        if seeding not in SEEDINGS:
-            raise ValueError(f"seeding must be 'random', 'index' or 'temporal', got {seeding!r}")
-        self.seeding = seeding
-        self.seed = seed
+        self.seeding = choice(seeding, "seeding", SEEDINGS)
+        self.seed = None if seed is None else integer(seed, "seed", low=0)
         self.solver_spec = solver
         if refresh is True:
             refresh = "laplacian"

@@ -30,6 +30,7 @@ from scipy.sparse.csgraph import reverse_cuthill_mckee
 from skfem_affine.integrators.problem import Rayleigh, system_coefficients
 from skfem_affine.kinematics import deformation_gradient, deformation_operator
 from skfem_affine.reducers.affine.ichol import SHIFTS, incomplete_cholesky
+from skfem_affine.solvers import seeded_global_random
 
 KINDS = ("ichol", "amg")
 
@@ -249,8 +250,9 @@ class Preconditioner:
     def _setup_amg(self):
         import pyamg
 
-        self._ml = pyamg.smoothed_aggregation_solver(self.scalar)
-        self._vcycle = self._ml.aspreconditioner(cycle="V")
+        with seeded_global_random():  # pyamg's spectral radius estimate starts from np.random
+            self._ml = pyamg.smoothed_aggregation_solver(self.scalar)
+            self._vcycle = self._ml.aspreconditioner(cycle="V")
 
     def apply(self, r):
         """z ~ A_p^{-1} r for a free-DOF vector r, ``(n_free,)`` -> ``(n_free,)``."""

@@ -3,6 +3,7 @@ on the same integrator, oracle, solver and statistics as affinification so that 
 import numpy as np
 
 from skfem_affine._kernels import strain_rate_norms
+from skfem_affine.checks import integer
 from skfem_affine.reducers.affine import clustering
 from skfem_affine.reducers.affine import mapping as reduction
 from skfem_affine.reducers.affine.clustered import ClusteringReducer, forced_fraction, resolve_thresholds
@@ -47,6 +48,7 @@ class Rigidification(ClusteringReducer):
 
     name = "rigidification"
     kind = reduction.RIGID
+    _state_keys = ClusteringReducer._state_keys + ("calm_frames",)
 
     threshold = "tau_r"
     tau_start = 1e-6
@@ -56,9 +58,7 @@ class Rigidification(ClusteringReducer):
                  min_rigid_fraction=None, shadow_every=10, memory=0.5, refresh=False, refresh_tol=0.2,
                  refresh_background=False):
         self.tau_r, tau_e, target_error = resolve_thresholds(tau_r, tau_e, target_error, "tau_r")
-        if int(warmup_frames) < 0:
-            raise ValueError(f"warmup_frames must be >= 0, got {warmup_frames}")
-        self.warmup_frames = int(warmup_frames)
+        self.warmup_frames = integer(warmup_frames, "warmup_frames", low=0)
         super().__init__(tau_e, min_fraction=forced_fraction(min_fraction, min_rigid_fraction, "min_rigid_fraction"),
                          seeding=seeding, preconditioner=preconditioner, seed=seed, solver=solver,
                          target_error=target_error, time_budget=time_budget, never_slower=never_slower,

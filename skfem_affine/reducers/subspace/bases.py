@@ -33,6 +33,8 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from skfem_affine.checks import flag, integer
+
 
 @dataclass
 class ModalBasis:
@@ -58,6 +60,12 @@ def code_version():
     return f"{getattr(skfem_affine, '__version__', '?')}:{_SOURCE}"
 
 
+def _start_vector(n):
+    """A fixed Lanczos start vector: ARPACK's own random start changes from call to call within a
+    process, which would make two bases of one mesh differ in the last bits."""
+    return np.random.default_rng(0).uniform(0.5, 1.5, n)
+
+
 def default_cache_dir():
     return Path(os.environ.get("SKFEM_AFFINE_CACHE", Path.home() / ".cache" / "skfem-affine" / "bases"))
 
@@ -68,10 +76,8 @@ class _Basis:
     kind = "basis"
 
     def __init__(self, n=16, cache_dir=None, cache=True):
-        if int(n) < 1:
-            raise ValueError(f"number of modes n must be >= 1, got {n}")
-        self.n = int(n)
-        self.cache = bool(cache)
+        self.n = integer(n, "n", low=1)
+        self.cache = flag(cache, "cache")
         self.cache_dir = Path(cache_dir) if cache_dir is not None else None
         self.last_cache_hit = False
 
@@ -183,7 +189,7 @@ class LinearModes(_Basis):
         K = _rest_stiffness(system)[free][:, free].tocsc()
         M = system.Mff.tocsc()
         k = min(self.n, free.size - 1)
-        lam, V = spla.eigsh(K, k=k, M=M, sigma=_shift(K, M), which="LM")
+        lam, V = spla.eigsh(K, k=k, M=M, sigma=_shift(K, M), which="LM", v0=_start_vector(K.shape[0]))
         order = np.argsort(lam)
         lam, V = lam[order], V[:, order]
         U = np.zeros((3 * system.n, k))
@@ -208,7 +214,7 @@ class SkinningEigenmodes(_Basis):
             Lb = L[inner][:, inner].tocsc()
             Mb = sp.diags(system.lumped_mass[inner]).tocsc()
             k = min(self.n, inner.size - 1)
-            lam, W = spla.eigsh(Lb, k=k, M=Mb, sigma=_shift(Lb, Mb), which="LM")
+            lam, W = spla.eigsh(Lb, k=k, M=Mb, sigma=_shift(Lb, Mb), which="LM", v0=_start_vector(Lb.shape[0]))
             order = np.argsort(lam)
             lam, W = lam[order], W[:, order]
             W *= np.where(W.sum(axis=0) < 0, -1.0, 1.0)

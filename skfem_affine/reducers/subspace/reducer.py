@@ -43,7 +43,7 @@ import numpy as np
 import scipy.linalg as sla
 import scipy.sparse as sp
 
-from skfem_affine.checks import positive
+from skfem_affine.checks import choice, flag, integer, positive, real
 from skfem_affine import threads
 from skfem_affine.integrators import newton
 from skfem_affine.integrators.problem import StepResult
@@ -56,17 +56,13 @@ from skfem_affine.reducers.subspace.subdomains import Subdomains
 
 
 def _threshold(value, name):
-    value = float(value)
-    if not (value >= 0):
-        raise ValueError(f"threshold {name} must be >= 0, got {value}")
-    return value
+    """A threshold >= 0 (``inf`` allowed: it switches a test off)."""
+    return real(value, f"threshold {name}", low=0.0, finite=False)
 
 
 def _count(value, name):
-    """A positive integer setting; ValueError naming ``name`` otherwise."""
-    if isinstance(value, bool) or int(value) != value or int(value) < 1:
-        raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
-    return int(value)
+    """A positive integer setting; TypeError/ValueError naming ``name`` otherwise."""
+    return integer(value, name, low=1)
 
 
 class AdaptiveSubspace(Reducer):
@@ -109,6 +105,9 @@ class AdaptiveSubspace(Reducer):
     integrators = ("implicit_euler", "bdf2")
     default_newton_tol = 1e-3
     default_max_newton = 50
+    # carried across steps: the active blocks of modes and the enriched nodes (the BFGS Hessians
+    # restart from hessian_init every step and the inertia cache is a function of the basis)
+    _state_keys = ("active", "enriched")
 
     def __init__(self, basis=None, eps_nodal=0.5, eps_modal=0.5, eps_progress=1e-4, eps_down=0.1,
                  subdomains=200, newton_tol=None, max_newton=None, pcg_tol=1e-5, pcg_maxiter=10000,
@@ -121,18 +120,14 @@ class AdaptiveSubspace(Reducer):
         self.eps_modal = _threshold(eps_modal, "eps_modal")
         self.eps_progress = _threshold(eps_progress, "eps_progress")
         self.eps_down = _threshold(eps_down, "eps_down")
-        if int(subdomains) < 1:
-            raise ValueError(f"subdomains must be >= 1, got {subdomains}")
-        self.n_subdomains = int(subdomains)
+        self.n_subdomains = integer(subdomains, "subdomains", low=1)
         self.newton_tol = None if newton_tol is None else positive(newton_tol, "newton_tol")
         self.max_newton = None if max_newton is None else _count(max_newton, "max_newton")
         self.pcg_tol = positive(pcg_tol, "pcg_tol")
         self.pcg_maxiter = _count(pcg_maxiter, "pcg_maxiter")
-        self.record_residual = bool(record_residual)
-        if hessian_init not in ("rest", "exact"):
-            raise ValueError(f"hessian_init must be 'rest' or 'exact', got {hessian_init!r}")
-        self.hessian_init = hessian_init
-        self.blas_threads = None if blas_threads is None else int(blas_threads)
+        self.record_residual = flag(record_residual, "record_residual")
+        self.hessian_init = choice(hessian_init, "hessian_init", ("rest", "exact"))
+        self.blas_threads = None if blas_threads is None else integer(blas_threads, "blas_threads", low=1)
 
     def __repr__(self):
         return (f"AdaptiveSubspace(basis={self.basis_spec!r}, eps_nodal={self.eps_nodal}, eps_modal={self.eps_modal}, "

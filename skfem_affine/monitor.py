@@ -1,0 +1,207 @@
+r"""The divergence policy: what each frame is checked for before it is returned as a result.
+
+After every step the :class:`~skfem_affine.Simulation` hands the new state to a :class:`Monitor`
+*before* accepting it; a step that fails a check is never returned as a valid state.
+
+**Raised** as :class:`~skfem_affine.SimulationDiverged` (naming the frame and the cause):
+
+* a non-finite position or velocity, a linear solve that fails;
+* **energy created by the step.** The total mechanical energy
+  :math:`E = \tfrac12 v^T M v + \Psi(x) - f_g^T(x - X) + B(x)` (kinetic, strain, gravity, and the
+  contact barrier of the Newton integrators) of an implicit Euler or BDF2 step can only decrease
+  apart from the work :math:`W` of external forces other than gravity: both minimise an
+  incremental potential whose minimiser dissipates. The step is refused when
+
+  .. math:: E_{t+1} - E_t - W_t > c_E \, S_t, \qquad
+            S_t = \max\big(\max_{s \le t} (K_s + \Psi_s),\; |f_g| \ell,\; \epsilon\big),
+
+  i.e. when one step creates more energy than the largest energy the scene has had in play
+  (kinetic plus strain) or than lifting its weight by the scene size :math:`\ell`, times
+  ``energy_growth`` :math:`c_E` (default 1). A blow-up (energy growing by a factor each frame)
+  trips this as soon as a single step gains more than the energy in play; a run that loses or
+  keeps its energy never does. The linearized integrator is not an exact minimiser: under a
+  fast rotation (:math:`h\omega` not small) its step gains energy, of relative size about
+  :math:`(h\omega)^2` per step for a soft body and much more for a stiff one, whose
+  linearization of the rotation produces spurious strain; gains below ``energy_growth`` times the
+  energy in play pass (and show in ``sim.stats`` as ``energy``), larger ones are refused.
+  ``check_energy=False`` switches the check off (it costs one strain-energy pass per frame);
+* **a step that tears a body apart**: a vertex whose displacement in one step, relative to its
+  body's mean displacement, exceeds the body's rest diagonal (a rigid motion of a body never
+  does unless it turns by more than about 60 degrees in one step).
+
+**Warned or raised, as the user chooses** (``on_inverted``, ``on_nonconvergence``:
+``"warn"`` (default: one :class:`SimulationWarning` per kind and run, every frame counted in
+``sim.stats``), ``"raise"``, or ``"ignore"`` (only counted; with ``on_inverted="ignore"`` and
+``check_energy=False`` the checks need no pass over the elements and cost almost nothing)):
+
+* inverted elements (det F <= 0) in the new state: ``rec["inverted_elements"]`` (None when
+  not checked);
+* a Newton solve that stopped before its tolerance (``rec["newton_converged"]`` False).
+
+Each frame's record gets ``energy`` (J, when checked), ``inverted_elements`` and, with contact,
+``max_penetration``.
+"""
+import warnings
+
+import numpy as np
+
+from skfem_affine.checks import choice, flag, positive
+
+POLICIES = ("warn", "raise", "ignore")
+
+
+class SimulationWarning(UserWarning):
+    """A frame was accepted with a defect the user asked to be warned about (inverted elements,
+    a Newton solve that did not converge)."""
+
+
+class Diverged(Exception):
+    """Raised by :meth:`Monitor.check` with the cause; the simulation turns it into SimulationDiverged."""
+
+
+def _fmt(x):
+    return f"{x:.3g}"
+
+
+class Monitor:
+    """Checks of the divergence policy for one run (see the module docstring).
+
+    Parameters
+    ----------
+    system : ElasticSystem
+    f_gravity : (3n,) array
+    size : float
+        The scene size (rest bounding-box diagonal).
+    on_inverted, on_nonconvergence : {"warn", "raise"}
+    check_energy : bool
+    energy_growth : float
+        c_E, > 0.
+    """
+
+    def __init__(self, system, f_gravity, size, on_inverted="warn", on_nonconvergence="warn", check_energy=True,
+                 energy_growth=1.0):
+        self.system, self.f_gravity, self.size = system, f_gravity, float(size)
+        self.on_inverted = choice(on_inverted, "on_inverted", POLICIES)
+        self.on_nonconvergence = choice(on_nonconvergence, "on_nonconvergence", POLICIES)
+        self.check_energy = flag(check_energy, "check_energy")
+        self.energy_growth = positive(energy_growth, "energy_growth")
+        self.body_of_vertex = np.repeat(np.arange(len(system.bodies)), np.diff(system.vertex_offsets))
+        self.n_bodies = len(system.bodies)
+        counts = np.bincount(self.body_of_vertex, minlength=self.n_bodies)
+        self.counts = np.maximum(counts, 1)[:, None]
+        p0 = system.p0
+        self.body_size = np.array([np.linalg.norm(np.ptp(p0[self.body_of_vertex == b], axis=0))
+                                   for b in range(self.n_bodies)])
+        self.weight_scale = float(np.linalg.norm(f_gravity.reshape(-1, 3).sum(axis=0))) * self.size
+        self.energy = None        # total energy of the current state
+        self.in_play = 0.0        # max over accepted frames of kinetic + strain
+        self.warned = {"inverted": False, "nonconvergence": False}
+        self._accepted = None     # (x, v) of the state the last checked step produced
+        self._pending = None
+
+    # -------------------------------------------------------------- energy
+    def energies(self, x, v, barrier=None, F=None):
+        """(total, kinetic + strain) of a state; the barrier energy counts as potential.
+        ``F``: the deformation gradients at x, if already computed."""
+        sysm = self.system
+        vf = v.reshape(-1)
+        kin = 0.5 * float(vf @ (sysm.M @ vf))
+        F = sysm.deformation_gradients(x) if F is None else F
+        strain = float(sum(np.dot(sysm.volumes[idx], mat.energy_density(F[idx])) for mat, idx in sysm.groups))
+        grav = -float(self.f_gravity @ (x - sysm.p0).reshape(-1))
+        bar = 0.0 if barrier is None else float(barrier.energy(x.reshape(-1)))
+        return kin + strain + grav + bar, kin + strain
+
+    def start(self, state, barrier=None):
+        """Reference values from the state a step starts from: recomputed when it is not the state
+        the last step produced (the first step, a loaded or edited state), so that a state changed
+        from outside (a kick) is never taken for energy the integrator created."""
+        if not self.check_energy:
+            return
+        ref = self._accepted
+        if self.energy is None or ref is None or not (np.array_equal(ref[0], state.x) and
+                                                       np.array_equal(ref[1], state.v)):
+            self.energy, play = self.energies(state.x, state.v, barrier)
+            self.in_play = max(self.in_play, play)
+
+    # -------------------------------------------------------------- the checks
+    def check(self, frame, x0, x, v, rec, barrier=None):
+        """Check the step x0 -> (x, v) of ``frame``; raises :class:`Diverged` with the cause, warns or
+        raises per the policies, and records ``energy`` and ``inverted_elements`` into ``rec``."""
+        self._tearing(x0, x)
+        F = None
+        if self.check_energy or self.on_inverted != "ignore":
+            F = self.system.deformation_gradients(x)
+        if self.check_energy:
+            e, play = self.energies(x, v, barrier, F)
+            work = float(rec.get("external_work", 0.0))
+            scale = max(self.in_play, self.weight_scale, 1e-300)
+            gain = e - self.energy - work
+            if not np.isfinite(e) or gain > self.energy_growth * scale:
+                factor = e / self.energy if self.energy > 0 else float("inf")
+                grew = f"{_fmt(factor)}x " if np.isfinite(factor) and factor > 1 else ""
+                raise Diverged(f"energy grew {grew}in one step (from {_fmt(self.energy)} J to {_fmt(e)} J; "
+                               f"external work {_fmt(work)} J, energy in play {_fmt(scale)} J)")
+            rec["energy"] = e
+            self._pending = (e, play, x.copy(), v.copy())
+        inverted = None if F is None else self.inverted(F)
+        rec["inverted_elements"] = inverted
+        if inverted:
+            self._policy("inverted", self.on_inverted, f"{inverted} inverted element(s) (det F <= 0)", frame)
+        if not rec.get("newton_converged", True):
+            self._policy("nonconvergence", self.on_nonconvergence,
+                         f"Newton stopped after {rec.get('newton_iters')} iteration(s) without reaching its tolerance",
+                         frame)
+
+    def accept(self):
+        """The checked step became the state: update the energy reference."""
+        pending = self._pending
+        if pending is not None:
+            self.energy = pending[0]
+            self.in_play = max(self.in_play, pending[1])
+            self._accepted = pending[2:]
+            self._pending = None
+
+    @staticmethod
+    def inverted(F):
+        """Number of elements with det F <= 0, F (m, 3, 3) the deformation gradients."""
+        det = (F[:, 0, 0] * (F[:, 1, 1] * F[:, 2, 2] - F[:, 1, 2] * F[:, 2, 1])
+               - F[:, 0, 1] * (F[:, 1, 0] * F[:, 2, 2] - F[:, 1, 2] * F[:, 2, 0])
+               + F[:, 0, 2] * (F[:, 1, 0] * F[:, 2, 1] - F[:, 1, 1] * F[:, 2, 0]))
+        return int(np.count_nonzero(det <= 0))
+
+    def _tearing(self, x0, x):
+        d = (x - x0).reshape(-1, 3)
+        if self.n_bodies == 1:
+            worst = np.sqrt(((d - d.mean(axis=0)) ** 2).sum(axis=1).max(initial=0.0))[None]
+        else:
+            mean = np.stack([np.bincount(self.body_of_vertex, d[:, k], self.n_bodies) for k in range(3)], axis=1)
+            rel = np.sqrt(((d - (mean / self.counts)[self.body_of_vertex]) ** 2).sum(axis=1))
+            worst = np.zeros(self.n_bodies)
+            np.maximum.at(worst, self.body_of_vertex, rel)
+        bad = np.flatnonzero(worst > self.body_size)
+        if bad.size:
+            b = int(bad[0])
+            raise Diverged(f"body {b} was torn apart: a vertex moved {_fmt(worst[b])} m relative to the body in one "
+                           f"step, more than its size {_fmt(self.body_size[b])} m")
+
+    def _policy(self, kind, policy, message, frame):
+        if policy == "ignore":
+            return
+        if policy == "raise":
+            raise Diverged(message)
+        if not self.warned[kind]:
+            self.warned[kind] = True
+            warnings.warn(f"{message} at frame {frame} (further occurrences are counted in sim.stats, not warned; "
+                          f"on_{kind}='raise' makes this an error)", SimulationWarning, stacklevel=4)
+
+    # -------------------------------------------------------------- checkpoint
+    def state_dict(self):
+        return {"energy": self.energy, "in_play": self.in_play, "warned_inverted": self.warned["inverted"],
+                "warned_nonconvergence": self.warned["nonconvergence"]}
+
+    def load_state_dict(self, state):
+        self.energy = state["energy"]
+        self.in_play = float(state["in_play"])
+        self.warned = {"inverted": bool(state["warned_inverted"]),
+                       "nonconvergence": bool(state["warned_nonconvergence"])}

@@ -1,0 +1,158 @@
+"""The divergence policy (skfem_affine.monitor): nothing wrong passes as a result."""
+import warnings
+
+import numpy as np
+import pytest
+import skfem
+
+import skfem_affine as sa
+from skfem_affine.lab import scenes
+from skfem_affine.monitor import Monitor
+
+
+def _run(sim, frames):
+    """Frames until the end or SimulationDiverged; returns (states, error)."""
+    states = []
+    try:
+        for s in sim.run(frames):
+            states.append(s)
+    except sa.SimulationDiverged as err:
+        return states, err
+    return states, None
+
+
+def test_huge_gravity_is_refused_at_the_first_bad_frame():
+    sim = scenes.cantilever(resolution=2, gravity=(0, 0, -1e6))
+    states, err = _run(sim, 30)
+    assert err is not None and err.frame == 1 and "frame 1" in str(err)
+    assert "torn apart" in str(err) and not states and sim.state.frame == 0
+
+
+def test_the_energy_check_names_the_frame_and_the_energies(monkeypatch):
+    # without the tearing test, the energy test trips at the first frame whose energy explodes
+    monkeypatch.setattr(Monitor, "_tearing", lambda *args: None)
+    sim = scenes.cantilever(resolution=2, gravity=(0, 0, -1e6), on_inverted="ignore")
+    states, err = _run(sim, 30)
+    assert err is not None and "energy grew" in str(err) and f"frame {err.frame}" in str(err)
+    assert err.frame == len(states) + 1 and len(states) < 15
+    energies = [r["energy"] for r in sim.stats]
+    assert all(np.isfinite(energies)) and max(energies) < 1e13
+
+
+def test_a_stiff_fast_spinning_body_is_refused_by_the_linearized_step():
+    sim = scenes.free_body(resolution=2, spin=(0, 0, 30.0), material=sa.NeoHookean(E=1e9, nu=0.3))
+    states, err = _run(sim, 5)
+    assert err is not None and err.frame == 1 and "energy grew" in str(err) and "x in one step" in str(err)
+
+
+@pytest.mark.parametrize("E, spin", [(1e5, 30.0), (1e9, 2.0), (1e7, 10.0)])
+def test_legitimate_spinning_runs_pass_and_lose_energy(E, spin):
+    sim = scenes.free_body(resolution=2, spin=(0, 0, spin), material=sa.NeoHookean(E=E, nu=0.3))
+    states, err = _run(sim, 30)
+    assert err is None
+    energies = [r["energy"] for r in sim.stats]
+    assert energies[-1] <= energies[0]
+
+
+def test_ordinary_scenes_never_trip_the_checks():
+    for sim, frames in ((scenes.cantilever(resolution=2), 80), (scenes.drop(), 60),
+                        (scenes.cantilever(resolution=2, integrator="bdf2"), 40)):
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            states, err = _run(sim, frames)
+        assert err is None
+        assert all(r["inverted_elements"] == 0 for r in sim.stats)
+
+
+def _crushed(**kw):
+    """A soft cube squeezed flat by a huge initial velocity: elements invert."""
+    mesh = skfem.MeshTet.init_tensor(*[np.linspace(0, 1, 3)] * 3)
+    v = np.zeros((mesh.nvertices, 3))
+    v[:, 2] = -60.0 * mesh.p[2]
+    body = sa.ElasticBody(mesh, sa.NeoHookean(E=1e3, nu=0.3), velocity=v,
+                          fixed=np.flatnonzero(mesh.p[2] < 1e-9))
+    return sa.Simulation(body, dt=0.01, **kw)
+
+
+def test_inverted_elements_warn_once_and_are_counted():
+    sim = _crushed()
+    with pytest.warns(sa.SimulationWarning, match="inverted element") as record:
+        states, err = _run(sim, 3)
+    assert err is None and len([w for w in record if "inverted" in str(w.message)]) == 1
+    assert sum(r["inverted_elements"] > 0 for r in sim.stats) >= 1
+    assert sim.stats.problems()["inverted_frames"] == sum(r["inverted_elements"] > 0 for r in sim.stats)
+
+
+def test_inverted_elements_raise_when_asked():
+    sim = _crushed(on_inverted="raise")
+    states, err = _run(sim, 3)
+    assert err is not None and "inverted element" in str(err) and f"frame {err.frame}" in str(err)
+    assert err.frame == sim.state.frame + 1 and sim.monitor.inverted(
+        sim.system.deformation_gradients(sim.state.x)) == 0  # the returned states have none
+
+
+def test_newton_non_convergence_warns_or_raises():
+    sim = scenes.cantilever(resolution=2, integrator="implicit_euler", newton_iters=1, newton_tol=1e-12)
+    with pytest.warns(sa.SimulationWarning, match="Newton stopped"):
+        states, err = _run(sim, 3)
+    assert err is None and not any(r["newton_converged"] for r in sim.stats)
+    assert sim.stats.problems()["unconverged_frames"] == 3
+    sim = scenes.cantilever(resolution=2, integrator="implicit_euler", newton_iters=1, newton_tol=1e-12,
+                            on_nonconvergence="raise")
+    states, err = _run(sim, 3)
+    assert err is not None and err.frame == 1 and "Newton stopped after 1 iteration" in str(err)
+
+
+def test_policy_arguments_are_checked():
+    body = scenes.cantilever(resolution=1).bodies[0]
+    with pytest.raises(ValueError, match="on_inverted must be one of"):
+        sa.Simulation(body, on_inverted="explode")
+    with pytest.raises(TypeError, match="check_energy"):
+        sa.Simulation(body, check_energy="no")
+
+
+def test_a_linalg_error_inside_a_reducer_becomes_simulation_diverged(monkeypatch):
+    from skfem_affine.reducers.subspace import reducer as subspace
+
+    def broken(*args, **kwargs):
+        raise np.linalg.LinAlgError("2-th leading minor not positive definite")
+
+    monkeypatch.setattr(subspace, "schur_solve", broken)
+    sim = scenes.cantilever(resolution=1, integrator="bdf2",
+                            reducer=sa.AdaptiveSubspace(basis=sa.SkinningEigenmodes(n=2, cache=False), subdomains=2))
+    states, err = _run(sim, 2)
+    assert err is not None and err.frame == 1 and "leading minor" in str(err)
+
+
+def test_a_non_finite_state_is_refused_before_contact_detection():
+    sim = scenes.drop()
+    sim.state.v[0, 0] = np.nan
+    states, err = _run(sim, 1)
+    assert err is not None and "non-finite state detected at frame 1" in str(err) and not sim.stats
+
+
+def test_checks_can_be_switched_off():
+    sim = scenes.free_body(resolution=2, spin=(0, 0, 30.0), material=sa.NeoHookean(E=1e9, nu=0.3),
+                           check_energy=False, on_inverted="ignore")
+    states, err = _run(sim, 1)
+    assert err is None and "energy" not in sim.stats[0] and sim.stats[0]["inverted_elements"] is None
+
+
+def test_a_non_finite_newton_direction_becomes_simulation_diverged(monkeypatch):
+    from skfem_affine.integrators import newton
+
+    def nan_direction(self, x, g, data, rec, e):
+        return np.full_like(g, np.nan)
+
+    monkeypatch.setattr(newton.FullSpaceDirection, "__call__", nan_direction)
+    sim = scenes.drop(integrator="implicit_euler", contact=None)  # with the barrier's collider queries
+    states, err = _run(sim, 2)
+    assert err is not None and err.frame == 1 and "Newton direction is not finite" in str(err)
+
+
+def test_a_state_changed_from_outside_is_not_taken_for_created_energy():
+    sim = scenes.free_body(resolution=2, spin=(0, 0, 1.0))
+    list(sim.run(2))
+    sim.state.v *= 20.0  # a kick: 400x the kinetic energy, given by the user, not by the integrator
+    states, err = _run(sim, 3)
+    assert err is None and sim.stats[-1]["energy"] > 100 * sim.stats[1]["energy"]
