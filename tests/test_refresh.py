@@ -104,3 +104,17 @@ def test_refresh_options_are_checked():
         sa.Affinification(refresh=True, refresh_tol=-1)
     with pytest.raises(TypeError, match="refresh_background"):
         sa.Affinification(refresh=True, refresh_background="yes")
+
+
+@pytest.mark.parametrize("refresh", ["laplacian", "tangent"])
+def test_a_checkpoint_keeps_the_refreshed_preconditioner(refresh, tmp_path):
+    sim, red = twisting(refresh, refresh_tol=0.05, frames=40)
+    assert red.refreshes >= 1
+    state = red.state_dict()
+    z = np.linspace(-1.0, 1.0, sim.system.free.size)
+    before = red.precond(z)
+    red.precond_pose_state = None  # back at rest: a different preconditioner
+    assert not np.allclose(red.precond(z), before)
+    red.load_state_dict(state)
+    np.testing.assert_allclose(red.precond(z), before, rtol=1e-10, atol=1e-14)
+    assert red.refreshes == state["refresh_counters"]["refreshes"]

@@ -153,7 +153,8 @@ class ClusteringReducer(Reducer):
     tau_start, tau_min, tau_max = 1e-3, 1e-8, 1e3
 
     # carried across frames: who was reduced, the clusters and seeds, the random seeding's generator
-    _state_keys = ("was_reduced", "labels", "previous_seeds", "rng_state", "controllers")
+    _state_keys = ("was_reduced", "labels", "previous_seeds", "rng_state", "controllers", "refresh_counters",
+                   "precond_pose_state")
 
     @property
     def controllers(self):
@@ -163,6 +164,35 @@ class ClusteringReducer(Reducer):
     @controllers.setter
     def controllers(self, state):
         self.restore_controller_state(state)
+
+    @property
+    def refresh_counters(self):
+        """The refresh trigger's numbers (class Notes): ``residual_ref``, ``residual_avg``, ``refreshes``."""
+        return {"residual_ref": self.residual_ref, "residual_avg": self.residual_avg, "refreshes": self.refreshes}
+
+    @refresh_counters.setter
+    def refresh_counters(self, state):
+        self.residual_ref, self.residual_avg = state["residual_ref"], state["residual_avg"]
+        self.refreshes = int(state["refreshes"])
+
+    @property
+    def precond_pose_state(self):
+        """The pose (n, 3) the oracle's preconditioner was built at, None at rest; setting it rebuilds
+        the preconditioner there (a pending background build is dropped)."""
+        return None if self.precond_pose is None else np.array(self.precond_pose)
+
+    @precond_pose_state.setter
+    def precond_pose_state(self, pose):
+        self._pending = None
+        if pose is None:
+            if self.precond_pose is not None:
+                model = self.model
+                self.precond = oracle.Preconditioner(model.system, model.dt, model.damping,
+                                                     kind=self.preconditioner_kind)
+            self.precond_pose = None
+        else:
+            self.precond_pose = np.array(pose, dtype=float)
+            self.precond = self._build(self.precond_pose)
 
     @property
     def rng_state(self):
@@ -521,10 +551,15 @@ class ClusteringReducer(Reducer):
             stats["oracle_refresh"] = time.perf_counter() - t0
 
     def _build(self, pose, A=None):
-        """The preconditioner at ``pose`` (positions (n, 3)); A: the frame's matrix for ``"tangent"``."""
-        if self.refresh == "tangent":
-            return oracle.TangentPreconditioner(A)
+        """The preconditioner at ``pose`` (positions (n, 3)); A: the frame's matrix for ``"tangent"``
+        (assembled at the pose when not given)."""
         model = self.model
+        if self.refresh == "tangent":
+            if A is None:
+                sysm = model.system
+                cm, ck = model.coefficients
+                A = sysm.pattern.matrix(cm * sysm.mass_data + ck * model.evaluate(pose).H)
+            return oracle.TangentPreconditioner(A)
         return oracle.Preconditioner(model.system, model.dt, model.damping, kind=self.preconditioner_kind, x=pose)
 
     def _install(self, precond, pose):
