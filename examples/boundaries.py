@@ -13,11 +13,10 @@ cantilever), clamped at both ends (a bridge), and held only along the bottom edg
 of one end (a hinge-like support, from a boolean mask). It prints how far the
 middle and the tip sag, and checks that the fixed vertices did not move.
 
-Prescribed *moving* boundaries (a vertex driven along a given path) are not
-supported: a fixed vertex never moves. To push a body, give it an initial
-``velocity`` (as the ``toothbrush`` scene does) or let it meet a static collider
-(the contact tutorials). Elements touching fixed vertices always stay elastic
-under affinification, as in the paper.
+A fixed vertex never moves; vertices driven along a given path are
+``sa.Prescribed`` (the next tutorial, ``rotating_clamp.py``). Elements touching
+fixed vertices stay elastic under affinification, as in the paper, unless
+``sa.Affinification(pinned_bodies=True)``.
 """
 import numpy as np
 import skfem

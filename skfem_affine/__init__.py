@@ -19,6 +19,7 @@ from skfem_affine.contact.colliders import Bowl, Box, Capsule, Plane, SDFCollide
 from skfem_affine.contact.ipc import IPC
 from skfem_affine.contact.pgs import PGS
 from skfem_affine.materials import Corotational, Material, NeoHookean, StVK
+from skfem_affine.motion import Prescribed, VertexForce
 from skfem_affine.reducers.affine.affinification import Affinification
 from skfem_affine.reducers.affine.rigidification import Rigidification
 from skfem_affine.reducers.subspace import bases
@@ -29,7 +30,7 @@ from skfem_affine.lab import io, metrics, runners, scenes
 
 __version__ = "0.1.0"
 
-__all__ = ["ElasticBody", "Simulation", "SimulationDiverged", "SimulationWarning", "State", "Stats", "Rayleigh",
+__all__ = ["ElasticBody", "Prescribed", "VertexForce", "Simulation", "SimulationDiverged", "SimulationWarning", "State", "Stats", "Rayleigh",
            "Material", "StVK", "Corotational", "NeoHookean", "Affinification", "Rigidification",
            "AdaptiveSubspace", "AffineModes", "LinearModes", "SkinningEigenmodes", "bases",
            "Plane", "Sphere", "Box", "Capsule", "Bowl", "SDFCollider", "PGS", "IPC", "colliders",

@@ -120,7 +120,13 @@ class ElasticSystem:
         self.grads = np.concatenate([b.grads for b in self.bodies])
         self.volumes = np.concatenate([b.volumes for b in self.bodies])
         self.density = np.concatenate([b.density for b in self.bodies])
+        # every vertex whose position is not an unknown: fixed ones and prescribed (moving) ones
         self.fixed = np.concatenate([b.fixed for b in self.bodies])
+        self.prescribed = np.zeros(self.n, dtype=bool)
+        for b, o in zip(self.bodies, offsets):
+            for idx in getattr(b, "prescribed_vertices", ()):
+                self.prescribed[idx + o] = True
+        self.fixed = self.fixed | self.prescribed
         self.body_of_element = np.repeat(np.arange(len(self.bodies)), np.diff(eoffsets))
         self._group_materials()
         self.edofs = element_dofs(self.t)

@@ -37,11 +37,15 @@ class ElasticBody:
         ``mesh.nodes_satisfying``. A mask must be boolean with one entry per vertex;
         an integer array of n zeros and ones is refused as ambiguous.
     velocity : (n, 3) or (3,) array, optional
-        Initial velocity (default zero). Fixed vertices get zero velocity.
+        Initial velocity (default zero). Fixed and prescribed vertices get zero velocity.
     name : str, optional
+    prescribed : Prescribed or list of Prescribed, optional
+        Vertices whose positions follow a function of time (``sa.Prescribed(vertices, path)``,
+        :mod:`skfem_affine.motion`): a moving clamp. They may not overlap ``fixed`` nor each
+        other; they start at ``path(0, X)``.
     """
 
-    def __init__(self, mesh, material, density=1000.0, fixed=None, velocity=None, name=None):
+    def __init__(self, mesh, material, density=1000.0, fixed=None, velocity=None, name=None, prescribed=None):
         self.mesh = _check_mesh(mesh)
         if name is not None and not isinstance(name, str):
             raise TypeError(f"name must be a str or None, got {type(name).__name__}")
@@ -51,8 +55,11 @@ class ElasticBody:
         self.materials, self.material_index = _element_materials(material, mesh)
         self.density = _positive_per_element(density, m, "density")
         self.fixed = _vertex_mask(fixed, n)
+        self.prescribed, self.prescribed_vertices = _prescribed(prescribed, mesh.p.T, self.fixed)
         self.velocity = _velocity(velocity, n)
         self.velocity[self.fixed] = 0.0
+        for idx in self.prescribed_vertices:
+            self.velocity[idx] = 0.0
         with np.errstate(all="ignore"):  # checked just below
             self.grads, self.volumes = shape_gradients(mesh)
         if not (np.all(np.isfinite(self.grads)) and np.all(self.volumes > 0)):
@@ -62,7 +69,8 @@ class ElasticBody:
 
     def __repr__(self):
         return (f"ElasticBody({self.name!r}, vertices={self.n_vertices}, elements={self.n_elements}, "
-                f"materials={self.materials}, fixed={int(self.fixed.sum())})")
+                f"materials={self.materials}, fixed={int(self.fixed.sum())}"
+                + (f", prescribed={sum(i.size for i in self.prescribed_vertices)})" if self.prescribed else ")"))
 
     @property
     def size(self):
@@ -269,6 +277,27 @@ def _vertex_mask(fixed, n):
         raise ValueError(f"fixed vertex indices out of range [0, {n}): min {f.min()}, max {f.max()}")
     mask[f] = True
     return mask
+
+
+def _prescribed(prescribed, rest, fixed):
+    """The list of :class:`~skfem_affine.motion.Prescribed` and their checked vertex indices."""
+    from skfem_affine.motion import Prescribed
+    if prescribed is None:
+        return [], []
+    items = [prescribed] if isinstance(prescribed, Prescribed) else prescribed
+    if not isinstance(items, (list, tuple)) or not all(isinstance(p, Prescribed) for p in items):
+        raise TypeError(f"prescribed must be a sa.Prescribed(vertices, path) or a list of them, "
+                        f"got {type(prescribed).__name__}")
+    taken = fixed.copy()
+    indices = []
+    for p in items:
+        idx = p.bind(rest)
+        if np.any(taken[idx]):
+            raise ValueError(f"prescribed vertices {_some(idx[taken[idx]])} are also fixed or prescribed by "
+                             f"another sa.Prescribed; a vertex has one boundary condition")
+        taken[idx] = True
+        indices.append(idx)
+    return list(items), indices
 
 
 def _velocity(velocity, n):

@@ -31,6 +31,8 @@ from skfem_affine.integrators import newton
 from skfem_affine.integrators.linearized import LinearizedEuler
 from skfem_affine.integrators.newton_integrator import NewtonIntegrator
 from skfem_affine.integrators.problem import PHASES, Model, Rayleigh, StepProblem, StepResult
+from skfem_affine.motion import Motion
+from skfem_affine.motion import work as motion_work
 from skfem_affine.monitor import Diverged, Monitor, SimulationWarning
 from skfem_affine.reducers.base import Reducer
 from skfem_affine.reducers.full import FullSpace, factorize_and_solve
@@ -140,6 +142,10 @@ class Simulation:
         (counted only).
     check_energy : bool
         Refuse a step that creates energy (default True; :mod:`skfem_affine.monitor`).
+    forces : list of VertexForce, optional
+        External forces on vertices as functions of time and state
+        (``sa.VertexForce(vertices, force(t, x, v))``, :mod:`skfem_affine.motion`), added to gravity.
+        Moving boundaries are given to the bodies (``ElasticBody(prescribed=sa.Prescribed(...))``).
 
     Notes
     -----
@@ -166,7 +172,7 @@ class Simulation:
     def __init__(self, bodies, dt=0.01, gravity=(0.0, 0.0, 0.0), damping=None, reducer=None,
                  solver="auto", newton_iters=None, newton_tol=None, project_hessian=True, mass="lumped",
                  colliders=None, contact=None, integrator="linearized", on_inverted="warn",
-                 on_nonconvergence="warn", check_energy=True):
+                 on_nonconvergence="warn", check_energy=True, forces=None):
         bodies = check_bodies(bodies)
         integrator = choice("linearized" if integrator is None else integrator, "integrator", INTEGRATORS)
         self.integrator_name = integrator
@@ -191,8 +197,10 @@ class Simulation:
         self.bodies = self.system.bodies
         self.size = float(np.linalg.norm(np.ptp(self.system.p0, axis=0)))
         self.f_gravity = self.system.gravity_force(self.gravity)
+        # prescribed vertices and vertex forces; None when there are none (the frame then runs unchanged)
+        self.motion = Motion(self.system, forces)
         self.model = Model(self.system, self.dt, self.damping, self.gravity, self.f_gravity,
-                           self.project_hessian, self.size)
+                           self.project_hessian, self.size, self.motion if self.motion.active else None)
         if linearized:
             self.contact = pgs.make_contact(self.model, colliders, contact)
             self.colliders = [] if self.contact is None else self.contact.colliders
@@ -208,6 +216,9 @@ class Simulation:
         self.solver = make_solver(solver)
         self.reducer = reducer
         x0 = self.system.p0.copy()
+        if self.motion.paths:  # prescribed vertices start on their paths
+            idx, xp = self.motion.positions(0.0)
+            x0[idx] = xp
         v0 = np.concatenate([b.velocity for b in bodies])
         self.state = State(x0, v0)
         self.stats = Stats()
@@ -220,7 +231,8 @@ class Simulation:
             self.integrator = NewtonIntegrator(self.model, integrator, active, self.solver, None,
                                                tol=self.newton_tol, max_iters=self.newton_iters)
             self.colliders = colliders  # the barrier of the colliders (property setter)
-        active.attach(self.model)
+        if self.system.free.size:  # a scene whose vertices all follow paths has nothing to reduce
+            active.attach(self.model)
         self.monitor = Monitor(self.system, self.f_gravity, self.size, on_inverted, on_nonconvergence, check_energy)
 
     # ------------------------------------------------------------------ public
@@ -283,6 +295,12 @@ class Simulation:
             work = self.monitor.energies(x, v, barrier)[0] - self.monitor.energies(uncorrected, v, barrier)[0]
             rec["contact_work"] = work
             rec["external_work"] = rec.get("external_work", 0.0) + work
+        moved = getattr(self.integrator, "last_motion", None)
+        if moved is not None and self.monitor.check_energy:
+            # a moving clamp and vertex forces put energy in: their work counts as external work
+            work = motion_work(self.system, self.f_gravity, *moved, s.x, s.v, x, v, self.dt)
+            rec["motion_work"] = work
+            rec["external_work"] = rec.get("external_work", 0.0) + work
         try:
             self.monitor.check(frame, s.x, x, v, rec, barrier)
         except Diverged as err:
@@ -297,7 +315,7 @@ class Simulation:
         self.state = State(x, v, frame, s.time + self.dt, result.clusters)
         rec["wall"] = time.perf_counter() - t0
         end_frame = getattr(self.reducer, "end_frame", None)  # a time budget reads the frame's wall time
-        if end_frame is not None:
+        if end_frame is not None and self.system.free.size:  # (a reducer with nothing to solve is not attached)
             end_frame(rec)
         self.stats.append(rec)
         return self.state

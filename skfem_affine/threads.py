@@ -31,7 +31,8 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numba
 
-_STATE = {"threads": None, "pool": None, "workers": 0, "pid": None, "openblas": None, "mkl": None}
+_STATE = {"threads": None, "pool": None, "workers": 0, "pid": None, "openblas": None, "mkl": None,
+          "background": None, "background_pid": None}
 _LOCK = threading.Lock()
 
 
@@ -142,3 +143,18 @@ def mkl_max_threads():
         return None
     counts = [lib.num_threads for lib in mkl.lib_controllers]
     return max(counts) if counts else None
+
+
+def background(fn, *args):
+    """Run ``fn(*args)`` on this process's one background thread; returns a Future.
+
+    For work off a frame's critical path (a preconditioner rebuilt at a new pose,
+    :class:`~skfem_affine.reducers.affine.clustered.ClusteringReducer`): one worker, so
+    background jobs queue rather than compete with each other and the worker pool.
+    """
+    with _LOCK:
+        executor = _STATE.get("background")
+        if executor is None or _STATE.get("background_pid") != os.getpid():
+            executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="skfem-affine-background")
+            _STATE["background"], _STATE["background_pid"] = executor, os.getpid()
+    return executor.submit(fn, *args)

@@ -19,8 +19,17 @@ def run(name):
 def test_every_example_is_tested():
     tested = {"cantilever.py", "beam_frequency.py", "affinification.py", "contact_drop.py",
               "contact_stacking.py", "contact_materials.py", "compare.py", "adaptive_subspace.py",
-              "custom_reducer.py", "own_mesh.py", "boundaries.py", "threshold_sweep.py", "output.py"}
+              "custom_reducer.py", "own_mesh.py", "boundaries.py", "threshold_sweep.py", "output.py",
+              "rotating_clamp.py"}
     assert set(f for f in os.listdir(EXAMPLES) if f.endswith(".py")) <= tested
+
+
+def test_rotating_clamp_example():
+    g = run("rotating_clamp.py")
+    assert g["clamp_error"] <= 1e-12 and g["aff_clamp_error"] <= 1e-12  # the clamp stays on its path
+    assert g["angle"] == pytest.approx(1.2)
+    assert g["middle_shift"] > 0.01  # the pull moves the middle along +y
+    assert g["dof_ratio"] <= 1.0 and g["error"] < 0.05
 
 
 def test_cantilever_example(tmp_path, monkeypatch):

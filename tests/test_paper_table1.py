@@ -29,7 +29,7 @@ def test_a_two_frame_run_writes_the_table(shared_meshes, tmp_path):
     assert arma["stand_in"] and arma["paper_row"] == "Armadillo Res. Limited"
     table = open(out + ".md").read()
     assert "| Beam Neo | 2 (370) | 0.01 (0.01) | 5516 (5516) | 1264 (1264) |" in table
-    assert "Twisting beam: not run" in table and "(stand-in)" in table
+    assert "Explorer: not run" in table and "(stand-in)" in table
     assert json.load(open(out + ".json"))[0]["scene"] == "beam_neo"
 
 

@@ -56,8 +56,24 @@ def test_euler_bernoulli_frequency_matches_the_closed_form():
 
 # ---------------------------------------------------------------------------- the paper's scenes
 def test_new_scenes_are_registered():
-    assert {"wheel", "octopus", "armadillo"} <= set(scenes.SCENES)
-    assert "twisting_beam" not in scenes.SCENES  # needs prescribed motion in the frame path
+    assert {"wheel", "octopus", "armadillo", "twisting_beam"} <= set(scenes.SCENES)
+
+
+def test_twisting_beam_turns_its_end_along_the_twist_path_and_twists():
+    sim = scenes.twisting_beam(resolution=1, rate=np.pi, reducer=sa.Affinification(1.1e-3, 1e-3))
+    assert sim.scene == "twisting_beam" and sim.frames == 1350 and sim.dt == 0.01
+    body = sim.bodies[0]
+    end = body.prescribed_vertices[0]
+    X = body.mesh.p.T
+    for state in sim.run(25):
+        assert np.abs(state.x[end] - sim.path(state.time)).max() <= 1e-12
+    assert np.array_equal(state.x[body.fixed], X[body.fixed])
+    # the middle section turned part of the way: a twist, not a rigid turn
+    mid = np.flatnonzero(np.isclose(X[:, 0], 2.0))
+    turn = lambda x: np.arctan2(x[:, 2] - 0.5, x[:, 1] - 0.5)
+    corner = mid[np.argmax(np.hypot(X[mid, 1] - 0.5, X[mid, 2] - 0.5))]
+    d_mid = (turn(state.x[[corner]]) - turn(X[[corner]]))[0]
+    assert 0.0 < np.abs(np.angle(np.exp(1j * d_mid))) < np.pi * 0.25
 
 
 def test_wheel_has_a_stiff_hub_and_a_soft_tyre_and_lands_on_the_plane():

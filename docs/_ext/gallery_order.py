@@ -5,6 +5,7 @@ TUTORIAL = [
     "cantilever.py",          # a first simulation
     "own_mesh.py",            # your own mesh, a material per region
     "boundaries.py",          # fixed boundaries
+    "rotating_clamp.py",      # moving boundaries and pulling forces
     "contact_drop.py",        # contact with the ground
     "contact_stacking.py",    # contact between bodies
     "contact_materials.py",   # stiff against soft

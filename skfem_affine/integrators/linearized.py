@@ -13,6 +13,8 @@ search on the incremental potential
 whose minimiser is the converged implicit Euler step (the reference solve); its first
 iterate is the linearized step.
 """
+import numpy as np
+
 from skfem_affine.integrators.newton import linearized_newton
 from skfem_affine.integrators.problem import Operator, StepProblem, StepResult, merge_stats
 
@@ -49,33 +51,51 @@ class LinearizedEuler:
         if contact is not None:  # Algorithm 1: find contacts at x_t
             contacts = contact.detect(model, state.x, state.v, rec)
             impulse = contact.prediction_impulse()
-        if self.newton_iters == 1:
+        motion, self.last_motion = {}, None
+        if getattr(model, "motion", None) is not None and model.motion.active:  # the frame's prescribed positions and forces
+            motion = dict(targets=model.motion.targets(state.time + model.dt, state.x, model.dt),
+                          f_ext=model.motion.force(state.time, state.x, state.v))
+            self.last_motion = (motion["targets"], motion["f_ext"])  # for the simulation's energy check
+        if not free.size:  # every vertex fixed or prescribed: nothing to solve
+            problem = StepProblem(model, state.x, state.v, state.frame + 1, None, None, impulse, contacts, **motion)
+            result = StepResult(dv=np.zeros(0))
+        elif self.newton_iters == 1:
             problem = StepProblem.at(model, state.x, state.v, state.frame + 1, rec=rec,
-                                     contact_impulse=impulse, contacts=contacts)
+                                     contact_impulse=impulse, contacts=contacts, **motion)
             result = self.reducer.solve(problem)
         else:
-            problem = StepProblem(model, state.x, state.v, state.frame + 1, None, None, impulse, contacts)
-            result = self._newton(state)
+            problem = StepProblem(model, state.x, state.v, state.frame + 1, None, None, impulse, contacts, **motion)
+            result = self._newton(state, problem)
         merge_stats(rec, result.stats)
         dv = result.dv
         if contact is not None:  # Algorithm 1: PGS contact solve with the frame's factorization
             dv = dv + contact.resolve(problem, result, rec)
         v = state.v.copy()
         v.reshape(-1)[free] += dv
+        targets = problem.targets
+        if targets is not None:
+            v[targets.vertices] = targets.v
         self.uncorrected = None
         correction = None if contact is None else contact.correction
         if correction is not None:  # contact's split impulse: penetrations move out through x only
-            self.uncorrected = result.positions(state.x, v, model.dt)
+            self.uncorrected = self._positions(result, state.x, v, targets)
             w = v.copy()
             w.reshape(-1)[free] += correction
-            return result.positions(state.x, w, model.dt), v, result
-        return result.positions(state.x, v, model.dt), v, result
+            return self._positions(result, state.x, w, targets), v, result
+        return self._positions(result, state.x, v, targets), v, result
+
+    def _positions(self, result, x, v, targets):
+        """x_{t+1}: the reducer's position update, and prescribed vertices exactly on their path."""
+        x_new = result.positions(x, v, self.model.dt)
+        if targets is not None:
+            x_new[targets.vertices] = targets.x
+        return x_new
 
     # ------------------------------------------------------------------ newton_iters > 1
-    def _newton(self, state):
+    def _newton(self, state, problem):
         """Newton to the converged implicit Euler step (the one Newton loop of
         :func:`skfem_affine.integrators.newton.linearized_newton`); its first iterate is the linearized step."""
         stats = {}
         dv, A = linearized_newton(self.model, state.x, state.v, self.solver, self.newton_tol, self.newton_iters,
-                                  stats)
+                                  stats, targets=problem.targets, f_ext=problem.f_ext)
         return StepResult(dv=dv, operator=Operator(self.solver, A), stats=stats)

@@ -84,8 +84,8 @@ def newton(problem, direction, rec, after_step=None, blocks=True, stop_on="direc
     """
     if stop_on not in ("direction", "step"):
         raise ValueError(f"stop_on must be 'direction' or 'step', got {stop_on!r}")
-    x = problem.x_t.copy()
-    data = problem.start if (blocks or problem.has_start) else None
+    x = problem.x_start.copy()
+    data = problem.start if (problem.starts_at_x_t and (blocks or problem.has_start)) else None
     e = problem.energy(x)
     ok = False
     for it in range(problem.max_iters):
@@ -148,7 +148,7 @@ def newton_solve(problem, solver, rec):
     return newton(problem, FullSpaceDirection(problem, solver), rec)
 
 
-def linearized_newton(model, x, v, solver, tol, max_iters, rec, start=None):
+def linearized_newton(model, x, v, solver, tol, max_iters, rec, start=None, targets=None, f_ext=None):
     """Newton on the implicit-Euler potential from the linearized state: the linearized
     integrator's ``newton_iters > 1`` option.
 
@@ -168,6 +168,8 @@ def linearized_newton(model, x, v, solver, tol, max_iters, rec, start=None):
         The frame's record (as :func:`newton`).
     start : FrameData, optional
         The evaluation at x (reused if given).
+    targets, f_ext : Targets, (3n,) array, optional
+        The step's prescribed vertices and vertex forces (:mod:`skfem_affine.motion`).
 
     Returns
     -------
@@ -180,7 +182,7 @@ def linearized_newton(model, x, v, solver, tol, max_iters, rec, start=None):
     # E = h^2 Phi(v) + const with x = x_t + h v (potential.py): the same minimiser. The loop's
     # criterion ||alpha d||_inf / h <= tol' * size with tol' = tol / h is ||alpha d||_inf <= tol * size.
     problem = IncrementalPotential(model, x, v, start=start, tol=positive(tol, "newton_tol") / model.dt,
-                                   max_iters=max_iters)
+                                   max_iters=max_iters, targets=targets, f_ext=f_ext)
     direction = FullSpaceDirection(problem, solver)
     x1, _ = newton(problem, direction, rec, stop_on="step")
     free = model.system.free

@@ -62,8 +62,14 @@ class NewtonIntegrator:
         prev = (None, None)
         if self.scheme == "bdf2" and self.history is not None and self.history[0] == state.frame - 1:
             prev = self.history[1:]
+        motion, extra = getattr(self.model, "motion", None), {}
+        self.last_motion = None
+        if motion is not None and motion.active:  # the step's prescribed positions and vertex forces
+            extra = dict(targets=motion.targets(state.time + self.model.dt, state.x, self.model.dt),
+                         f_ext=motion.force(state.time, state.x, state.v))
+            self.last_motion = (extra["targets"], extra["f_ext"])  # for the simulation's energy check
         return IncrementalPotential(self.model, state.x, state.v, *prev, barrier=self.barrier,
-                                    tol=self.tol, max_iters=self.max_iters)
+                                    tol=self.tol, max_iters=self.max_iters, **extra)
 
     def step(self, state, rec):
         """One step from ``state``; returns ``(x, v, result)`` with (n, 3) arrays and the StepResult."""
@@ -73,14 +79,16 @@ class NewtonIntegrator:
             self.barrier.begin_step(problem.x_t, problem.x_hat, problem.c)
         rec["assembly"] = rec.get("assembly", 0.0) + time.perf_counter() - t0
         rec["integrator"] = problem.scheme
-        if self.reducer is None:
+        if not self.model.system.free.size:  # every vertex fixed or prescribed: nothing to solve
+            result = StepResult(x=problem.x_start.copy())
+        elif self.reducer is None:
             stats = {}
             x, _ = newton_solve(problem, self.solver, stats)
             result = StepResult(x=x, stats=stats)
         else:
             result = self.reducer.solve(problem)
         merge_stats(rec, result.stats)
-        v = problem.velocity(result.x)  # zero on fixed DOFs, which stay at x_t
+        v = problem.velocity(result.x)  # zero on fixed DOFs, which stay at x_t; the path's on prescribed ones
         self.history = (state.frame, state.x.copy(), state.v.copy())
         return result.x.reshape(-1, 3), v.reshape(-1, 3), result
 

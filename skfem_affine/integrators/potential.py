@@ -65,12 +65,18 @@ class IncrementalPotential:
         Newton stops when ``||d||_inf / h <= tol * model.size`` (:func:`converged`).
     max_iters : int
         Newton's iteration cap, >= 1.
+    targets : Targets, optional
+        Prescribed vertices (:class:`skfem_affine.motion.Targets`): their DOFs sit at
+        ``targets.x`` (the path at t + h) in every iterate, from the first (:attr:`x_start`) on.
+    f_ext : (3n,) array, optional
+        Vertex forces of the step (:class:`skfem_affine.motion.VertexForce`), added to gravity in f_ext.
 
-    Positions ``x`` are flat (3n,) arrays over all DOFs; fixed DOFs stay at ``x_t``.
+    Positions ``x`` are flat (3n,) arrays over all DOFs; fixed DOFs stay at ``x_t``, prescribed
+    ones at their targets.
     """
 
     def __init__(self, model, x_t, v_t, x_prev=None, v_prev=None, start=None, barrier=None,
-                 tol=1e-6, max_iters=50):
+                 tol=1e-6, max_iters=50, targets=None, f_ext=None):
         sysm = model.system
         self.model, self.system, self.free, self.h = model, sysm, sysm.free, model.dt
         self.tol = positive(tol, "newton_tol")
@@ -89,7 +95,12 @@ class IncrementalPotential:
             self.x_hat = (4.0 * x_t - x_prev) / 3.0
             self.x_tilde = self.x_hat + 2.0 * h / 9.0 * (4.0 * v_t - v_prev)
         self.x_t = x_t
-        self.f_ext = model.f_gravity
+        self.targets = targets
+        self.x_start = x_t  # Newton's first iterate
+        if targets is not None:
+            self.x_start = x_t.copy()
+            self.x_start[targets.dofs] = targets.x.reshape(-1)
+        self.f_ext = model.f_gravity if f_ext is None else model.f_gravity + f_ext
         self.barrier = barrier
         self._start = start
         d = model.damping
@@ -98,6 +109,11 @@ class IncrementalPotential:
         Ht = self.start.H if d.beta else 0.0
         self.damping_data = (d.alpha * sysm.mass_data + d.beta * Ht) / (self.c * h)
         self.damping_matrix = sysm.pattern.matrix(self.damping_data) if (d.alpha or d.beta) else None
+
+    @property
+    def starts_at_x_t(self):
+        """Whether Newton's first iterate is x_t (no prescribed vertex moves), so that :attr:`start` serves it."""
+        return self.targets is None
 
     @property
     def has_start(self):

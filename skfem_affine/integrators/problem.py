@@ -27,7 +27,7 @@ from skfem_affine.checks import nonnegative
 
 # Per-frame timing keys of ``sim.stats`` (seconds); a reducer's stats add to the integrator's.
 PHASES = ("assembly", "prediction", "clustering", "map_assembly", "reduced_assembly",
-          "factorization", "solve", "line_search", "contact")
+          "factorization", "solve", "line_search", "contact", "oracle_refresh")
 
 
 @dataclass(frozen=True)
@@ -71,6 +71,9 @@ class Model:
         Whether element Hessians are projected to PSD.
     size : float
         Diagonal of the rest bounding box (the scale of tolerances).
+    motion : Motion or None
+        Prescribed vertices and vertex forces (:class:`skfem_affine.motion.Motion`), evaluated
+        by the integrator once per frame; None (or inactive) without them.
     """
 
     system: object
@@ -80,6 +83,7 @@ class Model:
     f_gravity: np.ndarray
     project_hessian: bool
     size: float
+    motion: object = None
 
     @property
     def coefficients(self):
@@ -110,6 +114,11 @@ class StepProblem:
         J^T lambda_pred, contact impulses the prediction oracle takes as explicit forces (sec. 3.4).
     contacts : ContactSet or None
         The contacts found at x_t.
+    targets : Targets or None
+        The prescribed vertices' positions and velocities at t + 1 (:class:`skfem_affine.motion.Targets`);
+        their motion enters :meth:`rhs` through the coupling blocks (:func:`skfem_affine.motion.coupling`).
+    f_ext : (3n,) array or None
+        The frame's vertex forces (:class:`skfem_affine.motion.VertexForce`), already in ``data.f``.
     """
 
     model: Model
@@ -120,32 +129,48 @@ class StepProblem:
     Hmat: sp.csr_matrix
     contact_impulse: object = 0.0
     contacts: object = None
+    targets: object = None
+    f_ext: np.ndarray = None
     _b: np.ndarray = field(default=None, init=False, repr=False)
+    _coupling: np.ndarray = field(default=None, init=False, repr=False)
 
     @classmethod
     def at(cls, model, x, v, frame=0, data=None, rec=None, **kwargs):
         """Evaluate the frame at (x, v) (``data``: a :class:`FrameData` already evaluated at x).
 
-        Adds gravity to ``data.f`` and assembles H; the time goes to ``rec["assembly"]``.
+        Adds gravity (and ``f_ext``, the frame's vertex forces) to ``data.f``, assembles H, and with
+        ``targets`` the prescribed vertices' coupling; the time goes to ``rec["assembly"]``.
         """
         t0 = time.perf_counter()
         data = model.evaluate(x) if data is None else data
         data.f = data.f + model.f_gravity
+        if kwargs.get("f_ext") is not None:
+            data.f = data.f + kwargs["f_ext"]
         Hmat = model.system.pattern.matrix(data.H)
+        problem = cls(model, x, v, frame, data, Hmat, **kwargs)
+        if problem.targets is not None:
+            from skfem_affine.motion import coupling
+            problem._coupling = coupling(problem, problem.targets)
         if rec is not None:
             rec["assembly"] = rec.get("assembly", 0.0) + time.perf_counter() - t0
-        return cls(model, x, v, frame, data, Hmat, **kwargs)
+        return problem
 
     @property
     def system(self):
         return self.model.system
 
     def rhs(self, v):
-        """b = h (f - alpha M v - (beta + h) H v) on the free DOFs (eq. 2), v (n, 3) all vertices."""
+        """b = h (f - alpha M v - (beta + h) H v) on the free DOFs (eq. 2), v (n, 3) all vertices.
+
+        With prescribed vertices, minus their coupling (:func:`skfem_affine.motion.coupling`).
+        """
         m = self.model
         h, d, sysm = m.dt, m.damping, m.system
         vf = v.reshape(-1)[sysm.free]
-        return h * (self.data.f[sysm.free] - d.alpha * (sysm.Mff @ vf) - (d.beta + h) * (self.Hmat @ vf))
+        b = h * (self.data.f[sysm.free] - d.alpha * (sysm.Mff @ vf) - (d.beta + h) * (self.Hmat @ vf))
+        if self._coupling is not None:
+            b -= self._coupling
+        return b
 
     @property
     def b(self):

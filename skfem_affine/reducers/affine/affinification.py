@@ -41,6 +41,15 @@ class Affinification(ClusteringReducer):
         Solver of the reduced system (default: the fastest direct solver).
     min_body_elements : int
         Clusters of fewer elements are dissolved (>= 2: a single element is never a body).
+    refresh, refresh_tol, refresh_background
+        Whether and when the oracle's preconditioner is rebuilt at the current pose
+        (:class:`~skfem_affine.reducers.affine.clustered.ClusteringReducer`); default False,
+        the paper's preconditioner factorised once at rest.
+    pinned_bodies : bool
+        Let affine bodies contain fixed and prescribed vertices, their 12 DOFs constrained by
+        them (:mod:`skfem_affine.reducers.affine.pinned`; four or more non-coplanar pins
+        prescribe the body entirely). Default False: as the paper, elements touching such
+        vertices stay elastic.
 
     The thresholds come first and positionally; the arguments shared with
     :class:`~skfem_affine.Rigidification` follow, keyword-only, in the same order. With a
@@ -66,14 +75,16 @@ class Affinification(ClusteringReducer):
 
     def __init__(self, tau_a=None, tau_e=None, *, target_error=None, time_budget=None, never_slower=None,
                  min_fraction=None, seeding="random", preconditioner="ichol", seed=0, solver=None,
-                 min_body_elements=2, min_affine_fraction=None, shadow_every=10, memory=0.5):
+                 min_body_elements=2, min_affine_fraction=None, shadow_every=10, memory=0.5, refresh=False,
+                 refresh_tol=0.2, refresh_background=False, pinned_bodies=False):
         self.tau_a, tau_e, target_error = resolve_thresholds(tau_a, tau_e, target_error, "tau_a")
         # >= 2: singletons are always dissolved
         self.min_body_elements = integer(min_body_elements, "min_body_elements", low=2)
         super().__init__(tau_e, min_fraction=forced_fraction(min_fraction, min_affine_fraction, "min_affine_fraction"),
                          seeding=seeding, preconditioner=preconditioner, seed=seed, solver=solver,
                          target_error=target_error, time_budget=time_budget, never_slower=never_slower,
-                         shadow_every=shadow_every, memory=memory)
+                         shadow_every=shadow_every, memory=memory, refresh=refresh, refresh_tol=refresh_tol,
+                         refresh_background=refresh_background, pinned_bodies=pinned_bodies)
 
     def __repr__(self):
         what = (f"target_error={self.target_error:g}" if self.target_error is not None

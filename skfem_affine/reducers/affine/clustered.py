@@ -31,13 +31,18 @@ from skfem_affine.checks import choice, integer, positive, real
 from skfem_affine.threads import serial_blas
 from skfem_affine.integrators.problem import Operator, StepResult
 from skfem_affine.reducers import budget as budgets
-from skfem_affine.reducers.affine import clustering, oracle
+from skfem_affine.reducers.affine import clustering, oracle, pinned
 from skfem_affine.reducers.affine import mapping as reduction
 from skfem_affine.reducers.base import Reducer
 from skfem_affine.reducers.full import factorize_and_solve
 from skfem_affine.solvers import make_solver
 
 SEEDINGS = ("random", "index", "temporal")
+
+# The refresh trigger compares growth of the oracle residual with refresh_tol times
+# max(reference, RESIDUAL_FLOOR): a preconditioner that leaves a few percent of ||b|| is as good as
+# exact for the clustering, and relative noise on such a small residual should not trigger rebuilds.
+RESIDUAL_FLOOR = 0.1
 
 
 def check_threshold(value, name):
@@ -109,6 +114,37 @@ class ClusteringReducer(Reducer):
         4 shadow_every, while shadow frames confirm the error estimate's calibration.
     memory : float
         Memory time T (s) of the error estimate.
+    refresh : {False, True, "laplacian", "tangent"}
+        Whether the oracle's preconditioner follows the pose (see Notes). False (default) keeps
+        the paper's: A_p factorised once at rest. When the oracle stops predicting well,
+        True or ``"laplacian"`` rebuilds A_p (the scalar Laplacian S) in the deformed
+        configuration; ``"tangent"`` rebuilds it as an incomplete Cholesky of the frame's whole
+        A (:class:`~skfem_affine.reducers.affine.oracle.TangentPreconditioner`), which predicts
+        far better but elastifies more and is rebuilt far more often (measurements:
+        docs/affinification.md, "The oracle follows the pose").
+    refresh_tol : float
+        Rebuild when the oracle's averaged residual has grown by more than ``refresh_tol`` times
+        its value right after the last build (at least ``refresh_tol`` times :data:`RESIDUAL_FLOOR`).
+    refresh_background : bool
+        Build the new preconditioner in a background thread (:func:`skfem_affine.threads.background`)
+        and swap it in at the first frame after it is ready; False (default) builds it between
+        two frames, which keeps runs reproducible. Either way its time is recorded as
+        ``oracle_refresh`` in ``sim.stats``, apart from the frame's phases.
+    pinned_bodies : bool
+        Whether affine bodies may contain fixed and prescribed vertices, their DOFs constrained
+        by them (:mod:`skfem_affine.reducers.affine.pinned`); default False, the paper's: elements
+        touching such vertices stay elastic. Affine bodies only.
+
+    Notes
+    -----
+    **Refresh trigger.** Every frame the one-iteration prediction records
+    ``oracle_residual`` = ||b - A dv_pred|| / ||b|| (:func:`oracle.predict`, from dot products it
+    has anyway). Its exponential average over about four frames (:attr:`residual_avg`) is
+    compared with the first value measured after the preconditioner was last built
+    (:attr:`residual_ref`); when it has grown by more than ``refresh_tol * max(residual_ref,
+    RESIDUAL_FLOOR)``, the preconditioner is rebuilt at the current pose, and the reference restarts. State a checkpoint must keep:
+    :attr:`precond` (or the pose :attr:`precond_pose` to rebuild it), :attr:`residual_ref`,
+    :attr:`residual_avg`, :attr:`refreshes`; a pending background build is dropped.
     """
 
     integrators = ("linearized",)
@@ -117,7 +153,8 @@ class ClusteringReducer(Reducer):
     tau_start, tau_min, tau_max = 1e-3, 1e-8, 1e3
 
     # carried across frames: who was reduced, the clusters and seeds, the random seeding's generator
-    _state_keys = ("was_reduced", "labels", "previous_seeds", "rng_state", "controllers")
+    _state_keys = ("was_reduced", "labels", "previous_seeds", "rng_state", "controllers", "refresh_counters",
+                   "precond_pose_state")
 
     @property
     def controllers(self):
@@ -127,6 +164,35 @@ class ClusteringReducer(Reducer):
     @controllers.setter
     def controllers(self, state):
         self.restore_controller_state(state)
+
+    @property
+    def refresh_counters(self):
+        """The refresh trigger's numbers (class Notes): ``residual_ref``, ``residual_avg``, ``refreshes``."""
+        return {"residual_ref": self.residual_ref, "residual_avg": self.residual_avg, "refreshes": self.refreshes}
+
+    @refresh_counters.setter
+    def refresh_counters(self, state):
+        self.residual_ref, self.residual_avg = state["residual_ref"], state["residual_avg"]
+        self.refreshes = int(state["refreshes"])
+
+    @property
+    def precond_pose_state(self):
+        """The pose (n, 3) the oracle's preconditioner was built at, None at rest; setting it rebuilds
+        the preconditioner there (a pending background build is dropped)."""
+        return None if self.precond_pose is None else np.array(self.precond_pose)
+
+    @precond_pose_state.setter
+    def precond_pose_state(self, pose):
+        self._pending = None
+        if pose is None:
+            if self.precond_pose is not None:
+                model = self.model
+                self.precond = oracle.Preconditioner(model.system, model.dt, model.damping,
+                                                     kind=self.preconditioner_kind)
+            self.precond_pose = None
+        else:
+            self.precond_pose = np.array(pose, dtype=float)
+            self.precond = self._build(self.precond_pose)
 
     @property
     def rng_state(self):
@@ -150,7 +216,8 @@ class ClusteringReducer(Reducer):
             self.solver.load_state_dict(solver)
 
     def __init__(self, tau_e, *, min_fraction=0.0, seeding="random", preconditioner="ichol", seed=0, solver=None,
-                 target_error=None, time_budget=None, never_slower=None, shadow_every=10, memory=0.5):
+                 target_error=None, time_budget=None, never_slower=None, shadow_every=10, memory=0.5,
+                 refresh=False, refresh_tol=0.2, refresh_background=False, pinned_bodies=False):
         self.target_error = target_error
         if target_error is not None:
             tau_e = 2.0 * self.tau_start
@@ -166,16 +233,37 @@ class ClusteringReducer(Reducer):
         self.seeding = choice(seeding, "seeding", SEEDINGS)
         self.seed = None if seed is None else integer(seed, "seed", low=0)
         self.solver_spec = solver
+        if refresh is True:
+            refresh = "laplacian"
+        if refresh not in (False, None, "laplacian", "tangent"):
+            raise ValueError(f"refresh must be False, True, 'laplacian' or 'tangent', got {refresh!r}")
+        self.refresh = refresh or False
+        self.refresh_tol = check_threshold(refresh_tol, "refresh_tol")
+        if not isinstance(refresh_background, (bool, np.bool_)):
+            raise TypeError(f"refresh_background must be True or False, got {refresh_background!r}")
+        self.refresh_background = bool(refresh_background)
+        if not isinstance(pinned_bodies, (bool, np.bool_)):
+            raise TypeError(f"pinned_bodies must be True or False, got {pinned_bodies!r}")
+        if pinned_bodies and getattr(self, "kind", None) is not reduction.AFFINE:
+            raise ValueError("pinned_bodies needs affine bodies (Affinification)")
+        self.pinned_bodies = bool(pinned_bodies)
 
     def _setup(self, model):
         sysm = model.system
         self.rng = np.random.default_rng(self.seed)
         self.adjacency = clustering.element_adjacency(sysm.t)
-        self.excluded = elements_touching(sysm, sysm.fixed)  # pinned elements stay elastic
+        # the paper's: elements touching fixed or prescribed vertices stay elastic; with pinned_bodies
+        # they may join bodies, whose DOFs are then constrained (:mod:`.pinned`)
+        self.excluded = np.zeros(sysm.m, dtype=bool) if self.pinned_bodies else elements_touching(sysm, sysm.fixed)
         self.was_reduced = np.zeros(sysm.m, dtype=bool)
         self.previous_seeds = None
         self.labels = np.full(sysm.m, -1, dtype=np.int64)
         self.precond = oracle.Preconditioner(sysm, model.dt, model.damping, kind=self.preconditioner_kind)
+        # the refresh trigger's state (plain attributes; see the class Notes)
+        self.precond_pose = None  # positions the preconditioner was built at; None: rest
+        self.residual_ref = self.residual_avg = None
+        self.refreshes = 0
+        self._pending = None  # (future, pose) of a background build
         self.solver = make_solver(self.solver_spec if self.solver_spec is not None else "direct")
         self.upper = getattr(self.solver, "accepts_upper", False)  # a Cholesky reads one triangle
         # a fill-reducing order of the free vertices, inherited by every frame's reduced system
@@ -361,9 +449,14 @@ class ClusteringReducer(Reducer):
         b = problem.b
         b_ng = b - h * model.f_gravity[free] + problem.contact_impulse  # contact impulses as explicit forces
         apply_A = oracle.system_operator(self.mdiag, problem.Hmat, model.coefficients)
-        dv_pred = oracle.predict(apply_A, b_ng, self.precond, gravity_dv=self.gravity_dv)
+        if self._pending is not None:
+            self._swap_if_ready(stats)
+        dv_pred = oracle.predict(apply_A, b_ng, self.precond, gravity_dv=self.gravity_dv, stats=stats)
         t2 = time.perf_counter()
         stats["prediction"] = t2 - t1
+        if self.refresh and "oracle_residual" in stats:
+            self._refresh_trigger(problem, stats)
+            t2 = time.perf_counter()
         # deformation rates (eq. 4) and clustering (Algorithm 2)
         v_pred = problem.v.copy()
         v_pred.reshape(-1)[free] += dv_pred
@@ -374,6 +467,8 @@ class ClusteringReducer(Reducer):
         stats["clustering"] = t3 - t2
         # map assembly: G, projection (eq. 9), discrepancy (eq. 11)
         gmap = self._mapping(problem, vcluster, n_bodies)
+        if self.pinned_bodies and n_bodies and np.any(sysm.fixed[vcluster >= 0]):
+            return self._pinned_frame(problem, labels, gmap, stats, t3)
         G = gmap.G
         vf = problem.v.reshape(-1)[free]
         q = gmap.project(self.mdiag, vf) if n_bodies else vf  # eq. 9
@@ -408,6 +503,76 @@ class ClusteringReducer(Reducer):
         self.labels = labels
         return StepResult(dv=reduction.lift(G, dq, d), operator=Operator(self.solver, Ar, G, upper=upper),  # eq. 12
                           mapping=gmap, clusters=labels, stats=stats)
+
+    # -------------------------------------------------------------- bodies with pinned vertices
+    def _pinned_frame(self, problem, labels, gmap, stats, t3):
+        """The reduced step when bodies contain fixed or prescribed vertices (:mod:`.pinned`)."""
+        sysm = problem.system
+        for _ in range(2):  # a body whose pins do not move affinely is dissolved, once
+            pins = np.flatnonzero((gmap.vcluster >= 0) & sysm.fixed)
+            cons, bad = pinned.constraints(gmap, pins, pinned.pinned_velocities(problem, pins))
+            if not bad:
+                break
+            labels = labels.copy()
+            labels[np.isin(labels, bad)] = -1
+            kept = np.unique(labels[labels >= 0])
+            labels[labels >= 0] = np.searchsorted(kept, labels[labels >= 0])
+            vcluster = reduction.vertex_clusters(labels, sysm.t, sysm.n)
+            gmap = self._mapping(problem, vcluster, kept.size)
+        G, g0 = pinned.constrained_mapping(gmap, cons)
+        t4 = time.perf_counter()
+        stats["map_assembly"] = t4 - t3
+        dv, Ar = pinned.solve(problem, G, g0, self.solver, stats)
+        stats["factorization"] = time.perf_counter() - t4  # assembly, factorisation and solve of G_N^T A G_N
+        stats.update(n_clusters=gmap.n_bodies, elastic_dofs=int(gmap.n_elastic), pinned_bodies=len(cons),
+                     reduced_fraction=float(np.mean(labels >= 0)) if labels.size else 0.0)
+        self.was_reduced = labels >= 0
+        self.labels = labels
+        return StepResult(dv=dv, operator=Operator(self.solver, Ar, G), mapping=gmap, clusters=labels, stats=stats)
+
+    # -------------------------------------------------------------- the oracle follows the pose
+    def _refresh_trigger(self, problem, stats):
+        """Update the averaged oracle residual; rebuild the preconditioner when it has grown (class Notes)."""
+        rho = stats["oracle_residual"]
+        if self.residual_ref is None:
+            self.residual_ref = self.residual_avg = rho
+            return
+        self.residual_avg = 0.75 * self.residual_avg + 0.25 * rho
+        grown = self.residual_avg - self.residual_ref
+        if self._pending is None and grown > self.refresh_tol * max(self.residual_ref, RESIDUAL_FLOOR):
+            t0 = time.perf_counter()
+            pose = np.array(problem.x, dtype=float)
+            A = problem.matrix() if self.refresh == "tangent" else None
+            if self.refresh_background:
+                from skfem_affine import threads
+                self._pending = (threads.background(self._build, pose, A), pose)
+            else:
+                self._install(self._build(pose, A), pose)
+            stats["oracle_refresh"] = time.perf_counter() - t0
+
+    def _build(self, pose, A=None):
+        """The preconditioner at ``pose`` (positions (n, 3)); A: the frame's matrix for ``"tangent"``
+        (assembled at the pose when not given)."""
+        model = self.model
+        if self.refresh == "tangent":
+            if A is None:
+                sysm = model.system
+                cm, ck = model.coefficients
+                A = sysm.pattern.matrix(cm * sysm.mass_data + ck * model.evaluate(pose).H)
+            return oracle.TangentPreconditioner(A)
+        return oracle.Preconditioner(model.system, model.dt, model.damping, kind=self.preconditioner_kind, x=pose)
+
+    def _install(self, precond, pose):
+        self.precond, self.precond_pose = precond, pose
+        self.residual_ref = self.residual_avg = None  # the next frame measures the new reference
+        self.refreshes += 1
+
+    def _swap_if_ready(self, stats):
+        future, pose = self._pending
+        if future.done():
+            self._pending = None
+            self._install(future.result(), pose)
+            stats["oracle_refreshed"] = True
 
     def _labels(self, problem, v_pred):
         """Per-element body labels (m,), -1 elastic, from the problem and the predicted velocities."""
