@@ -120,46 +120,45 @@ def test_mesh_argument_is_checked(tmp_path):
         scenes.octopus(mesh=3)
 
 
-def test_an_attached_pull_gives_the_closed_form_acceleration():
+def test_a_pull_gives_the_closed_form_acceleration():
     """A constant force F on a free body in space: its centre of mass accelerates at F / M."""
     for reducer in (None, sa.Affinification(tau_a=1e-2, tau_e=2e-2)):
-        sim = scenes.free_body(resolution=2, spin=(0.0, 0.0, 0.0), velocity=(0.0, 0.0, 0.0), reducer=reducer)
+        kw = dict(resolution=2, spin=(0.0, 0.0, 0.0), velocity=(0.0, 0.0, 0.0))
+        probe = scenes.free_body(**kw)
         F = np.array([3.0, -1.0, 2.0])
-        n = sim.system.n
-        corner = np.flatnonzero(np.all(sim.system.p0 > 0.2, axis=1))  # the pull acts on a few vertices
-        sa.lab.loads.attach_force(sim, sa.lab.loads.Pull(corner, F, start=0.0, stop=0.095))
-        mass = sim.system.lumped_mass
-        f = sim.external_force(0.0, sim)[corner]
+        mass = probe.system.lumped_mass
+        corner = np.flatnonzero(np.all(probe.system.p0 > 0.2, axis=1))  # the pull acts on a few vertices
+        pull = sa.lab.loads.Pull(corner, F, start=0.0, stop=0.095, weights=mass[corner])
+        f = pull(0.0, None, None)
         assert np.allclose(f / mass[corner, None], F / mass[corner].sum())  # shared by mass: one acceleration
-        assert not np.any(sim.external_force(0.095, sim))
+        assert not np.any(pull(0.095, None, None))
+        sim = scenes.free_body(**kw, reducer=reducer, forces=[pull.vertex_force()])
         for s in sim.run(20):  # 10 frames pulled (t = 0 ... 0.09 at their start), 10 coasting
             pass
         momentum = (mass[:, None] * s.v).sum(axis=0)
         assert momentum == pytest.approx(F * 0.1, rel=1e-8, abs=1e-10)
-        assert n == sim.system.n
+    body = probe.bodies[0]
+    assert np.allclose(sa.lab.loads.vertex_volumes(body.mesh, body.density), mass)  # the lumped masses
 
 
-def test_pull_and_attach_force_check_their_input():
+def test_pull_checks_its_input():
     with pytest.raises(ValueError, match="vertices"):
         sa.lab.loads.Pull([], (0, 0, 1.0))
     with pytest.raises(ValueError, match="3-vector"):
         sa.lab.loads.Pull([0], (0, 1.0))
     with pytest.raises(ValueError, match="start < stop"):
         sa.lab.loads.Pull([0], (0, 0, 1.0), start=1.0, stop=0.5)
-    sim = scenes.free_body(resolution=1)
-    with pytest.raises(ValueError, match="out of range"):
-        sa.lab.loads.attach_force(sim, sa.lab.loads.Pull([10 ** 6], (0, 0, 1.0)))
-    with pytest.raises(TypeError, match="callable"):
-        sa.lab.loads.attach_force(sim, 3.0)
-    sa.lab.loads.attach_force(sim, lambda t, s: np.zeros((2, 3)))
-    with pytest.raises(ValueError, match="finite"):
-        sim.step()
+    with pytest.raises(ValueError, match="weights"):
+        sa.lab.loads.Pull([0, 1], (0, 0, 1.0), weights=[1.0, -1.0])
+    with pytest.raises(ValueError):
+        scenes.free_body(resolution=1, forces=[sa.lab.loads.Pull([10 ** 6], (0, 0, 1.0)).vertex_force()])
 
 
 def test_octopus_falls_into_the_bowl_and_the_tug_lifts_a_tentacle():
     pulled, still = scenes.octopus(frames=40), scenes.octopus(frames=40, pull=None)
-    assert isinstance(pulled.colliders[0], sa.Bowl) and not hasattr(still, "external_force")
-    pull = pulled.external_force
+    assert isinstance(pulled.colliders[0], sa.Bowl) and not still.motion.forces
+    (_, pull), = pulled.motion.forces
+    assert isinstance(pull, sa.lab.loads.Pull)
     assert pull.start == pytest.approx(0.16) and pull.stop == pytest.approx(0.22) and pull.force[2] > 0
     for a, b in zip(pulled.run(25), still.run(25)):
         pass
@@ -173,7 +172,7 @@ def test_octopus_from_the_papers_mesh(shared_meshes):
     path = os.path.join(shared_meshes, "octopusP2.mesh")
     sim = scenes.octopus(mesh=path, size=0.5, frames=10)
     assert sim.system.m == 6170 and np.ptp(sim.system.p0[:, :2], axis=0).max() == pytest.approx(0.5)
-    assert sim.system.p0[:, 2].min() == pytest.approx(0.25) and sim.external_force.vertices.size > 1
+    assert sim.system.p0[:, 2].min() == pytest.approx(0.25) and sim.motion.forces[0][1].vertices.size > 1
     up = scenes.octopus(mesh=path, up=1)  # the file's y axis points up
     assert np.ptp(up.system.p0[:, 2]) == pytest.approx(np.ptp(sa.io.load_mesh(path).p[1]))
     with pytest.raises(ValueError, match="up"):

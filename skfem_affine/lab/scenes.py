@@ -25,14 +25,15 @@ from skfem_affine.checks import integer
 from skfem_affine.contact.colliders import Bowl, Plane
 from skfem_affine.contact.pgs import PGS
 from skfem_affine.lab.io import load_mesh
-from skfem_affine.lab.loads import Pull, attach_force
+from skfem_affine.lab.loads import Pull, vertex_volumes
 from skfem_affine.motion import Prescribed
 from skfem_affine.reducers.affine.affinification import Affinification
 from skfem_affine.simulation import Rayleigh, Simulation
 from skfem_affine.materials import NeoHookean
 
 SIM_KEYS = ("dt", "gravity", "damping", "reducer", "solver", "newton_iters", "newton_tol", "integrator",
-            "project_hessian", "mass", "colliders", "contact", "on_inverted", "on_nonconvergence", "check_energy")
+            "project_hessian", "mass", "colliders", "contact", "on_inverted", "on_nonconvergence", "check_energy",
+            "forces")
 
 
 def _split(kwargs):
@@ -466,8 +467,8 @@ def octopus(resolution=1, mesh=None, height=0.25, bowl_radius=0.5, size=None, up
     above the bowl's lowest point. ``pull``: "tentacle"
     (default) tugs the tip of one tentacle (:func:`tentacle_tip`) up and outwards with
     ``tug`` times the body's weight from 40 % to 55 % of the run; a
-    :class:`~skfem_affine.lab.loads.Pull` of your own; or None. The tug runs through
-    :func:`~skfem_affine.lab.loads.attach_force` (``sim.external_force``). Defaults:
+    :class:`~skfem_affine.lab.loads.Pull` of your own; or None. The tug is a
+    :class:`~skfem_affine.VertexForce` of the simulation (``forces=``). Defaults:
     Neo-Hookean E = 5e4, nu = 0.34, density 1000, h = 0.01, friction 0.3 (the paper
     lists E = 4e3, nu = 0.34).
     """
@@ -486,21 +487,22 @@ def octopus(resolution=1, mesh=None, height=0.25, bowl_radius=0.5, size=None, up
     m = _rebuilt(m, p + np.array([0.0, 0.0, height])[:, None])
     body_kw.setdefault("material", NeoHookean(E=5e4, nu=0.34))
     body_kw.setdefault("density", 1000.0)
-    sim = _scene(Simulation(ElasticBody(m, name="octopus", **body_kw), **sim_kw), "octopus", frames)
+    density = np.broadcast_to(np.asarray(body_kw["density"], dtype=float), (m.t.shape[1],))
+    masses = vertex_volumes(m, density)  # the vertices' lumped masses
     if isinstance(pull, str):
         if pull != "tentacle":
             raise ValueError(f"pull must be 'tentacle', a Pull or None, got {pull!r}")
         tip = tentacle_tip(m)
         out = m.p[:2, tip].mean(axis=1) - 0.5 * (m.p[:2].max(axis=1) + m.p[:2].min(axis=1))
         direction = np.array([*(out / max(np.linalg.norm(out), 1e-300)), 2.0]) / np.sqrt(5.0)
-        weight = float(sim.system.lumped_mass.sum()) * float(np.linalg.norm(sim.gravity))
-        T = frames * sim.dt
-        pull = Pull(tip, float(tug) * weight * direction, 0.4 * T, 0.55 * T)
+        weight = float(masses.sum()) * float(np.linalg.norm(sim_kw.get("gravity", (0.0, 0.0, -9.81))))
+        T = frames * sim_kw.get("dt", 0.01)
+        pull = Pull(tip, float(tug) * weight * direction, 0.4 * T, 0.55 * T, weights=masses[tip])
     if pull is not None:
         if not isinstance(pull, Pull):
             raise TypeError(f"pull must be 'tentacle', a Pull or None, got {type(pull).__name__}")
-        attach_force(sim, pull)
-    return sim
+        sim_kw["forces"] = list(sim_kw.get("forces") or []) + [pull.vertex_force()]
+    return _scene(Simulation(ElasticBody(m, name="octopus", **body_kw), **sim_kw), "octopus", frames)
 
 
 # ---------------------------------------------------------------------------- resource-limited (Fig. 16)
