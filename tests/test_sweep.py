@@ -3,29 +3,15 @@ hanging cell recorded (not fatal), damaged cached files named; the CLI's one-lin
 import os
 import time
 
-import numpy as np
 import pytest
 
 import skfem_affine as sa
 from skfem_affine.lab import runners
 from skfem_affine.lab import sweep as sweeps
 from skfem_affine.lab.cli import main
+from test_runners import EXPLODING  # an affinification that diverges above tau_a = 0.05
 
 TINY = runners.SceneSpec.make("cantilever", resolution=1)
-
-
-class Exploding(sa.Affinification):
-    """Affinification whose velocity update turns non-finite at frame 3: the integrator must raise."""
-
-    def solve(self, problem):
-        result = super().solve(problem)
-        if problem.frame >= 3:
-            result.dv = result.dv * np.nan
-        return result
-
-
-EXPLODING = runners.Method("exploding", lambda a, e: Exploding(a, e) if a > 0.05 else sa.Affinification(a, e),
-                           (0.1, 0.2))
 
 
 def misbehaving(tau_a, tau_e):
