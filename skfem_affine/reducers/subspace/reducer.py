@@ -29,6 +29,15 @@ The loop stops by the Simulation's Newton settings (||d||_inf / h <= newton_tol 
 the step, modes and nodes whose contribution was small are downdated (sec. 3.11); the starting
 blocks of the basis (a body's affine/rigid motion) are never downdated.
 
+Never much slower than full space (not in the paper): when the enriched nodes exceed the fraction
+``fallback`` of the free vertices (:func:`falls_back`), at the start of a step or after the
+oracle enriches inside it, the rest of the step takes full-space Newton directions by a direct
+solve, since the Schur solve and the exact subdomain Hessians then cost more than one direct
+solve (the calibration is in docs/subspace.md, "The never-slower fallback"). After such a step
+the modal coordinates are the least-squares fit of the step's displacement on the active
+columns, and downdating proceeds as usual, so nodes the subspace captures again are released and
+the reducer returns to reduced steps. ``rec["reduced"]`` says which kind each step was.
+
 Choices where the paper is silent, stated here: subdomains are element sets (an element belongs
 to the METIS part of its first vertex), so the subdomain energies sum exactly to Psi and no
 interface averaging is needed in eq. 20; the BFGS update is skipped when y^T s <= 0 (keeping
@@ -53,6 +62,7 @@ from skfem_affine.reducers.subspace import oracle as so
 from skfem_affine.reducers.subspace.bases import SkinningEigenmodes, _Basis
 from skfem_affine.reducers.subspace.linalg import bfgs_update, masked_sandwich, metis_parts, schur_solve
 from skfem_affine.reducers.subspace.subdomains import Subdomains
+from skfem_affine.solvers import direct_solver
 
 
 def _threshold(value, name):
@@ -60,6 +70,14 @@ def _threshold(value, name):
     if not (value >= 0):
         raise ValueError(f"threshold {name} must be >= 0, got {value}")
     return value
+
+
+def falls_back(enriched, free, fallback):
+    """Whether a step with ``enriched`` of ``free`` vertices enriched is solved in full space.
+
+    True when the enriched fraction exceeds ``fallback`` (None never falls back).
+    """
+    return fallback is not None and enriched > fallback * max(free, 1)
 
 
 def _count(value, name):
@@ -98,6 +116,9 @@ class AdaptiveSubspace(Reducer):
         current iterate (all element Hessians, a full evaluation per step).
     blas_threads : int or None
         BLAS threads inside the step (default 1, see the module docstring); None leaves them alone.
+    fallback : float or None
+        Enriched fraction of the free vertices above which a step continues by full-space
+        Newton (:func:`falls_back`; default 0.2, see docs/subspace.md); None never falls back.
     record_residual : bool
         Also record the full-space Newton decrement of each step's result (a full solve; for
         measuring accuracy only).
@@ -112,7 +133,7 @@ class AdaptiveSubspace(Reducer):
 
     def __init__(self, basis=None, eps_nodal=0.5, eps_modal=0.5, eps_progress=1e-4, eps_down=0.1,
                  subdomains=200, newton_tol=None, max_newton=None, pcg_tol=1e-5, pcg_maxiter=10000,
-                 record_residual=False, hessian_init="rest", blas_threads=1):
+                 record_residual=False, hessian_init="rest", blas_threads=1, fallback=0.2):
         basis = SkinningEigenmodes(n=16) if basis is None else basis
         if not isinstance(basis, _Basis):
             raise TypeError(f"basis must be a basis such as sa.SkinningEigenmodes(n=16), got {type(basis).__name__}")
@@ -133,6 +154,11 @@ class AdaptiveSubspace(Reducer):
             raise ValueError(f"hessian_init must be 'rest' or 'exact', got {hessian_init!r}")
         self.hessian_init = hessian_init
         self.blas_threads = None if blas_threads is None else int(blas_threads)
+        if fallback is not None:
+            fallback = float(fallback)
+            if not 0.0 <= fallback <= 1.0:
+                raise ValueError(f"fallback must be a fraction in [0, 1] or None, got {fallback!r}")
+        self.fallback = fallback
 
     def __repr__(self):
         return (f"AdaptiveSubspace(basis={self.basis_spec!r}, eps_nodal={self.eps_nodal}, eps_modal={self.eps_modal}, "
@@ -164,6 +190,8 @@ class AdaptiveSubspace(Reducer):
         self.setup_time = time.perf_counter() - t0
         self.last_system = self.last_hessians = None
         self._inertia_cache = {}
+        self.fallback_solver = direct_solver()  # the full-space step's solver (falls_back)
+        self.step_enriched = self.enriched.copy()  # the enriched nodes of the last step, before downdating
 
     def columns(self):
         """The active modal columns of U, in the order of the active blocks."""
@@ -185,21 +213,37 @@ class AdaptiveSubspace(Reducer):
             x = self._step(problem, rec)
         return StepResult(x=x, stats=rec)
 
+    def _too_enriched(self):
+        return falls_back(int(self.enriched.sum()), int(self.free_vertex.sum()), self.fallback)
+
     def _step(self, ip, rec):
-        step = _Iteration(self, ip)
-        x, _ = newton.newton(ip, step.direction, rec, step.after_step, blocks=False)
+        step = _Iteration(self, ip, full=self._too_enriched())
+        x, _ = newton.newton(ip, step.direction, rec, step.after_step, blocks=step.full)
+        rec["reduced"] = not step.full
+        if step.full:
+            step.q = self._fit(ip, x)
         self.last_hessians = step.Hl
         rec["pcg_iters"] = step.pcg_total
         rec["active_modes"] = int(self.columns().size)
         rec["enriched_ratio"] = float(self.enriched.sum() / max(self.free_vertex.sum(), 1))
         rec["dofs"] = int(self.columns().size + 3 * self.enriched.sum())
-        rec["solver"] = "schur-pcg"
+        rec["solver"] = "schur-pcg" if not step.full else self.fallback_solver.name
         if self.record_residual:
             rec["full_residual"] = newton.full_space_residual(ip, x)
+        self.step_enriched = self.enriched.copy()
         self._downdate(ip, x, step.q, rec)
         return x
 
     # ------------------------------------------------------------------ pieces
+    def _fit(self, ip, x):
+        """Modal coordinates of a full-space step: the least-squares fit of x - x_t on the active
+        columns (what downdating measures the step against)."""
+        q = np.zeros(self.basis.size)
+        cols = self.columns()
+        dx = (x - ip.x_t)[ip.free]
+        q[cols] = np.linalg.lstsq(self.U[:, cols], dx, rcond=None)[0]
+        return q
+
     def _inertia(self, ip, Meff):
         """U^T (M + w D) U for all candidate modes: once per step, or once per run without beta damping."""
         key = (ip.weight, ip.c)
@@ -315,9 +359,11 @@ class _Iteration:
     current iterate.
     """
 
-    def __init__(self, red, ip):
+    def __init__(self, red, ip, full=False):
         sysm = red.system
         self.red, self.ip = red, ip
+        self.full = bool(full)  # full-space directions (the fallback) for the rest of the step
+        self.full_direction = newton.FullSpaceDirection(ip, red.fallback_solver)
         w = ip.weight
         Meff = sysm.pattern.matrix(ip.hessian_data(np.zeros(sysm.pattern.nnz))).copy()  # M + w D (exact)
         Meff.eliminate_zeros()  # diagonal for lumped mass without beta damping (the copy keeps the pattern intact)
@@ -336,6 +382,8 @@ class _Iteration:
     def direction(self, x, g, data, rec, e):
         """d = B_a d_q + S_a d_x at iterate x (steps 1-4 of the module docstring)."""
         red, ip = self.red, self.ip
+        if self.full:
+            return self._full(x, g, data, rec, e)
         sysm, sub = red.system, red.sub
         w, free = ip.weight, ip.free
         He, he_valid = self.He, self.he_valid
@@ -370,6 +418,9 @@ class _Iteration:
         changed = red._update(ip, x, g, ge, Ua, Hu, e, self.n_scale, self.m_scale, rec)
         t3 = time.perf_counter()
         rec["prediction"] = rec.get("prediction", 0.0) + t3 - t2
+        if red._too_enriched():  # enrichment grew past the fallback: full space from here on
+            self.full = True
+            return self._full(x, g, data, rec, e)
         if changed == "modes":
             cols = red.columns()
             Ua = red.U[:, cols]
@@ -408,9 +459,20 @@ class _Iteration:
         self.cols, self.dq = cols, dq
         return d
 
+    def _full(self, x, g, data, rec, e):
+        """The full-space Newton direction (the fallback), with the element blocks at x."""
+        if data.H is None:
+            t0 = time.perf_counter()
+            data = self.ip.evaluate(x)
+            rec["assembly"] = rec.get("assembly", 0.0) + time.perf_counter() - t0
+        return self.full_direction(x, g, data, rec, e)
+
     def after_step(self, x, alpha):
         """The loop took x + alpha d: advance the modal coordinates and the secant step; the
         element blocks belong to the old iterate."""
+        self.he_valid[:] = False
+        if self.full:
+            return
         self.q[self.cols] += alpha * self.dq
         self.s_prev = alpha * self.dq
         self.he_valid[:] = False
