@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 import skfem_affine as sa
-from skfem_affine.reducers.subspace.reducer import falls_back
+from skfem_affine.reducers.subspace.reducer import coupled_nonzeros, falls_back
 
 
 def drop(reducer, frames_apart=0.02):
@@ -112,11 +112,20 @@ def test_enrichment_follows_contact_between_bodies():
         assert at_contact >= 0.5 and at_contact >= 1.5 * overall, covered
 
 
-def test_falls_back_is_a_fraction_rule():
-    assert not falls_back(20, 100, 0.2) and falls_back(21, 100, 0.2)
-    assert not falls_back(100, 100, None) and falls_back(1, 100, 0.0) and not falls_back(0, 100, 0.0)
-    with pytest.raises(ValueError, match="fallback"):
-        sa.AdaptiveSubspace(fallback=1.5)
+def test_falls_back_when_the_coupled_system_outgrows_the_full_one():
+    """The default rule counts nonzeros: r^2 + 2 r s + rho s against the full system's nnz;
+    a number is a fraction of the free DOFs; None never falls back."""
+    nfree, nnz = 3000, 3000 * 40  # 40 nonzeros per row
+    assert coupled_nonzeros(300, 100, 40) == 100 ** 2 + 2 * 100 * 300 + 40 * 300
+    # the crossover: s* = (nnz - r^2) / (2 r + rho) = (120000 - 10000) / 240 = 458.3 DOFs
+    assert not falls_back(458, nfree, 100, nnz) and falls_back(459, nfree, 100, nnz)
+    # fewer active columns tolerate more enrichment
+    assert not falls_back(459, nfree, 50, nnz) and falls_back(459, nfree, 200, nnz)
+    assert not falls_back(600, nfree, 100, nnz, 0.2) and falls_back(601, nfree, 100, nnz, 0.2)
+    assert not falls_back(nfree, nfree, 100, nnz, None) and not falls_back(0, nfree, 100, nnz, 0.0)
+    for bad in (1.5, -0.1, "often", True):
+        with pytest.raises(ValueError, match="fallback"):
+            sa.AdaptiveSubspace(fallback=bad)
 
 
 def test_the_fallback_solves_in_full_space_and_returns_when_enrichment_is_released():
@@ -137,6 +146,12 @@ def test_the_fallback_solves_in_full_space_and_returns_when_enrichment_is_releas
     assert any(r["enriched_ratio"] > 0 for r in sim_off.stats)
     for r in sim.stats:
         assert r["solver"] == ("schur-pcg" if r["reduced"] else red.fallback_solver.name)
+    # the default rule (nonzeros) falls back on this small scene once contact enriches
+    dflt = subspace(subdomains=24)
+    sim_d = drop(dflt)
+    for _ in range(3):
+        sim_d.step()
+    assert sim_d.stats[0]["reduced"] and not all(r["reduced"] for r in sim_d.stats)
     # a step that starts with no enriched node and enriches none stays reduced
     quiet = subspace(subdomains=24, fallback=0.0, eps_nodal=1e9, eps_modal=1e9)
     sim_q = drop(quiet, frames_apart=0.3)

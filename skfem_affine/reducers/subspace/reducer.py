@@ -29,11 +29,13 @@ The loop stops by the Simulation's Newton settings (||d||_inf / h <= newton_tol 
 the step, modes and nodes whose contribution was small are downdated (sec. 3.11); the starting
 blocks of the basis (a body's affine/rigid motion) are never downdated.
 
-Never much slower than full space (not in the paper): when the enriched nodes exceed the fraction
-``fallback`` of the free vertices (:func:`falls_back`), at the start of a step or after the
-oracle enriches inside it, the rest of the step takes full-space Newton directions by a direct
-solve, since the Schur solve and the exact subdomain Hessians then cost more than one direct
-solve (the calibration is in docs/subspace.md, "The never-slower fallback"). After such a step
+Never much slower than full space (not in the paper): when the coupled system (eq. 19) would have
+more nonzeros than the full-space Newton system (:func:`falls_back`; its dense coupling C has
+2 r per enriched DOF for r active columns), at the start of a step or after the oracle enriches
+inside it, the rest of the step takes full-space Newton directions by a direct solve: a Schur
+PCG iteration then costs more than a CG iteration on the full system, and the exact subdomain
+Hessians and extra Newton iterations of the reduced step more than the direct solve saves
+(the calibration is in docs/subspace.md, "The never-slower fallback"). After such a step
 the modal coordinates are the least-squares fit of the step's displacement on the active
 columns, and downdating proceeds as usual, so nodes the subspace captures again are released and
 the reducer returns to reduced steps. ``rec["reduced"]`` says which kind each step was.
@@ -72,12 +74,25 @@ def _threshold(value, name):
     return value
 
 
-def falls_back(enriched, free, fallback):
-    """Whether a step with ``enriched`` of ``free`` vertices enriched is solved in full space.
+def coupled_nonzeros(enriched_dofs, modes, nnz_per_row):
+    """Nonzeros of the coupled system (eq. 19): the dense H_q (r^2), C and C^T (2 r s) and H_x
+    (about ``nnz_per_row`` s), for s enriched DOFs and r active modal columns."""
+    return modes * modes + 2 * modes * enriched_dofs + nnz_per_row * enriched_dofs
 
-    True when the enriched fraction exceeds ``fallback`` (None never falls back).
+
+def falls_back(enriched_dofs, free_dofs, modes, nnz_full, fallback="nnz"):
+    """Whether a step with ``enriched_dofs`` of ``free_dofs`` enriched and ``modes`` active columns
+    continues in full space (the full-space Newton system has ``nnz_full`` nonzeros).
+
+    ``fallback="nnz"``: when the coupled system has more nonzeros than the full system
+    (:func:`coupled_nonzeros`, H_x's rows as dense as the full system's); a number f: when more
+    than the fraction f of the free DOFs are enriched; None: never.
     """
-    return fallback is not None and enriched > fallback * max(free, 1)
+    if fallback is None:
+        return False
+    if fallback == "nnz":
+        return coupled_nonzeros(enriched_dofs, modes, nnz_full / max(free_dofs, 1)) > nnz_full
+    return enriched_dofs > fallback * max(free_dofs, 1)
 
 
 def _count(value, name):
@@ -116,9 +131,10 @@ class AdaptiveSubspace(Reducer):
         current iterate (all element Hessians, a full evaluation per step).
     blas_threads : int or None
         BLAS threads inside the step (default 1, see the module docstring); None leaves them alone.
-    fallback : float or None
-        Enriched fraction of the free vertices above which a step continues by full-space
-        Newton (:func:`falls_back`; default 0.2, see docs/subspace.md); None never falls back.
+    fallback : "nnz", float or None
+        When a step continues by full-space Newton (:func:`falls_back`): ``"nnz"`` (default)
+        when the coupled system would have more nonzeros than the full one; a number f when
+        more than the fraction f of the free DOFs are enriched; None never (the paper's method).
     record_residual : bool
         Also record the full-space Newton decrement of each step's result (a full solve; for
         measuring accuracy only).
@@ -133,7 +149,7 @@ class AdaptiveSubspace(Reducer):
 
     def __init__(self, basis=None, eps_nodal=0.5, eps_modal=0.5, eps_progress=1e-4, eps_down=0.1,
                  subdomains=200, newton_tol=None, max_newton=None, pcg_tol=1e-5, pcg_maxiter=10000,
-                 record_residual=False, hessian_init="rest", blas_threads=1, fallback=0.2):
+                 record_residual=False, hessian_init="rest", blas_threads=1, fallback="nnz"):
         basis = SkinningEigenmodes(n=16) if basis is None else basis
         if not isinstance(basis, _Basis):
             raise TypeError(f"basis must be a basis such as sa.SkinningEigenmodes(n=16), got {type(basis).__name__}")
@@ -154,10 +170,11 @@ class AdaptiveSubspace(Reducer):
             raise ValueError(f"hessian_init must be 'rest' or 'exact', got {hessian_init!r}")
         self.hessian_init = hessian_init
         self.blas_threads = None if blas_threads is None else int(blas_threads)
-        if fallback is not None:
+        if fallback is not None and fallback != "nnz":
+            ok = isinstance(fallback, (int, float, np.integer, np.floating)) and not isinstance(fallback, bool)
+            if not ok or not 0.0 <= fallback <= 1.0:
+                raise ValueError(f"fallback must be 'nnz', a fraction in [0, 1] or None, got {fallback!r}")
             fallback = float(fallback)
-            if not 0.0 <= fallback <= 1.0:
-                raise ValueError(f"fallback must be a fraction in [0, 1] or None, got {fallback!r}")
         self.fallback = fallback
 
     def __repr__(self):
@@ -214,7 +231,8 @@ class AdaptiveSubspace(Reducer):
         return StepResult(x=x, stats=rec)
 
     def _too_enriched(self):
-        return falls_back(int(self.enriched.sum()), int(self.free_vertex.sum()), self.fallback)
+        return falls_back(int(self._enriched_dofs().size), int(self.system.free.size), int(self.columns().size),
+                          int(self.system.pattern.nnz), self.fallback)
 
     def _step(self, ip, rec):
         step = _Iteration(self, ip, full=self._too_enriched())
