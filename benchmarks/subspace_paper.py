@@ -86,32 +86,44 @@ def _box(size, cells, center, material, velocity=(0.0, 0.0, 0.0), name=None):
     return sa.ElasticBody(mesh, material, density=1000.0, velocity=np.asarray(velocity, float), name=name)
 
 
-def scene(kind, cells, reducer=None, solver="auto", newton_tol=1e-3, dt=0.01):
-    """One of the paper's scene kinds with ``cells`` tensor cells per box side (6 cells^3 tets a box)."""
-    soft = sa.NeoHookean(E=1e5, nu=0.4)
+def scene(kind, cells, reducer=None, solver="auto", newton_tol=1e-3, dt=0.01, linearized=False, E=1e5):
+    """One of the paper's scene kinds with ``cells`` tensor cells per box side (6 cells^3 tets a box).
+
+    ``linearized=True``: the same scene under the linearized integrator with PGS contact (the
+    affinification paper's setting, for ``sa.Affinification``) instead of implicit Euler with IPC.
+    ``E``: Young's modulus of the soft material (the ramp's cube is 5e4 Pa, the hetero box's
+    upper half 100 E).
+    """
+    soft = sa.NeoHookean(E=E, nu=0.4)
     common = dict(dt=dt, gravity=(0.0, 0.0, -9.81), integrator="implicit_euler", reducer=reducer,
                   solver=solver, newton_tol=newton_tol)
+    if linearized:
+        common.update(integrator="linearized", newton_tol=None)
+
+    def contact(friction):
+        return sa.PGS(friction=friction) if linearized else sa.IPC(friction=friction)
+
     ground = [sa.Plane((0.0, 0.0, 0.0), (0.0, 0.0, 1.0))]
     s, gap = 0.5, 0.05
     if kind == "drop":
         body = _box(s, cells, (0, 0, gap + s / 2), soft, (0, 0, -2.0), "jello")
-        return sa.Simulation(body, colliders=ground, contact=sa.IPC(friction=0.3), **common)
+        return sa.Simulation(body, colliders=ground, contact=contact(0.3), **common)
     if kind == "stack":
         bodies = [_box(s, cells, (0, 0, 0.5e-3 + s / 2), soft, name="base"),
                   _box(s, cells, (0.1, 0.05, s + gap + s / 2), soft, (0, 0, -1.0), "middle"),
                   _box(s, cells, (-0.05, 0.1, 2 * s + 3 * gap + s / 2), soft, (0, 0, -2.0), "top")]
-        return sa.Simulation(bodies, colliders=ground, contact=sa.IPC(friction=0.5), **common)
+        return sa.Simulation(bodies, colliders=ground, contact=contact(0.5), **common)
     if kind == "hetero":
         mesh = sa.scenes.box_mesh((s,) * 3, (cells,) * 3, center=(0, 0, gap + s / 2))
         upper = mesh.p[2, mesh.t].mean(axis=0) > gap + s / 2
-        material = sa.NeoHookean(E=np.where(upper, 1e7, 1e5), nu=0.4)
+        material = sa.NeoHookean(E=np.where(upper, 100 * E, E), nu=0.4)
         body = sa.ElasticBody(mesh, material, density=1000.0, velocity=np.array([0.0, 0.0, -2.0]), name="two_materials")
-        return sa.Simulation(body, colliders=ground, contact=sa.IPC(friction=0.3), **common)
+        return sa.Simulation(body, colliders=ground, contact=contact(0.3), **common)
     if kind == "ramp":
         th = np.radians(30)
         common["gravity"] = (9.81 * np.sin(th), 0.0, -9.81 * np.cos(th))  # the ramp's frame: the plane is z = 0
         body = _box(s, cells, (0, 0, 0.5e-3 + s / 2), sa.NeoHookean(E=5e4, nu=0.4), name="sliding_cube")
-        return sa.Simulation(body, colliders=ground, contact=sa.IPC(friction=0.0), **common)
+        return sa.Simulation(body, colliders=ground, contact=contact(0.0), **common)
     raise ValueError(f"scene must be one of {SCENES}, got {kind!r}")
 
 
