@@ -26,3 +26,15 @@ def test_unknown_scene_is_a_clear_error():
     import pytest
     with pytest.raises(ValueError, match="scene must be one of"):
         subspace_paper.scene("iceberg", 2)
+
+
+def test_choosing_two_frames_write_rows_and_the_trade_picture(tmp_path):
+    import choosing
+    out = tmp_path / "choosing.json"
+    rows = choosing.main(["--scenes", "drop", "beam", "--cells", "2", "--frames", "2", "--subdomains", "8",
+                          "--modes", "4", "--eps", "0.1", "--taus", "0.3,0.6", "--json", str(out)])
+    assert [(r["scene"], r["method"]) for r in rows] == [("drop", "adaptive subspace"), ("drop", "affinification"),
+                                                         ("beam", "adaptive subspace"), ("beam", "affinification")]
+    for r in rows:
+        assert r["frames"] == 2 and r["speedup"] > 0 and 0 <= r["error"] < 0.05
+    assert (tmp_path / "choosing.png").stat().st_size > 1000
