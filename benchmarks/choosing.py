@@ -66,7 +66,9 @@ def family(sims, frames):
     for name in names[1:]:
         rec = result[name].records
         n = min(len(rec), len(result[names[0]].records))
-        out[name] = {"speedup": wall_full / max(sum(r["wall"] for r in rec), 1e-12) if n == frames else None,
+        wall = sum(r["wall"] for r in rec)
+        out[name] = {"speedup": wall_full / max(wall, 1e-12) if n == frames else None,
+                     "wall_s": wall, "wall_full_s": wall_full,
                      "error": err[name], "frames": n, "status": result[name].summary["status"],
                      "enriched": float(np.mean([r.get("enriched_ratio", 0.0) for r in rec])) if rec else None,
                      "reduced_steps": float(np.mean([r.get("reduced", True) for r in rec])) if rec else None,
@@ -111,13 +113,14 @@ def main(argv=None):
     p.add_argument("--picture", default=None, help="default: the JSON's name with .png")
     args = p.parse_args(argv)
     rows = []
-    print(f"{'scene':>7} {'tets':>6} {'setting':>26} {'speedup':>7} {'max err':>8} {'enriched':>8} {'reduced':>7} "
-          f"{'dofs':>7} {'status':>8}", flush=True)
+    print(f"{'scene':>7} {'tets':>6} {'setting':>26} {'wall s':>7} {'full s':>7} {'speedup':>7} {'max err':>8} "
+          f"{'enriched':>8} {'reduced':>7} {'dofs':>7} {'status':>8}", flush=True)
     for kind in args.scenes:
         for r in run_scene(kind, args):
             rows.append(r)
             sp = "-" if r["speedup"] is None else f"{r['speedup']:.2f}"
-            print(f"{r['scene']:>7} {r['tets']:>6} {r['setting']:>26} {sp:>7} {r['error']:>8.1e} "
+            print(f"{r['scene']:>7} {r['tets']:>6} {r['setting']:>26} {r['wall_s']:>7.2f} {r['wall_full_s']:>7.2f} "
+                  f"{sp:>7} {r['error']:>8.1e} "
                   f"{(r['enriched'] or 0):>8.3f} {(r['reduced_steps'] or 0):>7.2f} {(r['dofs'] or 0):>7.0f} "
                   f"{r['status']:>8}", flush=True)
     if args.json:

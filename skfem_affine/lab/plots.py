@@ -384,6 +384,7 @@ def pick_state(states, frame=None):
 
 
 TRADE_MARKERS = "osD^v<>ph*"
+TRADE_COLORS = {"adaptive subspace": "#7570b3"}
 
 
 def trade_picture(points, path, title=None):
@@ -420,7 +421,7 @@ def trade_picture(points, path, title=None):
             if not pts:
                 continue
             e, s = np.array(pts).T
-            ax.plot(e, s, "-", marker=TRADE_MARKERS[si % len(TRADE_MARKERS)], color=_color(method, mi), lw=0.8,
+            ax.plot(e, s, "-", marker=TRADE_MARKERS[si % len(TRADE_MARKERS)], color=TRADE_COLORS.get(method, _color(method, mi)), lw=0.8,
                     ms=6, label=f"{method}, {scene}")
     ax.axhline(1.0, color="k", lw=0.8, ls=":")
     ax.set_xscale("log")
