@@ -1,8 +1,8 @@
 """IPC contact from ipctk (contact/ipc.py): non-penetration, friction, start checks, derivatives.
 
-The Simulation does not wire IPC in yet; these tests minimise the package's incremental
-potential with its Newton loop through a small test-side potential that adds the contact
-Hessian (a sparse matrix off the elastic pattern) and freezes the friction at each step.
+Most tests minimise the package's incremental potential with the contact model as its barrier
+by the Newton loop directly (a small test-side potential that freezes the friction at each
+step); the last ones go through the Simulation.
 """
 import ipctk
 import numpy as np
@@ -15,17 +15,12 @@ from skfem_affine.integrators import newton
 
 
 class IPCPotential(newton.IncrementalPotential):
-    """The incremental potential with IPC contact: E + a h^2 C(x), C's Hessian added as a matrix."""
+    """The incremental potential with IPC contact (its Hessian, off the elastic pattern, is added
+    by the potential), friction frozen at the start of the step."""
 
-    def __init__(self, sim, x_t, v_t, contact, x_prev=None, v_prev=None):
-        super().__init__(sim, x_t, v_t, x_prev, v_prev, contact=contact)
+    def __init__(self, sim, x_t, v_t, contact, x_prev=None, v_prev=None, tol=1e-4):
+        super().__init__(sim.model, x_t, v_t, x_prev, v_prev, barrier=contact, tol=tol, max_iters=50)
         contact.begin_step(self.x_t, self.x_hat, self.c)
-
-    def hessian(self, H, x=None):
-        A = super().hessian(H, x)
-        if x is not None:
-            A = A + self.weight * self.contact.hessian(x)
-        return A.tocsr()
 
 
 def cube(center, size=0.5, cells=2, velocity=(0, 0, 0), E=1e5, fixed=None):
@@ -40,9 +35,9 @@ def run(sim, contact, frames, tol=1e-4, check=None, potential=IPCPotential, bdf2
     prev = (None, None)
     recs = []
     for _ in range(frames):
-        ip = potential(sim, x, v, contact, *prev)
+        ip = potential(sim, x, v, contact, *prev, tol=tol)
         rec = {}
-        x1 = newton.newton_solve(ip, tol, 50, sim.solve, rec)
+        x1, _ = newton.newton_solve(ip, sim.solver, rec)
         v1 = ip.velocity(x1)
         if check is not None:
             check(x, x1)
