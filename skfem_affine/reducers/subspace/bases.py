@@ -183,7 +183,7 @@ class LinearModes(_Basis):
         K = _rest_stiffness(system)[free][:, free].tocsc()
         M = system.Mff.tocsc()
         k = min(self.n, free.size - 1)
-        lam, V = spla.eigsh(K, k=k, M=M, sigma=_shift(K, M), which="LM")
+        lam, V = spla.eigsh(K, k=k, M=M, sigma=_shift(K, M), which="LM", v0=_start(K.shape[0]))
         order = np.argsort(lam)
         lam, V = lam[order], V[:, order]
         U = np.zeros((3 * system.n, k))
@@ -191,6 +191,12 @@ class LinearModes(_Basis):
         rigid = np.flatnonzero(lam < 1e-8 * max(lam[-1], 1e-300))
         initial = list(rigid) if rigid.size else [0]
         return ModalBasis(U, [np.array([j]) for j in range(k)], initial, self.kind, lam)
+
+
+def _start(n):
+    """A fixed Lanczos start vector: the same basis in every run (ARPACK's default start is random,
+    and a symmetric body's repeated eigenvalues would otherwise give a different basis each run)."""
+    return np.random.default_rng(0).standard_normal(n)
 
 
 class SkinningEigenmodes(_Basis):
@@ -208,7 +214,7 @@ class SkinningEigenmodes(_Basis):
             Lb = L[inner][:, inner].tocsc()
             Mb = sp.diags(system.lumped_mass[inner]).tocsc()
             k = min(self.n, inner.size - 1)
-            lam, W = spla.eigsh(Lb, k=k, M=Mb, sigma=_shift(Lb, Mb), which="LM")
+            lam, W = spla.eigsh(Lb, k=k, M=Mb, sigma=_shift(Lb, Mb), which="LM", v0=_start(Lb.shape[0]))
             order = np.argsort(lam)
             lam, W = lam[order], W[:, order]
             W *= np.where(W.sum(axis=0) < 0, -1.0, 1.0)

@@ -179,7 +179,8 @@ class AdaptiveSubspace(Reducer):
 
     def __repr__(self):
         return (f"AdaptiveSubspace(basis={self.basis_spec!r}, eps_nodal={self.eps_nodal}, eps_modal={self.eps_modal}, "
-                f"eps_progress={self.eps_progress}, eps_down={self.eps_down}, subdomains={self.n_subdomains})")
+                f"eps_progress={self.eps_progress}, eps_down={self.eps_down}, subdomains={self.n_subdomains}, "
+                f"fallback={self.fallback!r})")
 
     # ------------------------------------------------------------------ set-up
     def attach(self, model):
@@ -321,7 +322,10 @@ class AdaptiveSubspace(Reducer):
         """Oracle (sec. 3.7): activate nodes (by subdomain) and blocks of modes; returns what changed."""
         sysm = self.system
         shift = 1e-10 * max(np.trace(Hu) / max(Hu.shape[0], 1), 1e-300)  # candidate columns may be dependent
-        dq = -sla.solve(Hu + shift * np.eye(Hu.shape[0]), Ua.T @ g, assume_a="pos")  # eq. 18
+        try:
+            dq = -sla.solve(Hu + shift * np.eye(Hu.shape[0]), Ua.T @ g, assume_a="pos")  # eq. 18
+        except np.linalg.LinAlgError:  # numerically dependent candidate columns: the least-squares step
+            dq = -np.linalg.lstsq(Hu + shift * np.eye(Hu.shape[0]), Ua.T @ g, rcond=None)[0]
         du = Ua @ dq
         alpha, _ = newton.line_search(ip, x, du, g, e0)
         du *= alpha
@@ -493,4 +497,3 @@ class _Iteration:
             return
         self.q[self.cols] += alpha * self.dq
         self.s_prev = alpha * self.dq
-        self.he_valid[:] = False
