@@ -97,7 +97,7 @@ def test_adaptive_subspace_with_contact_stays_outside_and_a_stiff_body_is_not_en
     eps = 1e-3
     runs = {}
     for E in (1e4, 1e9):
-        red = sa.AdaptiveSubspace(basis=sa.SkinningEigenmodes(n=3, cache=False), eps_nodal=eps, eps_modal=eps,
+        red = sa.AdaptiveSubspace(fallback=None, basis=sa.SkinningEigenmodes(n=3, cache=False), eps_nodal=eps, eps_modal=eps,
                                   subdomains=8, newton_tol=1e-4)
         sim, lowest = drop(red, E=E, frames=25)
         assert lowest.min() > 0
@@ -119,7 +119,7 @@ def test_a_cube_sliding_rigidly_down_a_frictionless_ramp_gets_no_enrichment():
     th, frames = np.radians(30), 40
     late = {}
     for eps_progress in (1e-4, np.inf):
-        red = sa.AdaptiveSubspace(basis=sa.AffineModes(), eps_nodal=5e-3, eps_modal=5e-3, eps_progress=eps_progress,
+        red = sa.AdaptiveSubspace(fallback=None, basis=sa.AffineModes(), eps_nodal=5e-3, eps_modal=5e-3, eps_progress=eps_progress,
                                   subdomains=8, newton_tol=1e-4)
         sim = sa.scenes.free_body(resolution=2, size=0.5, velocity=(0, 0, 0), spin=(0, 0, 0), integrator="implicit_euler",
                                   gravity=(9.81 * np.sin(th), 0, -9.81 * np.cos(th)), reducer=red)
@@ -136,7 +136,7 @@ def test_raising_the_nodal_threshold_on_a_drop_enriches_less_and_leaves_a_larger
     """Fig. 12's trend on a small drop scene with contact (mean over the frames after impact)."""
     ratio, residual = [], []
     for eps in (0.0, 3e-3, 1e-2, 3e-2):
-        red = sa.AdaptiveSubspace(basis=sa.SkinningEigenmodes(n=4, cache=False), eps_nodal=eps, eps_modal=0.5,
+        red = sa.AdaptiveSubspace(fallback=None, basis=sa.SkinningEigenmodes(n=4, cache=False), eps_nodal=eps, eps_modal=0.5,
                                   subdomains=16, newton_tol=1e-4, record_residual=True)
         sim = sa.scenes.free_body(resolution=3, size=0.5, velocity=(0, 0, -2.0), spin=(0, 0, 0), gravity=(0, 0, -9.81),
                                   integrator="implicit_euler", reducer=red)

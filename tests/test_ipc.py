@@ -266,7 +266,9 @@ def test_contact_gradient_and_hessian_match_finite_differences(with_sphere):
     # the projected Hessian is symmetric PSD
     Hpsd = contact.hessian(x).toarray()
     assert np.allclose(Hpsd, Hpsd.T) and np.linalg.eigvalsh(Hpsd).min() > -1e-8 * np.abs(Hpsd).max()
-    # vertex energies sum to the barrier energy (friction excluded); fixed vertices get theirs too
+    # vertex energies (the subspace oracle's contact shares) sum to the contact energy, with the
+    # lagged friction (body-body, plane, sphere) and without it; fixed vertices get theirs too
+    assert contact.vertex_energy(x).sum() == pytest.approx(contact.energy(x), rel=1e-10)
     contact.lagged = None
     assert contact.vertex_energy(x).sum() == pytest.approx(contact.energy(x), rel=1e-10)
 

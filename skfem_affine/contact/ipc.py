@@ -428,18 +428,33 @@ class IPCContact:
         return np.zeros(self.system.pattern.nnz)
 
     def vertex_energy(self, x):
-        """Barrier energy per vertex (n,): each collision's energy shared by its stencil's vertices."""
+        """Contact energy C(x) per vertex (n,): the shares of the adaptive-subspace oracle (eq. 7).
+
+        Each collision's barrier energy (surface pairs between and within bodies) and, while a
+        step's friction is lagged, each tangential collision's friction energy is shared equally
+        by its stencil's vertices; a vertex's barrier and friction against a collider are its own.
+        The shares sum to :meth:`energy`, so the oracle's nodal energies still sum to E.
+        """
         V = self.vertices(x)
         out = np.zeros(V.shape[0])
-        cc = self._collisions(x)
         E, F = self.mesh.edges, self.mesh.faces
-        for i in range(len(cc)):
-            col = cc[i]
-            ids = np.asarray(col.vertex_ids(E, F))
-            ids = ids[ids >= 0]
-            out[ids] += float(self.barrier(col, col.dof(V, E, F))) / ids.size
+
+        def share(potential, collisions, X, scale=1.0):
+            for i in range(len(collisions)):
+                col = collisions[i]
+                ids = np.asarray(col.vertex_ids(E, F))
+                ids = ids[ids >= 0]
+                out[ids] += scale * float(potential(col, col.dof(X, E, F))) / ids.size
+
+        share(self.barrier, self._collisions(x), V)
         for d, _ in self._sdf(V):
             out += physical_barrier(d, self.dhat, self.kappa)[0]
+        if self.lagged is not None:
+            ch = self.lagged[1] * self.h
+            U = self._velocities(x)
+            share(self.friction, self.lagged[2], U, ch)
+            for act, ml, _, y, _ in self._sdf_friction(U):
+                np.add.at(out, act, ch * ml * smooth_friction(y, self.epsv)[0])
         full = np.zeros(self.system.n)
         full[self.surface] = out
         return full

@@ -8,6 +8,7 @@
 - :func:`sweep_heatmaps`: every metric over the tau_a x tau_e grid (paper Fig. 6);
 - :func:`scaling_plot`: speedup and time per frame against the number of elements (paper Table 2);
 - :func:`trade_plot`: speedup against max distance error, one point per setting, the Pareto front.
+- :func:`trade_picture`: speedup against max distance error of several methods on several scenes.
 """
 import os
 
@@ -446,5 +447,56 @@ def trade_plot(points, path, budgets=(), title=None):
     ax.set_ylabel("speedup over full space (x)")
     ax.set_title(title or "Speed against accuracy (up and left is better)", fontsize=10)
     ax.legend(fontsize=8, loc="best")
+    fig.tight_layout()
+    return _save(fig, path)
+
+
+TRADE_MARKERS = "osD^v<>ph*"
+TRADE_COLORS = {"adaptive subspace": "#7570b3"}
+
+
+def trade_picture(points, path, title=None):
+    """Speedup against max distance error, one colour per method, one marker per scene.
+
+    Parameters
+    ----------
+    points : list of dict
+        Each with ``scene``, ``method``, ``speedup`` (over the method's own full-space run) and
+        ``error`` (max vertex distance to it over the run, relative to the scene size); points of
+        one method on one scene (its thresholds) are joined in order of error.
+    path : str
+        The PNG to write.
+    title : str, optional
+
+    Returns
+    -------
+    str
+        ``path``.
+    """
+    points = list(points)
+    for i, p in enumerate(points):
+        missing = {"scene", "method", "speedup", "error"} - set(p)
+        if missing:
+            raise ValueError(f"points[{i}] lacks {sorted(missing)}: each point needs scene, method, speedup, error")
+    scenes = list(dict.fromkeys(p["scene"] for p in points))
+    methods = list(dict.fromkeys(p["method"] for p in points))
+    fig = _figure(7.5, 4.6)
+    ax = fig.add_subplot()
+    for mi, method in enumerate(methods):
+        for si, scene in enumerate(scenes):
+            pts = sorted((max(p["error"], 1e-12), p["speedup"]) for p in points
+                         if p["method"] == method and p["scene"] == scene)
+            if not pts:
+                continue
+            e, s = np.array(pts).T
+            ax.plot(e, s, "-", marker=TRADE_MARKERS[si % len(TRADE_MARKERS)], color=TRADE_COLORS.get(method, _color(method, mi)), lw=0.8,
+                    ms=6, label=f"{method}, {scene}")
+    ax.axhline(1.0, color="k", lw=0.8, ls=":")
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlabel("max vertex distance error / scene size")
+    ax.set_ylabel("speedup over its full-space run (x)")
+    ax.set_title(title or "Speed against accuracy", fontsize=10)
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0)
     fig.tight_layout()
     return _save(fig, path)

@@ -199,6 +199,7 @@ class LinearModes(_Basis):
         return ModalBasis(U, [np.array([j]) for j in range(k)], initial, self.kind, lam)
 
 
+
 class SkinningEigenmodes(_Basis):
     """Skinning Eigenmodes (Benchekroun et al. 2023): ``n`` weights per body, 12 DOFs each."""
 

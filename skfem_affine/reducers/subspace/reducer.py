@@ -29,6 +29,17 @@ The loop stops by the Simulation's Newton settings (||d||_inf / h <= newton_tol 
 the step, modes and nodes whose contribution was small are downdated (sec. 3.11); the starting
 blocks of the basis (a body's affine/rigid motion) are never downdated.
 
+Never much slower than full space (not in the paper): when the coupled system (eq. 19) would have
+more nonzeros than the full-space Newton system (:func:`falls_back`; its dense coupling C has
+2 r per enriched DOF for r active columns), at the start of a step or after the oracle enriches
+inside it, the rest of the step takes full-space Newton directions by a direct solve: a Schur
+PCG iteration then costs more than a CG iteration on the full system, and the exact subdomain
+Hessians and extra Newton iterations of the reduced step more than the direct solve saves
+(the calibration is in docs/subspace.md, "The never-slower fallback"). After such a step
+the modal coordinates are the least-squares fit of the step's displacement on the active
+columns, and downdating proceeds as usual, so nodes the subspace captures again are released and
+the reducer returns to reduced steps. ``rec["reduced"]`` says which kind each step was.
+
 Choices where the paper is silent, stated here: subdomains are element sets (an element belongs
 to the METIS part of its first vertex), so the subdomain energies sum exactly to Psi and no
 interface averaging is needed in eq. 20; the BFGS update is skipped when y^T s <= 0 (keeping
@@ -53,11 +64,33 @@ from skfem_affine.reducers.subspace import oracle as so
 from skfem_affine.reducers.subspace.bases import SkinningEigenmodes, _Basis
 from skfem_affine.reducers.subspace.linalg import bfgs_update, masked_sandwich, metis_parts, schur_solve
 from skfem_affine.reducers.subspace.subdomains import Subdomains
+from skfem_affine.solvers import direct_solver
 
 
 def _threshold(value, name):
     """A threshold >= 0 (``inf`` allowed: it switches a test off)."""
     return real(value, f"threshold {name}", low=0.0, finite=False)
+
+
+def coupled_nonzeros(enriched_dofs, modes, nnz_per_row):
+    """Nonzeros of the coupled system (eq. 19): the dense H_q (r^2), C and C^T (2 r s) and H_x
+    (about ``nnz_per_row`` s), for s enriched DOFs and r active modal columns."""
+    return modes * modes + 2 * modes * enriched_dofs + nnz_per_row * enriched_dofs
+
+
+def falls_back(enriched_dofs, free_dofs, modes, nnz_full, fallback="nnz"):
+    """Whether a step with ``enriched_dofs`` of ``free_dofs`` enriched and ``modes`` active columns
+    continues in full space (the full-space Newton system has ``nnz_full`` nonzeros).
+
+    ``fallback="nnz"``: when the coupled system has more nonzeros than the full system
+    (:func:`coupled_nonzeros`, H_x's rows as dense as the full system's); a number f: when more
+    than the fraction f of the free DOFs are enriched; None: never.
+    """
+    if fallback is None:
+        return False
+    if fallback == "nnz":
+        return coupled_nonzeros(enriched_dofs, modes, nnz_full / max(free_dofs, 1)) > nnz_full
+    return enriched_dofs > fallback * max(free_dofs, 1)
 
 
 def _count(value, name):
@@ -94,6 +127,10 @@ class AdaptiveSubspace(Reducer):
         current iterate (all element Hessians, a full evaluation per step).
     blas_threads : int or None
         BLAS threads inside the step (default 1, see the module docstring); None leaves them alone.
+    fallback : "nnz", float or None
+        When a step continues by full-space Newton (:func:`falls_back`): ``"nnz"`` (default)
+        when the coupled system would have more nonzeros than the full one; a number f when
+        more than the fraction f of the free DOFs are enriched; None never (the paper's method).
     record_residual : bool
         Also record the full-space Newton decrement of each step's result (a full solve; for
         measuring accuracy only).
@@ -111,7 +148,7 @@ class AdaptiveSubspace(Reducer):
 
     def __init__(self, basis=None, eps_nodal=0.5, eps_modal=0.5, eps_progress=1e-4, eps_down=0.1,
                  subdomains=200, newton_tol=None, max_newton=None, pcg_tol=1e-5, pcg_maxiter=10000,
-                 record_residual=False, hessian_init="rest", blas_threads=1):
+                 record_residual=False, hessian_init="rest", blas_threads=1, fallback="nnz"):
         basis = SkinningEigenmodes(n=16) if basis is None else basis
         if not isinstance(basis, _Basis):
             raise TypeError(f"basis must be a basis such as sa.SkinningEigenmodes(n=16), got {type(basis).__name__}")
@@ -128,10 +165,17 @@ class AdaptiveSubspace(Reducer):
         self.record_residual = flag(record_residual, "record_residual")
         self.hessian_init = choice(hessian_init, "hessian_init", ("rest", "exact"))
         self.blas_threads = None if blas_threads is None else integer(blas_threads, "blas_threads", low=1)
+        if fallback is not None and fallback != "nnz":
+            ok = isinstance(fallback, (int, float, np.integer, np.floating)) and not isinstance(fallback, bool)
+            if not ok or not 0.0 <= fallback <= 1.0:
+                raise ValueError(f"fallback must be 'nnz', a fraction in [0, 1] or None, got {fallback!r}")
+            fallback = float(fallback)
+        self.fallback = fallback
 
     def __repr__(self):
         return (f"AdaptiveSubspace(basis={self.basis_spec!r}, eps_nodal={self.eps_nodal}, eps_modal={self.eps_modal}, "
-                f"eps_progress={self.eps_progress}, eps_down={self.eps_down}, subdomains={self.n_subdomains})")
+                f"eps_progress={self.eps_progress}, eps_down={self.eps_down}, subdomains={self.n_subdomains}, "
+                f"fallback={self.fallback!r})")
 
     # ------------------------------------------------------------------ set-up
     def attach(self, model):
@@ -159,6 +203,8 @@ class AdaptiveSubspace(Reducer):
         self.setup_time = time.perf_counter() - t0
         self.last_system = self.last_hessians = None
         self._inertia_cache = {}
+        self.fallback_solver = direct_solver()  # the full-space step's solver (falls_back)
+        self.step_enriched = self.enriched.copy()  # the enriched nodes of the last step, before downdating
 
     def columns(self):
         """The active modal columns of U, in the order of the active blocks."""
@@ -180,21 +226,38 @@ class AdaptiveSubspace(Reducer):
             x = self._step(problem, rec)
         return StepResult(x=x, stats=rec)
 
+    def _too_enriched(self):
+        return falls_back(int(self._enriched_dofs().size), int(self.system.free.size), int(self.columns().size),
+                          int(self.system.pattern.nnz), self.fallback)
+
     def _step(self, ip, rec):
-        step = _Iteration(self, ip)
-        x, _ = newton.newton(ip, step.direction, rec, step.after_step, blocks=False)
+        step = _Iteration(self, ip, full=self._too_enriched())
+        x, _ = newton.newton(ip, step.direction, rec, step.after_step, blocks=step.full)
+        rec["reduced"] = not step.full
+        if step.full:
+            step.q = self._fit(ip, x)
         self.last_hessians = step.Hl
         rec["pcg_iters"] = step.pcg_total
         rec["active_modes"] = int(self.columns().size)
         rec["enriched_ratio"] = float(self.enriched.sum() / max(self.free_vertex.sum(), 1))
         rec["dofs"] = int(self.columns().size + 3 * self.enriched.sum())
-        rec["solver"] = "schur-pcg"
+        rec["solver"] = "schur-pcg" if not step.full else self.fallback_solver.name
         if self.record_residual:
             rec["full_residual"] = newton.full_space_residual(ip, x)
+        self.step_enriched = self.enriched.copy()
         self._downdate(ip, x, step.q, rec)
         return x
 
     # ------------------------------------------------------------------ pieces
+    def _fit(self, ip, x):
+        """Modal coordinates of a full-space step: the least-squares fit of x - x_t on the active
+        columns (what downdating measures the step against)."""
+        q = np.zeros(self.basis.size)
+        cols = self.columns()
+        dx = (x - ip.x_t)[ip.free]
+        q[cols] = np.linalg.lstsq(self.U[:, cols], dx, rcond=None)[0]
+        return q
+
     def _inertia(self, ip, Meff):
         """U^T (M + w D) U for all candidate modes: once per step, or once per run without beta damping."""
         key = (ip.weight, ip.c)
@@ -254,7 +317,10 @@ class AdaptiveSubspace(Reducer):
         """Oracle (sec. 3.7): activate nodes (by subdomain) and blocks of modes; returns what changed."""
         sysm = self.system
         shift = 1e-10 * max(np.trace(Hu) / max(Hu.shape[0], 1), 1e-300)  # candidate columns may be dependent
-        dq = -sla.solve(Hu + shift * np.eye(Hu.shape[0]), Ua.T @ g, assume_a="pos")  # eq. 18
+        try:
+            dq = -sla.solve(Hu + shift * np.eye(Hu.shape[0]), Ua.T @ g, assume_a="pos")  # eq. 18
+        except np.linalg.LinAlgError:  # numerically dependent candidate columns: the least-squares step
+            dq = -np.linalg.lstsq(Hu + shift * np.eye(Hu.shape[0]), Ua.T @ g, rcond=None)[0]
         du = Ua @ dq
         alpha, _ = newton.line_search(ip, x, du, g, e0)
         du *= alpha
@@ -310,9 +376,11 @@ class _Iteration:
     current iterate.
     """
 
-    def __init__(self, red, ip):
+    def __init__(self, red, ip, full=False):
         sysm = red.system
         self.red, self.ip = red, ip
+        self.full = bool(full)  # full-space directions (the fallback) for the rest of the step
+        self.full_direction = newton.FullSpaceDirection(ip, red.fallback_solver)
         w = ip.weight
         Meff = sysm.pattern.matrix(ip.hessian_data(np.zeros(sysm.pattern.nnz))).copy()  # M + w D (exact)
         Meff.eliminate_zeros()  # diagonal for lumped mass without beta damping (the copy keeps the pattern intact)
@@ -331,6 +399,8 @@ class _Iteration:
     def direction(self, x, g, data, rec, e):
         """d = B_a d_q + S_a d_x at iterate x (steps 1-4 of the module docstring)."""
         red, ip = self.red, self.ip
+        if self.full:
+            return self._full(x, g, data, rec, e)
         sysm, sub = red.system, red.sub
         w, free = ip.weight, ip.free
         He, he_valid = self.He, self.he_valid
@@ -365,6 +435,9 @@ class _Iteration:
         changed = red._update(ip, x, g, ge, Ua, Hu, e, self.n_scale, self.m_scale, rec)
         t3 = time.perf_counter()
         rec["prediction"] = rec.get("prediction", 0.0) + t3 - t2
+        if red._too_enriched():  # enrichment grew past the fallback: full space from here on
+            self.full = True
+            return self._full(x, g, data, rec, e)
         if changed == "modes":
             cols = red.columns()
             Ua = red.U[:, cols]
@@ -403,9 +476,19 @@ class _Iteration:
         self.cols, self.dq = cols, dq
         return d
 
+    def _full(self, x, g, data, rec, e):
+        """The full-space Newton direction (the fallback), with the element blocks at x."""
+        if data.H is None:
+            t0 = time.perf_counter()
+            data = self.ip.evaluate(x)
+            rec["assembly"] = rec.get("assembly", 0.0) + time.perf_counter() - t0
+        return self.full_direction(x, g, data, rec, e)
+
     def after_step(self, x, alpha):
         """The loop took x + alpha d: advance the modal coordinates and the secant step; the
         element blocks belong to the old iterate."""
+        self.he_valid[:] = False
+        if self.full:
+            return
         self.q[self.cols] += alpha * self.dq
         self.s_prev = alpha * self.dq
-        self.he_valid[:] = False
