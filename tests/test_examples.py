@@ -155,6 +155,8 @@ def test_threshold_sweep_example_trades_dofs_for_error():
     assert g["error"][-1] > g["error"][0] > 0              # and pay with accuracy
     assert np.all(g["dof_ratio"] < 1) and np.all(np.isfinite(g["speedup"]))
     assert all(row["status"] == "ok" for row in g["rows"])
+    (budget,) = g["budget_rows"]  # the error budget: 1 % asked, at most 1 % (plus a quarter) achieved
+    assert budget["status"] == "ok" and budget["error"] <= 1.25 * budget["budget"]
 
 
 def test_output_example_writes_paraview_and_gif(tmp_path, monkeypatch):
