@@ -141,6 +141,32 @@ def test_pays_off_falls_back_and_returns_when_a_probe_pays():
     assert not p.in_full and p.plan() == "reduced" and p.full_cost == 1.0
 
 
+def test_a_probe_is_judged_by_its_own_cost_not_by_the_frames_before_the_fall_back():
+    # thresholds that start small make the first reduced frames costly; a probe at the thresholds
+    # reached since must be judged alone, or one probe never outweighs them and the run stays full
+    p = budget.PaysOff(probe_every=2, patience=3)
+    p.full_solved(5.0)
+    for _ in range(3):
+        p.full_solved(1.0)
+        p.reduced_solved(4.0, 0.99)  # nearly everything elastic: no gain
+        p.decide(shadow_every=10)
+    assert p.in_full
+    assert [p.plan() for _ in range(3)] == ["full", "full", "probe"]
+    p.reduced_solved(0.5, 0.3, fresh=True)
+    p.decide(shadow_every=10, probed=True)
+    assert not p.in_full and p.reduced_cost == 0.5 and p.kept_all == 0
+    stale = budget.PaysOff(probe_every=2, patience=3)  # the same probe mixed into the history fails
+    stale.full_solved(5.0)
+    for _ in range(3):
+        stale.full_solved(1.0)
+        stale.reduced_solved(4.0, 0.99)
+        stale.decide(shadow_every=10)
+    [stale.plan() for _ in range(3)]
+    stale.reduced_solved(0.5, 0.3)
+    stale.decide(shadow_every=10, probed=True)
+    assert stale.in_full
+
+
 def test_fallback_to_full_space_on_a_scene_where_nothing_reduces():
     # a 1 m cube of 6 tets pinned at x = 0: every element touches a pinned vertex, nothing may reduce
     kwargs = dict(resolution=1, length=1.0, solver="direct")

@@ -276,11 +276,16 @@ class PaysOff:
         self.full_cost = self._mix(self.full_cost, seconds, self.full_samples)
         self.full_samples += 1
 
-    def reduced_solved(self, seconds, dof_ratio):
-        self.reduced_cost = self._mix(self.reduced_cost, seconds, self.reduced_samples)
+    def reduced_solved(self, seconds, dof_ratio, fresh=False):
+        """Record a reduced frame's cost. ``fresh`` (a probe after full-space frames) replaces the
+        running cost instead of mixing into it: the frames before the fall-back ran with other
+        thresholds (an error budget's start small and grow), and judging a probe by them would
+        keep the run in full space."""
+        self.reduced_cost = seconds if fresh else self._mix(self.reduced_cost, seconds, self.reduced_samples)
         self.reduced_samples += 1
         self.dof_ratio = float(dof_ratio)
-        self.kept_all = self.kept_all + 1 if self.dof_ratio >= self.keep_dofs else 0
+        kept = self.dof_ratio >= self.keep_dofs
+        self.kept_all = int(kept) if fresh else (self.kept_all + 1 if kept else 0)
 
     def overhead(self, shadow_every):
         """Per reduced frame, the shadow frames' share of a full solve."""

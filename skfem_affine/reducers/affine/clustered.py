@@ -404,7 +404,7 @@ class ClusteringReducer(Reducer):
             reducible = 1.0 - float(np.mean(self.excluded)) if sysm.m else 0.0
             eb.adapt(saturated=stats["reduced_fraction"] >= reducible - 1e-9)
         if pays is not None:
-            pays.reduced_solved(reduced_seconds, stats["reduced_dofs"] / max(sysm.free.size, 1))
+            pays.reduced_solved(reduced_seconds, stats["reduced_dofs"] / max(sysm.free.size, 1), fresh=mode == "probe")
             pays.decide(self.shadows.every, probed=mode == "probe")
         self._record(stats)
         return result
