@@ -35,7 +35,7 @@ from skfem_affine.motion import Motion
 from skfem_affine.motion import work as motion_work
 from skfem_affine.monitor import Diverged, Monitor, SimulationWarning
 from skfem_affine.reducers.base import Reducer
-from skfem_affine.reducers.full import FullSpace, factorize_and_solve
+from skfem_affine.reducers.full import FullSpace
 from skfem_affine.solvers import SolverError, make_solver
 
 INTEGRATORS = ("linearized",) + newton.SCHEMES
@@ -409,7 +409,3 @@ class Simulation:
         """
         problem = StepProblem.at(self.model, x, v, data=frame, rec=rec)
         return problem.matrix(), problem.b, problem.data
-
-    def solve(self, A, b, rec):
-        """Factorize and solve A x = b in full space with the simulation's solver (statistics into ``rec``)."""
-        return factorize_and_solve(self.solver, A, b, rec)

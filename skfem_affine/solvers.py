@@ -15,6 +15,7 @@ solver for good when a freshly built hierarchy still needs more than
 affine blocks do not suit AMG). Measurements: ``docs/solvers.md``.
 """
 import contextlib
+import time
 
 import numpy as np
 import scipy.sparse as sp
@@ -451,3 +452,18 @@ def make_solver(solver):
         raise TypeError(f"solver must be a name or an object with factorize(A) and solve(b), "
                         f"got {type(solver).__name__}")
     return solver
+
+
+def factorize_and_solve(solver, A, b, stats):
+    """Factorise A, solve A x = b; record the timings, DOFs, solver and iterations in ``stats``."""
+    t0 = time.perf_counter()
+    solver.factorize(A)
+    t1 = time.perf_counter()
+    x = solver.solve(b)
+    t2 = time.perf_counter()
+    stats["factorization"] = stats.get("factorization", 0.0) + t1 - t0
+    stats["solve"] = stats.get("solve", 0.0) + t2 - t1
+    stats["dofs"] = A.shape[0]
+    stats["solver"] = solver.name
+    stats["iterations"] = stats.get("iterations", 0) + solver.last_iterations
+    return x

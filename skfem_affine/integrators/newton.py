@@ -23,7 +23,7 @@ import time
 import numpy as np
 
 from skfem_affine.checks import positive
-from skfem_affine.solvers import SolverError
+from skfem_affine.solvers import SolverError, factorize_and_solve
 from skfem_affine.integrators.potential import SCHEMES, IncrementalPotential, vdot  # noqa: F401 (re-exported)
 
 
@@ -112,22 +112,6 @@ def newton(problem, direction, rec, after_step=None, blocks=True, stop_on="direc
     return x, ok
 
 
-def direct_solve(solver, A, b, rec):
-    """Factorise A with ``solver`` and solve A x = b, recording ``factorization``/``solve`` times,
-    ``dofs``, ``solver`` and the solver's ``iterations`` in ``rec``."""
-    t0 = time.perf_counter()
-    solver.factorize(A)
-    t1 = time.perf_counter()
-    x = solver.solve(b)
-    t2 = time.perf_counter()
-    _add(rec, "factorization", t1 - t0)
-    _add(rec, "solve", t2 - t1)
-    rec["dofs"] = A.shape[0]
-    rec["solver"] = solver.name
-    rec["iterations"] = rec.get("iterations", 0) + solver.last_iterations
-    return x
-
-
 class FullSpaceDirection:
     """The full-space Newton direction d = -grad^2E^-1 grad E by ``solver`` (a direct or CG solver
     of :mod:`skfem_affine.solvers`); ``matrix`` is the last Hessian it factorised."""
@@ -140,7 +124,7 @@ class FullSpaceDirection:
         A = self.problem.hessian(data.H, x)
         _add(rec, "assembly", time.perf_counter() - t0)
         self.matrix = A
-        return direct_solve(self.solver, A, -g, rec)
+        return factorize_and_solve(self.solver, A, -g, rec)
 
 
 def newton_solve(problem, solver, rec):

@@ -3,21 +3,7 @@ import time
 
 from skfem_affine.integrators.problem import Operator, StepProblem, StepResult
 from skfem_affine.reducers.base import Reducer
-
-
-def factorize_and_solve(solver, A, b, stats):
-    """Factorise A, solve A x = b; record the timings, DOFs, solver and iterations in ``stats``."""
-    t0 = time.perf_counter()
-    solver.factorize(A)
-    t1 = time.perf_counter()
-    x = solver.solve(b)
-    t2 = time.perf_counter()
-    stats["factorization"] = stats.get("factorization", 0.0) + t1 - t0
-    stats["solve"] = stats.get("solve", 0.0) + t2 - t1
-    stats["dofs"] = A.shape[0]
-    stats["solver"] = solver.name
-    stats["iterations"] = stats.get("iterations", 0) + solver.last_iterations
-    return x
+from skfem_affine.solvers import factorize_and_solve
 
 
 class FullSpace(Reducer):
