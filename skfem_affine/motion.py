@@ -30,7 +30,7 @@ from skfem_affine.checks import real_array
 __all__ = ["Prescribed", "VertexForce", "Motion", "Targets", "coupling", "work"]
 
 
-def _indices(vertices, n, name):
+def vertex_indices(vertices, n, name):
     """Vertex indices (k,) int64 from indices or a boolean mask of length n, checked against n."""
     if isinstance(vertices, (str, bytes)) or callable(vertices):
         raise TypeError(f"{name} must hold vertex indices (integers) or a boolean mask, got {type(vertices).__name__}")
@@ -42,7 +42,10 @@ def _indices(vertices, n, name):
     if a.dtype == bool:
         if n is not None and a.shape != (n,):
             raise ValueError(f"boolean {name} mask must have length {n} (one entry per vertex), got shape {a.shape}")
-        return np.flatnonzero(a)
+        a = np.flatnonzero(a)
+        if a.size == 0:
+            raise ValueError(f"{name} mask selects no vertex")
+        return a
     if a.size and not np.issubdtype(a.dtype, np.integer):
         raise TypeError(f"{name} must hold vertex indices (integers) or a boolean mask, got {a.dtype} values")
     a = a.ravel().astype(np.int64)
@@ -96,7 +99,7 @@ class Prescribed:
 
         Returns the indices (k,); raises ValueError/TypeError naming ``vertices`` or ``path``.
         """
-        idx = _indices(self.vertices, rest.shape[0], "prescribed vertices")
+        idx = vertex_indices(self.vertices, rest.shape[0], "prescribed vertices")
         evaluate_path(self.path, 0.0, rest[idx])
         return idx
 
@@ -201,13 +204,13 @@ class Motion:
             if not isinstance(f, VertexForce):
                 raise TypeError(f"forces[{k}] must be a sa.VertexForce(vertices, force), got {type(f).__name__}")
             if f.body is None:
-                idx = _indices(f.vertices, system.n, f"forces[{k}] vertices")
+                idx = vertex_indices(f.vertices, system.n, f"forces[{k}] vertices")
             else:
                 match = [i for i, b in enumerate(bodies) if b is f.body]
                 if not match:
                     raise ValueError(f"forces[{k}] body is not one of the simulation's bodies")
                 i = match[0]
-                idx = _indices(f.vertices, bodies[i].n_vertices, f"forces[{k}] vertices") + system.vertex_offsets[i]
+                idx = vertex_indices(f.vertices, bodies[i].n_vertices, f"forces[{k}] vertices") + system.vertex_offsets[i]
             self.forces.append((idx, f.force))
 
     @property

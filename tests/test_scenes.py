@@ -148,6 +148,10 @@ def test_pull_checks_its_input():
         sa.lab.loads.Pull([0], (0, 1.0))
     with pytest.raises(ValueError, match="start < stop"):
         sa.lab.loads.Pull([0], (0, 0, 1.0), start=1.0, stop=0.5)
+    with pytest.raises(ValueError, match="selects no vertex"):  # an all-False mask pulls nothing: refused
+        sa.lab.loads.Pull(np.zeros(4, dtype=bool), (0, 0, 1.0))
+    with pytest.raises(ValueError, match="selects no vertex"):
+        scenes.free_body(resolution=1, forces=[sa.VertexForce(np.zeros(8, dtype=bool), (0, 0, 1.0))])
     with pytest.raises(ValueError, match="weights"):
         sa.lab.loads.Pull([0, 1], (0, 0, 1.0), weights=[1.0, -1.0])
     with pytest.raises(ValueError):

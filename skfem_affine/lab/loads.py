@@ -7,7 +7,8 @@ in the energy check (:mod:`skfem_affine.motion`).
 import numpy as np
 
 from skfem_affine.checks import real, real_array
-from skfem_affine.motion import VertexForce
+from skfem_affine.kinematics import signed_volumes
+from skfem_affine.motion import VertexForce, vertex_indices
 
 
 class Pull:
@@ -29,12 +30,7 @@ class Pull:
     """
 
     def __init__(self, vertices, force, start=0.0, stop=np.inf, weights=None):
-        v = np.asarray(vertices)
-        if v.dtype == bool:
-            v = np.flatnonzero(v)
-        if v.size == 0 or not np.issubdtype(v.dtype, np.integer):
-            raise ValueError("Pull vertices must be a non-empty array of vertex indices or a boolean mask")
-        self.vertices = v.ravel().astype(np.int64)
+        self.vertices = vertex_indices(vertices, None, "Pull vertices")
         self.force = np.asarray(force, dtype=float)
         if self.force.shape != (3,) or not np.all(np.isfinite(self.force)):
             raise ValueError(f"Pull force must be a finite 3-vector, got {force!r}")
@@ -65,7 +61,5 @@ class Pull:
 def vertex_volumes(mesh, density=1.0):
     """What each vertex carries of ``density`` (a number or one per element) times volume: a
     quarter of each of its tetrahedra's, the lumped masses of P1 tetrahedra."""
-    p, t = mesh.p, mesh.t
-    e1, e2, e3 = (p[:, t[k]] - p[:, t[0]] for k in (1, 2, 3))
-    vol = np.abs(np.einsum("ij,ij->j", e1, np.cross(e2, e3, axis=0))) / 6.0 * density
-    return np.bincount(t.ravel(), np.repeat(vol[None, :] / 4.0, 4, axis=0).ravel(), minlength=p.shape[1])
+    vol = np.abs(signed_volumes(mesh.p, mesh.t)) * density
+    return np.bincount(mesh.t.ravel(), np.repeat(vol[None, :] / 4.0, 4, axis=0).ravel(), minlength=mesh.p.shape[1])
