@@ -15,7 +15,7 @@ contact, large deformation; ``--cells`` cells across).
 Per run: speedup (total wall of the full run over the method's), max vertex distance error
 (largest vertex distance to the full run at the same frame, over the frames, relative to the
 scene size), the mean enriched fraction (subspace) or elastic DOF ratio (affinification). The
-trade picture (:func:`skfem_affine.lab.plots.trade_picture`) is written beside the JSON.
+trade picture (:func:`skfem_affine.lab.plots.trade_plot`) is written beside the JSON.
 
 Usage::
 
@@ -128,7 +128,7 @@ def main(argv=None):
         with open(args.json, "w") as fh:
             json.dump({"args": vars(args), "rows": rows}, fh, indent=1, default=float)
         picture = args.picture or os.path.splitext(args.json)[0] + ".png"
-        plots.trade_picture([r for r in rows if r["speedup"] is not None], picture,
+        plots.trade_plot([dict(r, label=r["setting"]) for r in rows if r["speedup"] is not None], picture,
                             title=f"adaptive subspace vs affinification ({args.frames} frames)")
     return rows
 

@@ -52,12 +52,12 @@ def test_trade_plot_is_written(tmp_path):
     assert (tmp_path / "trade.png").stat().st_size > 1000 and path.endswith("trade.png")
 
 
-def test_trade_picture_is_written_and_checks_its_points(tmp_path):
+def test_trade_plot_of_several_scenes_is_written_and_checks_its_points(tmp_path):
     import pytest
     pts = [{"scene": sc, "method": m, "speedup": s, "error": e}
            for sc in ("drop", "stack") for m, s, e in (("adaptive subspace", 1.5, 1e-3), ("adaptive subspace", 3.0, 1e-2),
                                                       ("affinification", 2.0, 5e-3))]
-    out = plots.trade_picture(pts, str(tmp_path / "trade" / "picture.png"), title="t")
+    out = plots.trade_plot(pts, str(tmp_path / "trade" / "picture.png"), title="t")
     assert out.endswith("picture.png") and (tmp_path / "trade" / "picture.png").stat().st_size > 1000
-    with pytest.raises(ValueError, match=r"points\[1\] lacks \['error'\]"):
-        plots.trade_picture([pts[0], {"scene": "a", "method": "b", "speedup": 1.0}], str(tmp_path / "x.png"))
+    with pytest.raises(ValueError, match=r"points\[1\] must be a dict with 'error' and 'speedup'"):
+        plots.trade_plot([pts[0], {"scene": "a", "method": "b", "speedup": 1.0}], str(tmp_path / "x.png"))

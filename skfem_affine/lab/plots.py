@@ -7,8 +7,8 @@
 - :func:`clusters_picture`, :func:`animation`: the bodies with clusters coloured, one frame or a GIF;
 - :func:`sweep_heatmaps`: every metric over the tau_a x tau_e grid (paper Fig. 6);
 - :func:`scaling_plot`: speedup and time per frame against the number of elements (paper Table 2);
-- :func:`trade_plot`: speedup against max distance error, one point per setting, the Pareto front.
-- :func:`trade_picture`: speedup against max distance error of several methods on several scenes.
+- :func:`trade_plot`: speedup against max distance error, one point per setting (several methods
+  and scenes), the Pareto front of one scene.
 """
 import os
 
@@ -399,38 +399,66 @@ def pareto_front(points):
     return front
 
 
+TRADE_MARKERS = "osD^v<>ph*"
+TRADE_COLORS = {"adaptive subspace": "#7570b3"}
+
+
 def trade_plot(points, path, budgets=(), title=None):
     """The trade at a glance: speedup over full space against max distance error / size.
 
     Parameters
     ----------
     points : list of dict
-        One per setting: ``error`` (max distance error / size), ``speedup``, ``label`` (its
-        settings, written beside the point) and optionally ``method`` (the colour), ``budget``
-        (an error budget: drawn as a short vertical tick at the budget, joined to the point).
+        One per setting: ``error`` (max distance error / size), ``speedup``, and optionally
+        ``label`` (its settings, written beside the point), ``method`` (the colour), ``scene``
+        (the marker; the points of one method on one scene are joined in order of error) and
+        ``budget`` (an error budget: drawn as a short vertical tick at the budget, joined to the
+        point). Points without a finite error and speedup (failed runs) are left out.
     path : str
         The PNG to write.
     budgets : sequence of float
         Error budgets to mark as vertical dashed lines.
+    title : str, optional
 
-    The Pareto front (:func:`pareto_front`) is drawn as a step line; 1x (no gain) as a dotted line.
+    Returns
+    -------
+    str
+        ``path``.
+
+    On one scene the Pareto front (:func:`pareto_front`) is drawn as a step line (a front across
+    scenes would compare runs of different problems); 1x (no gain) as a dotted line.
     """
-    pts = [p for p in points if p.get("error") is not None and p.get("speedup") is not None
+    points = list(points)
+    for i, p in enumerate(points):
+        if not isinstance(p, dict) or not {"error", "speedup"} <= set(p):
+            raise ValueError(f"points[{i}] must be a dict with 'error' and 'speedup'")
+    pts = [p for p in points if p["error"] is not None and p["speedup"] is not None
            and np.isfinite(p["error"]) and np.isfinite(p["speedup"])]
     fig = _figure(7.5, 4.8)
     ax = fig.subplots()
     methods = list(dict.fromkeys(p.get("method", "affinification") for p in pts))
+    scenes = list(dict.fromkeys(p.get("scene") for p in pts))
     for i, name in enumerate(methods):
-        mine = [p for p in pts if p.get("method", "affinification") == name]
-        ax.scatter([max(p["error"], 1e-12) for p in mine], [p["speedup"] for p in mine], s=28, zorder=3,
-                   color=_color(name, i), label=name)
+        color = TRADE_COLORS.get(name, _color(name, i))
+        for j, scene in enumerate(scenes):
+            mine = sorted(((max(p["error"], 1e-12), p["speedup"]) for p in pts
+                           if p.get("method", "affinification") == name and p.get("scene") == scene))
+            if not mine:
+                continue
+            e, v = np.array(mine).T
+            label = name if scene is None else f"{name}, {scene}"
+            marker = TRADE_MARKERS[j % len(TRADE_MARKERS)]
+            if len(scenes) > 1:
+                ax.plot(e, v, "-", marker=marker, color=color, lw=0.8, ms=6, zorder=3, label=label)
+            else:
+                ax.scatter(e, v, s=28, marker=marker, zorder=3, color=color, label=label)
     for p in pts:
         ax.annotate(p.get("label", ""), (max(p["error"], 1e-12), p["speedup"]), fontsize=7,
                     textcoords="offset points", xytext=(5, 4))
         if p.get("budget") is not None:
             ax.plot([p["budget"], max(p["error"], 1e-12)], [p["speedup"]] * 2, color="0.6", lw=0.8, zorder=1)
             ax.plot([p["budget"]], [p["speedup"]], marker="|", ms=10, color="0.3", zorder=2)
-    front = [pts[i] for i in pareto_front([(p["error"], p["speedup"]) for p in pts])]
+    front = [pts[i] for i in pareto_front([(p["error"], p["speedup"]) for p in pts])] if len(scenes) == 1 else []
     if front:
         xs = [max(p["error"], 1e-12) for p in front]
         ys = [p["speedup"] for p in front]
@@ -446,57 +474,10 @@ def trade_plot(points, path, budgets=(), title=None):
     ax.set_xlabel("max vertex distance to the full-space run / scene size")
     ax.set_ylabel("speedup over full space (x)")
     ax.set_title(title or "Speed against accuracy (up and left is better)", fontsize=10)
-    ax.legend(fontsize=8, loc="best")
-    fig.tight_layout()
-    return _save(fig, path)
-
-
-TRADE_MARKERS = "osD^v<>ph*"
-TRADE_COLORS = {"adaptive subspace": "#7570b3"}
-
-
-def trade_picture(points, path, title=None):
-    """Speedup against max distance error, one colour per method, one marker per scene.
-
-    Parameters
-    ----------
-    points : list of dict
-        Each with ``scene``, ``method``, ``speedup`` (over the method's own full-space run) and
-        ``error`` (max vertex distance to it over the run, relative to the scene size); points of
-        one method on one scene (its thresholds) are joined in order of error.
-    path : str
-        The PNG to write.
-    title : str, optional
-
-    Returns
-    -------
-    str
-        ``path``.
-    """
-    points = list(points)
-    for i, p in enumerate(points):
-        missing = {"scene", "method", "speedup", "error"} - set(p)
-        if missing:
-            raise ValueError(f"points[{i}] lacks {sorted(missing)}: each point needs scene, method, speedup, error")
-    scenes = list(dict.fromkeys(p["scene"] for p in points))
-    methods = list(dict.fromkeys(p["method"] for p in points))
-    fig = _figure(7.5, 4.6)
-    ax = fig.add_subplot()
-    for mi, method in enumerate(methods):
-        for si, scene in enumerate(scenes):
-            pts = sorted((max(p["error"], 1e-12), p["speedup"]) for p in points
-                         if p["method"] == method and p["scene"] == scene)
-            if not pts:
-                continue
-            e, s = np.array(pts).T
-            ax.plot(e, s, "-", marker=TRADE_MARKERS[si % len(TRADE_MARKERS)], color=TRADE_COLORS.get(method, _color(method, mi)), lw=0.8,
-                    ms=6, label=f"{method}, {scene}")
-    ax.axhline(1.0, color="k", lw=0.8, ls=":")
-    ax.set_xscale("log")
-    ax.set_yscale("log")
-    ax.set_xlabel("max vertex distance error / scene size")
-    ax.set_ylabel("speedup over its full-space run (x)")
-    ax.set_title(title or "Speed against accuracy", fontsize=10)
-    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0)
+    if len(scenes) > 1:
+        ax.set_yscale("log")
+        ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0)
+    else:
+        ax.legend(fontsize=8, loc="best")
     fig.tight_layout()
     return _save(fig, path)
