@@ -34,9 +34,11 @@ accumulated E itself is over the goal it shrinks by at least ``shrink_over``. Ho
 estimate follows the measured error is in ``docs/budget.md``.
 
 **Time budget** (:class:`TimeBudget`): seconds per frame. After each frame the forced reduced
-fraction (resource limiting, paper sec. 3.5) rises in proportion to how much the frame
-overran, and falls slowly while frames are well under, so that as many elements stay elastic
-as the budget allows. The frame's wall time is what ``Simulation.step`` measured
+fraction (resource limiting, paper sec. 3.5) rises in proportion to how far the frame came
+near the budget, and falls slowly while frames are well under, so that as many elements stay
+elastic as the budget allows with a margin for the scatter of frame times. A frame solved in
+full space costs a full solve whatever the fraction, so under a time budget the reducer takes
+a shadow frame only when it fits (:meth:`TimeBudget.fits`). The frame's wall time is what ``Simulation.step`` measured
 (:meth:`Reducer.end_frame`), so that tests can feed it any clock.
 
 **Never slower** (:class:`PaysOff`): the reducer times its own reduced frames (oracle,
@@ -199,6 +201,11 @@ class ShadowClock:
 class TimeBudget:
     """Controller of the forced reduced fraction from measured frame wall times.
 
+    Frame times on a shared machine scatter by tens of percent from frame to frame, so the
+    controller keeps them in a band under the budget rather than at it: the forced fraction
+    rises as soon as a frame takes over ``high`` budgets, and falls only while frames take
+    under ``low`` budgets.
+
     Parameters
     ----------
     budget : float
@@ -206,32 +213,46 @@ class TimeBudget:
     fraction : float
         The forced fraction to start from.
     gain : float
-        The fraction rises by ``gain * (wall / budget - 1)`` (at least ``step``) after a miss.
+        The fraction rises by ``gain * (wall / budget - high)`` (at least ``step``) after a frame
+        over ``high`` budgets.
     step : float
-        Smallest rise after a miss; the fall per frame while frames take under ``low`` budgets.
-    low : float
-        Frames under ``low * budget`` give elastic DOFs back.
+        Smallest rise; the fall per frame is half of it.
+    low, high : float
+        The band, in budgets, the frames are kept in.
     """
 
-    def __init__(self, budget, fraction=0.0, gain=0.5, step=0.02, low=0.85):
+    def __init__(self, budget, fraction=0.0, gain=0.5, step=0.02, low=0.7, high=0.85):
         self.budget = positive(budget, "time_budget")
         self.fraction = real(fraction, "min_fraction", low=0.0, high=1.0)
         self.floor = self.fraction
-        self.gain, self.step, self.low = float(gain), float(step), float(low)
+        self.gain, self.step, self.low, self.high = float(gain), float(step), float(low), float(high)
         self.frames = 0
         self.misses = 0
+        self.wall = 0.0       # the latest steered frame's wall time (s)
+        self.full_cost = 0.0  # the latest full solve's time (s), set by the reducer
 
-    def observe(self, wall):
-        """Take one frame's wall time (s); returns whether it missed the budget."""
+    def observe(self, wall, steered=True):
+        """Take one frame's wall time (s); returns whether it missed the budget.
+
+        ``steered=False``: the forced fraction did not set this frame's time (a frame solved in
+        full space, or a shadow frame); it counts, but does not move the fraction.
+        """
         self.frames += 1
         ratio = float(wall) / self.budget
         miss = ratio > 1.0
-        if miss:
-            self.misses += 1
-            self.fraction = min(1.0, self.fraction + max(self.step, self.gain * (ratio - 1.0)))
+        self.misses += int(miss)
+        if not steered:
+            return miss
+        self.wall = float(wall)
+        if ratio > self.high:
+            self.fraction = min(1.0, self.fraction + max(self.step, self.gain * (ratio - self.high)))
         elif ratio < self.low:
             self.fraction = max(self.floor, self.fraction - 0.5 * self.step)
         return miss
+
+    def fits(self, extra):
+        """Whether a frame ``extra`` seconds longer than the latest steered one stays in budget."""
+        return self.wall + float(extra) <= self.budget
 
 
 class PaysOff:
