@@ -202,9 +202,11 @@ class TimeBudget:
     """Controller of the forced reduced fraction from measured frame wall times.
 
     Frame times on a shared machine scatter by tens of percent from frame to frame, so the
-    controller keeps them in a band under the budget rather than at it: the forced fraction
-    rises as soon as a frame takes over ``high`` budgets, and falls only while frames take
-    under ``low`` budgets.
+    controller keeps them in a band under the budget rather than at it, and its steps are
+    asymmetric: a miss raises the forced fraction by at least ``miss_step``, a frame under
+    ``low`` budgets lowers it by ``fall``. Where the fraction settles, misses times their rise
+    balance the falls, so at most ``fall / miss_step`` of the frames miss (5 %) whatever
+    the scatter, as long as forcing more elements into bodies can still shorten a frame.
 
     Parameters
     ----------
@@ -213,19 +215,22 @@ class TimeBudget:
     fraction : float
         The forced fraction to start from.
     gain : float
-        The fraction rises by ``gain * (wall / budget - high)`` (at least ``step``) after a frame
-        over ``high`` budgets.
-    step : float
-        Smallest rise; the fall per frame is half of it.
+        A frame over ``high`` budgets raises the fraction by ``gain * (wall / budget - high)``,
+        at least ``step``, at least ``miss_step`` when over the budget.
+    step, miss_step : float
+        Smallest rises of the fraction.
+    fall : float
+        The fall per frame under ``low`` budgets.
     low, high : float
         The band, in budgets, the frames are kept in.
     """
 
-    def __init__(self, budget, fraction=0.0, gain=0.5, step=0.02, low=0.7, high=0.85):
+    def __init__(self, budget, fraction=0.0, gain=0.5, step=0.02, miss_step=0.1, fall=0.005, low=0.7, high=0.85):
         self.budget = positive(budget, "time_budget")
         self.fraction = real(fraction, "min_fraction", low=0.0, high=1.0)
         self.floor = self.fraction
-        self.gain, self.step, self.low, self.high = float(gain), float(step), float(low), float(high)
+        self.gain, self.step, self.miss_step, self.fall = float(gain), float(step), float(miss_step), float(fall)
+        self.low, self.high = float(low), float(high)
         self.frames = 0
         self.misses = 0
         self.wall = 0.0       # the latest steered frame's wall time (s)
@@ -245,9 +250,10 @@ class TimeBudget:
             return miss
         self.wall = float(wall)
         if ratio > self.high:
-            self.fraction = min(1.0, self.fraction + max(self.step, self.gain * (ratio - self.high)))
+            least = self.miss_step if miss else self.step
+            self.fraction = min(1.0, self.fraction + max(least, self.gain * (ratio - self.high)))
         elif ratio < self.low:
-            self.fraction = max(self.floor, self.fraction - 0.5 * self.step)
+            self.fraction = max(self.floor, self.fraction - self.fall)
         return miss
 
     def fits(self, extra):
