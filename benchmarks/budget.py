@@ -126,6 +126,9 @@ def time_budget_table(args, scenes):
         row = {"scene": scene, "time_budget_s": budget, "frames": len(after), "met_fraction": met,
                "mean_min_fraction": float(np.mean([r.get("min_fraction", 0.0) for r in after])) if after else None,
                "shadow_frames": int(sum(bool(r.get("shadow")) for r in after)),
+               # load from elsewhere: the full frame stepped just before took over 1.25 its warm-up mean
+               "misses_beside_load_spike": int(sum(bool(r.get("time_budget_miss")) and f["wall"] > 2.5 * budget
+                                                   for r, f in zip(after, beside))),
                "full_frame_beside_over_warm": float(np.median([r["wall"] for r in beside])) / (2 * budget)
                if beside else None}
         rows.append(row)
