@@ -263,20 +263,3 @@ def test_a_load_spike_enters_the_running_cost_clipped():
     p.full_solved(1.0)
     p.full_solved(10.0)  # a frame slowed by load from elsewhere
     assert p.full_cost == pytest.approx(0.5 * 1.0 + 0.5 * 1.5)
-
-
-def test_the_fall_back_counts_the_wall_time_outside_the_timed_phases():
-    # timed phases say reduction pays (0.8 against 1.0), but reduced frames pay 0.5 more outside them
-    def judged(untracked_reduced):
-        p = budget.PaysOff(patience=3)
-        p.full_solved(5.0)
-        p.untracked(9.0, reduced=False)  # the first full frame: not a sample
-        p.full_solved(1.0)
-        p.untracked(0.2, reduced=False)
-        for _ in range(3):
-            p.reduced_solved(0.8, 0.3)
-            p.untracked(untracked_reduced, reduced=True)
-            p.decide()
-        return p
-    assert not judged(0.2).in_full and judged(0.2).untracked_full == 0.2
-    assert judged(0.7).in_full

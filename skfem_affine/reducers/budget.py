@@ -46,9 +46,7 @@ clustering, reduced assembly and solve) and the full solves of its shadow frames
 reduced frames, shadows included, cost more than a full solve, or keep nearly every DOF, it
 solves the next frames in full space, and probes reduction again after ``probe_every`` frames
 (doubling while probes keep failing). A probe is a shadow frame: it returns the full solution,
-so a run that never reduces equals the full-space run. Frames in which an error budget still
-ramps its threshold up from the small start (:attr:`ErrorBudget.ramping`) are not judged: they
-cost more than the frames at the threshold the budget settles at.
+so a run that never reduces equals the full-space run.
 """
 import math
 
@@ -296,10 +294,6 @@ class PaysOff:
         self.full_samples = 0
         self.full_seen = 0     # full solves timed; the first (with the solver's symbolic analysis) is not a sample
         self.reduced_samples = 0
-        # the frame's wall time outside the timed phases, of reduced frames and of frames solved in full
-        # space (a reduced frame also pays the mapped integration and the record of its bodies)
-        self.untracked_reduced = self.untracked_full = 0.0
-        self.untracked_reduced_samples = self.untracked_full_samples = 0
         self.dof_ratio = 0.0
         self.kept_all = 0      # reduced frames in a row that kept at least keep_dofs of the DOFs
         self.in_full = False
@@ -315,16 +309,6 @@ class PaysOff:
             return
         self.full_cost = self._mix(self.full_cost, seconds, self.full_samples)
         self.full_samples += 1
-
-    def untracked(self, seconds, reduced):
-        """A frame's wall time minus the phases it timed (the first frame in full space is not a sample)."""
-        seconds = max(float(seconds), 0.0)
-        if reduced:
-            self.untracked_reduced = self._mix(self.untracked_reduced, seconds, self.untracked_reduced_samples)
-            self.untracked_reduced_samples += 1
-        elif self.full_seen > 1:  # the first full solve's frame also pays the first-frame costs
-            self.untracked_full = self._mix(self.untracked_full, seconds, self.untracked_full_samples)
-            self.untracked_full_samples += 1
 
     def reduced_solved(self, seconds, dof_ratio, fresh=False):
         """Record a reduced frame's cost. ``fresh`` (a probe after full-space frames) replaces the
@@ -348,8 +332,6 @@ class PaysOff:
         if not (self.full_samples and self.reduced_samples):
             return True
         extra = self.overhead(shadow_every) if shadow_every else 0.0
-        if self.untracked_reduced_samples and self.untracked_full_samples:
-            extra += self.untracked_reduced - self.untracked_full
         return self.reduced_cost + extra <= (1.0 - margin) * self.full_cost
 
     def plan(self):

@@ -323,15 +323,11 @@ class ClusteringReducer(Reducer):
         self.tau_e = 2.0 * float(tau)
 
     def end_frame(self, rec):
-        """The frame's wall time: the time budget takes it (``rec["time_budget_miss"]`` records a
-        miss), and the fall-back the part of it outside the phases it timed (:meth:`PaysOff.untracked`).
+        """The time budget takes the frame's wall time; ``rec["time_budget_miss"]`` records a miss.
 
         Only reduced frames steer the forced fraction: a frame solved in full space (a shadow, an
         impact, the fall-back) takes a full solve whatever the fraction.
         """
-        tracked, self._tracked = getattr(self, "_tracked", None), None
-        if self.pays is not None and "wall" in rec and tracked is not None:
-            self.pays.untracked(rec["wall"] - tracked, reduced=bool(rec.get("reduced")))
         if self.timer is not None and "wall" in rec:
             rec["time_budget_miss"] = bool(self.timer.observe(rec["wall"], steered=rec.get("reduced", True)))
             rec["min_fraction_next"] = float(self.timer.fraction)
@@ -382,7 +378,6 @@ class ClusteringReducer(Reducer):
             self.labels = np.full(sysm.m, -1, dtype=np.int64)
             stats.update(dofs=op.shape[0], solver=self.full_solver.name, n_clusters=0, elastic_dofs=op.shape[0],
                          reduced_fraction=0.0, reduced=False, shadow=False, impact=mode == "impact")
-            self._tracked = seconds
             self._record(stats)
             return StepResult(dv=dv, operator=op, clusters=self.labels, stats=stats)
         if eb is not None:
@@ -424,7 +419,6 @@ class ClusteringReducer(Reducer):
         if pays is not None:
             pays.reduced_solved(reduced_seconds, stats["reduced_dofs"] / max(sysm.free.size, 1), fresh=mode == "probe")
             pays.decide(self.shadows.every, probed=mode == "probe", settling=eb is not None and eb.ramping)
-        self._tracked = reduced_seconds + (stats["full_solve"] if shadow else 0.0)
         self._record(stats)
         return result
 
