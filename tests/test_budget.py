@@ -231,35 +231,3 @@ def test_controller_state_is_plain_numbers_and_restores_a_run():
     assert b.reducer.controller_state() == state and b.reducer.tau_a == a.reducer.tau_a
     with pytest.raises(ValueError, match="no controller"):
         sa.scenes.cantilever(resolution=2, reducer=sa.Affinification(0.1, 0.2)).reducer.restore_controller_state(state)
-
-
-def test_reduction_is_not_judged_while_the_error_budget_is_still_ramping_its_threshold():
-    eb = budget.ErrorBudget(0.01, tau=1e-3)
-    eb.advance(1e-6, 0.01, 1.0)
-    eb.adapt()
-    assert eb.ramping  # far under the goal: tau doubles, the thresholds are not settled yet
-    eb.advance(10.0, 0.01, 1.0)
-    eb.adapt()
-    assert not eb.ramping
-    p = budget.PaysOff(probe_every=2, patience=3)
-    p.full_solved(5.0)
-    p.full_solved(1.0)
-    for _ in range(6):  # ramp frames: costly and keeping every DOF, but not judged
-        p.reduced_solved(4.0, 0.99)
-        assert not p.decide(shadow_every=10, settling=True)
-    assert p.reduced_samples == 0 and p.kept_all == 0
-    p.reduced_solved(0.3, 0.2)  # settled: the first settled frame's cost replaces the ramp's
-    p.decide(shadow_every=10)
-    assert p.reduced_cost == 0.3 and not p.in_full
-    for _ in range(3):  # settled frames that do not pay are still judged
-        p.reduced_solved(4.0, 0.99)
-        p.decide(shadow_every=10)
-    assert p.in_full
-
-
-def test_a_load_spike_enters_the_running_cost_clipped():
-    p = budget.PaysOff(smoothing=0.5, spike=1.5)
-    p.full_solved(9.0)
-    p.full_solved(1.0)
-    p.full_solved(10.0)  # a frame slowed by load from elsewhere
-    assert p.full_cost == pytest.approx(0.5 * 1.0 + 0.5 * 1.5)

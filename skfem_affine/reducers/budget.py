@@ -105,7 +105,6 @@ class ErrorBudget:
         self.calibrated = 0  # shadow frames that measured a nonzero proxy
         self.local_rate = 0.0
         self.stable = False  # the latest shadow frame confirmed the calibration
-        self.ramping = False  # the latest adapt grew tau at the full rate: the threshold is still settling
 
     @property
     def goal(self):
@@ -158,7 +157,6 @@ class ErrorBudget:
             factor = min(factor, 1.0)
         if self.estimate > self.goal:
             factor = min(factor, self.shrink_over)
-        self.ramping = factor >= self.grow and self.tau < self.tau_max
         self.tau = min(max(self.tau * factor, self.tau_min), self.tau_max)
         return self.tau
 
@@ -279,16 +277,11 @@ class PaysOff:
         Return to reduction only when a probe costs at most ``1 - margin`` of a full solve.
     smoothing : float
         Weight of the newest measurement in the running costs.
-    spike : float
-        A measurement enters the running cost clipped at ``spike`` times it: on a shared machine a
-        frame that took several times the usual is load from elsewhere, not the method's cost.
     """
 
-    def __init__(self, probe_every=20, probe_max=160, keep_dofs=0.95, patience=5, margin=0.05, smoothing=0.3,
-                 spike=1.5):
+    def __init__(self, probe_every=20, probe_max=160, keep_dofs=0.95, patience=5, margin=0.05, smoothing=0.3):
         self.probe_every, self.probe_max, self.patience = int(probe_every), int(probe_max), int(patience)
         self.keep_dofs, self.margin, self.smoothing = float(keep_dofs), float(margin), float(smoothing)
-        self.spike = float(spike)
         self.full_cost = 0.0   # s per full solve (matrix, factorisation, solve)
         self.reduced_cost = 0.0  # s per reduced frame (oracle to solve, the error proxy)
         self.full_samples = 0
@@ -301,7 +294,7 @@ class PaysOff:
         self.period = self.probe_every
 
     def _mix(self, old, new, n):
-        return new if n == 0 else (1 - self.smoothing) * old + self.smoothing * min(new, self.spike * old)
+        return new if n == 0 else (1 - self.smoothing) * old + self.smoothing * new
 
     def full_solved(self, seconds):
         self.full_seen += 1
@@ -343,16 +336,8 @@ class PaysOff:
             return "full"
         return "probe"
 
-    def decide(self, shadow_every=None, probed=False, settling=False):
-        """After a reduced frame or a probe: stay reduced, or go to full space until the next probe.
-
-        ``settling``: the reducer's thresholds are still moving towards their operating point (an
-        error budget's ramp from small thresholds); such frames cost more than the settled ones,
-        so they do not judge reduction, and the judgement waits for ``patience`` frames after them.
-        """
-        if settling and not probed:
-            self.reduced_samples = self.kept_all = 0
-            return self.in_full
+    def decide(self, shadow_every=None, probed=False):
+        """After a reduced frame or a probe: stay reduced, or go to full space until the next probe."""
         warm = self.reduced_samples >= self.patience and self.full_samples >= 1
         if probed:
             if self.pays(shadow_every, self.margin):

@@ -418,7 +418,7 @@ class ClusteringReducer(Reducer):
             eb.adapt(saturated=stats["reduced_fraction"] >= reducible - 1e-9)
         if pays is not None:
             pays.reduced_solved(reduced_seconds, stats["reduced_dofs"] / max(sysm.free.size, 1), fresh=mode == "probe")
-            pays.decide(self.shadows.every, probed=mode == "probe", settling=eb is not None and eb.ramping)
+            pays.decide(self.shadows.every, probed=mode == "probe")
         self._record(stats)
         return result
 
