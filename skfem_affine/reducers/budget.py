@@ -38,8 +38,8 @@ fraction (resource limiting, paper sec. 3.5) rises in proportion to how far the 
 near the budget, and falls slowly while frames are well under, so that as many elements stay
 elastic as the budget allows with a margin for the scatter of frame times. A frame solved in
 full space costs a full solve whatever the fraction, so under a time budget the reducer takes
-a shadow frame only when it fits (:meth:`TimeBudget.fits`). The frame's wall time is what ``Simulation.step`` measured
-(:meth:`Reducer.end_frame`), so that tests can feed it any clock.
+a shadow frame only when it fits (:meth:`TimeBudget.fits`). The frame's wall time is what
+``Simulation.step`` measured (:meth:`Reducer.end_frame`), so that tests can feed it any clock.
 
 **Never slower** (:class:`PaysOff`): the reducer times its own reduced frames (oracle,
 clustering, reduced assembly and solve) and the full solves of its shadow frames; when the
