@@ -129,6 +129,9 @@ def time_budget_table(args, scenes):
                # load from elsewhere: the full frame stepped just before took over 1.25 its warm-up mean
                "misses_beside_load_spike": int(sum(bool(r.get("time_budget_miss")) and f["wall"] > 2.5 * budget
                                                    for r, f in zip(after, beside))),
+               # the controller had nothing left to force: at least 95 % of the elements were forced into bodies
+               "misses_at_full_forcing": int(sum(bool(r.get("time_budget_miss")) and r.get("min_fraction", 0.0) >= 0.95
+                                                 for r in after)),
                "full_frame_beside_over_warm": float(np.median([r["wall"] for r in beside])) / (2 * budget)
                if beside else None}
         rows.append(row)
