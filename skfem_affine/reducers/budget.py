@@ -34,10 +34,12 @@ accumulated E itself is over the goal it shrinks by at least ``shrink_over``. Ho
 estimate follows the measured error is in ``docs/budget.md``.
 
 **Time budget** (:class:`TimeBudget`): seconds per frame. After each frame the forced reduced
-fraction (resource limiting, paper sec. 3.5) rises in proportion to how much the frame
-overran, and falls slowly while frames are well under, so that as many elements stay elastic
-as the budget allows. The frame's wall time is what ``Simulation.step`` measured
-(:meth:`Reducer.end_frame`), so that tests can feed it any clock.
+fraction (resource limiting, paper sec. 3.5) rises in proportion to how far the frame came
+near the budget, and falls slowly while frames are well under, so that as many elements stay
+elastic as the budget allows with a margin for the scatter of frame times. A frame solved in
+full space costs a full solve whatever the fraction, so under a time budget the reducer takes
+a shadow frame only when it fits (:meth:`TimeBudget.fits`). The frame's wall time is what
+``Simulation.step`` measured (:meth:`Reducer.end_frame`), so that tests can feed it any clock.
 
 **Never slower** (:class:`PaysOff`): the reducer times its own reduced frames (oracle,
 clustering, reduced assembly and solve) and the full solves of its shadow frames; when the
@@ -197,6 +199,13 @@ class ShadowClock:
 class TimeBudget:
     """Controller of the forced reduced fraction from measured frame wall times.
 
+    Frame times on a shared machine scatter by tens of percent from frame to frame, so the
+    controller keeps them in a band under the budget rather than at it, and its steps are
+    asymmetric: a miss raises the forced fraction by at least ``miss_step``, a frame under
+    ``low`` budgets lowers it by ``fall``. Where the fraction settles, misses times their rise
+    balance the falls, so at most ``fall / miss_step`` of the frames miss (5 %) whatever
+    the scatter, as long as forcing more elements into bodies can still shorten a frame.
+
     Parameters
     ----------
     budget : float
@@ -204,32 +213,50 @@ class TimeBudget:
     fraction : float
         The forced fraction to start from.
     gain : float
-        The fraction rises by ``gain * (wall / budget - 1)`` (at least ``step``) after a miss.
-    step : float
-        Smallest rise after a miss; the fall per frame while frames take under ``low`` budgets.
-    low : float
-        Frames under ``low * budget`` give elastic DOFs back.
+        A frame over ``high`` budgets raises the fraction by ``gain * (wall / budget - high)``,
+        at least ``step``, at least ``miss_step`` when over the budget.
+    step, miss_step : float
+        Smallest rises of the fraction.
+    fall : float
+        The fall per frame under ``low`` budgets.
+    low, high : float
+        The band, in budgets, the frames are kept in.
     """
 
-    def __init__(self, budget, fraction=0.0, gain=0.5, step=0.02, low=0.85):
+    def __init__(self, budget, fraction=0.0, gain=0.5, step=0.02, miss_step=0.1, fall=0.005, low=0.7, high=0.85):
         self.budget = positive(budget, "time_budget")
         self.fraction = real(fraction, "min_fraction", low=0.0, high=1.0)
         self.floor = self.fraction
-        self.gain, self.step, self.low = float(gain), float(step), float(low)
+        self.gain, self.step, self.miss_step, self.fall = float(gain), float(step), float(miss_step), float(fall)
+        self.low, self.high = float(low), float(high)
         self.frames = 0
         self.misses = 0
+        self.wall = 0.0       # the latest steered frame's wall time (s)
+        self.full_cost = 0.0  # the latest full solve's time (s), set by the reducer
 
-    def observe(self, wall):
-        """Take one frame's wall time (s); returns whether it missed the budget."""
+    def observe(self, wall, steered=True):
+        """Take one frame's wall time (s); returns whether it missed the budget.
+
+        ``steered=False``: the forced fraction did not set this frame's time (a frame solved in
+        full space, or a shadow frame); it counts, but does not move the fraction.
+        """
         self.frames += 1
         ratio = float(wall) / self.budget
         miss = ratio > 1.0
-        if miss:
-            self.misses += 1
-            self.fraction = min(1.0, self.fraction + max(self.step, self.gain * (ratio - 1.0)))
+        self.misses += int(miss)
+        if not steered:
+            return miss
+        self.wall = float(wall)
+        if ratio > self.high:
+            least = self.miss_step if miss else self.step
+            self.fraction = min(1.0, self.fraction + max(least, self.gain * (ratio - self.high)))
         elif ratio < self.low:
-            self.fraction = max(self.floor, self.fraction - 0.5 * self.step)
+            self.fraction = max(self.floor, self.fraction - self.fall)
         return miss
+
+    def fits(self, extra):
+        """Whether a frame ``extra`` seconds longer than the latest steered one stays in budget."""
+        return self.wall + float(extra) <= self.budget
 
 
 class PaysOff:

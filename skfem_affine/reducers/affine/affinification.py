@@ -28,7 +28,8 @@ class Affinification(ClusteringReducer):
         stay under it; misses are recorded in ``sim.stats`` (``"time_budget_miss"``).
     never_slower : bool, optional
         Solve frames in full space while reduction does not pay (measured), probing it again
-        periodically. Default: on with an error budget, off with explicit thresholds.
+        periodically. Default: on with an error budget and no time budget (a time budget bounds
+        the frames itself), off with explicit thresholds.
     min_fraction : float
         Resource limiting (sec. 3.5): at least this fraction of the elements is forced into
         clusters. ``min_affine_fraction`` is its older name.

@@ -107,8 +107,9 @@ class ClusteringReducer(Reducer):
         The error budget (None: explicit thresholds); see :mod:`skfem_affine.reducers.budget`.
     time_budget : float or None
         Seconds per frame; the forced fraction adapts to it.
-    never_slower : bool
-        Solve frames in full space while reduction does not pay.
+    never_slower : bool or None
+        Solve frames in full space while reduction does not pay. Default (None): on with an
+        error budget and no time budget.
     shadow_every : int
         Reduced frames per shadow frame (error budget, never slower); the period doubles, up to
         4 shadow_every, while shadow frames confirm the error estimate's calibration.
@@ -224,7 +225,9 @@ class ClusteringReducer(Reducer):
             setattr(self, self.threshold, self.tau_start)
         self.tau_e = check_threshold(tau_e, "tau_e")
         self.time_budget = None if time_budget is None else positive(time_budget, "time_budget")
-        self.never_slower = (target_error is not None) if never_slower is None else bool(never_slower)
+        # a time budget bounds the frames itself; falling back to full space would miss any budget under a full frame
+        default = target_error is not None and self.time_budget is None
+        self.never_slower = default if never_slower is None else bool(never_slower)
         self.shadow_every = integer(shadow_every, "shadow_every", low=1)
         self.memory = positive(memory, "memory")
         self.controlled = target_error is not None or self.time_budget is not None or self.never_slower
@@ -320,9 +323,13 @@ class ClusteringReducer(Reducer):
         self.tau_e = 2.0 * float(tau)
 
     def end_frame(self, rec):
-        """The time budget takes the frame's wall time; ``rec["time_budget_miss"]`` records a miss."""
+        """The time budget takes the frame's wall time; ``rec["time_budget_miss"]`` records a miss.
+
+        Only reduced frames steer the forced fraction: a frame solved in full space (a shadow, an
+        impact, the fall-back) takes a full solve whatever the fraction.
+        """
         if self.timer is not None and "wall" in rec:
-            rec["time_budget_miss"] = bool(self.timer.observe(rec["wall"]))
+            rec["time_budget_miss"] = bool(self.timer.observe(rec["wall"], steered=rec.get("reduced", True)))
             rec["min_fraction_next"] = float(self.timer.fraction)
 
     # -------------------------------------------------------------- frame
@@ -347,6 +354,8 @@ class ClusteringReducer(Reducer):
             stats[key] = stats.get(key, 0.0) + part[key]
         stats["assembly"] = stats.get("assembly", 0.0) + t1 - t0
         stats["full_solve"] = seconds
+        if self.timer is not None:
+            self.timer.full_cost = seconds
         return dv, Operator(self.full_solver, A), seconds
 
     def _controlled_frame(self, problem):
@@ -385,7 +394,11 @@ class ClusteringReducer(Reducer):
             stats["estimation"] = time.perf_counter() - t_est
             stats["prediction"] += stats["estimation"]
         reduced_seconds = time.perf_counter() - t0
+        initial = self.shadows is not None and self.shadows.first > 0
         shadow = mode == "probe" or (self.shadows is not None and self.shadows.due())
+        if shadow and not initial and mode != "probe" and self.timer is not None \
+                and not self.timer.fits(self.timer.full_cost):
+            shadow = False  # the time budget wins: a full solve on top of the frame would miss it
         stats.update(reduced_dofs=stats["dofs"], shadow=bool(shadow), reduced=not shadow)
         measured = None
         if shadow:
