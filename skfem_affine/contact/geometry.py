@@ -14,6 +14,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
+from skfem_affine.contact.edges import EdgePairs
 from skfem_affine.reducers.affine.mapping import group_sum
 
 # Broad phase: candidate triangles per vertex (nearest centroids within reach).
@@ -126,8 +127,12 @@ class ContactSet:
     weights: np.ndarray   # (k, 3) barycentric weights of the closest point (zeros for colliders)
     normal: np.ndarray    # (k, 3) unit normal, pointing from the obstacle towards the vertex
     distance: np.ndarray  # (k,) signed gap (negative: penetration)
-    key: np.ndarray       # (k,) identity: vertex * n_kinds + (collider index | n_colliders + other body)
+    key: np.ndarray       # (k,) identity: vertex * n_kinds + (collider index | n_colliders + other body),
+    #                       or, for an edge-edge contact, n_vertices * n_kinds + edge_a * n_edges + edge_b
     J: sp.csr_matrix = None  # (3k, n_free) rows n, t1, t2 per contact
+    own: np.ndarray = None   # (k,) weight of ``vertex`` in the contact point (None: all 1); an edge-edge
+    #                          contact is the point (1 - s) a0 + s a1: vertex a0, own 1 - s, others
+    #                          (a1, b0, b1) with weights (-s, 1 - t, t)
 
     @property
     def size(self):
@@ -142,7 +147,10 @@ class ContactSet:
 def concat(sets):
     """One ContactSet from several."""
     fields = ("vertex", "others", "weights", "normal", "distance", "key")
-    return ContactSet(*[np.concatenate([getattr(s, f) for s in sets]) for f in fields])
+    out = ContactSet(*[np.concatenate([getattr(s, f) for s in sets]) for f in fields])
+    if any(s.own is not None for s in sets):
+        out.own = np.concatenate([np.ones(s.size) if s.own is None else s.own for s in sets])
+    return out
 
 
 
@@ -163,6 +171,8 @@ class Detector:
         self.colliders = colliders
         self.tris, self.tri_body = boundary_surface(system)
         self.surface = np.unique(self.tris)
+        # vertices tested against the other bodies' triangles: the surface and every free vertex
+        self.body_vertices = np.union1d(self.surface, np.flatnonzero(~system.fixed))
         # every vertex that can move is tested against the colliders, interior ones too: an impact
         # faster than the material's wave speed inverts elements and would carry interior vertices
         # through a collider that the surface vertices never cross
@@ -174,6 +184,13 @@ class Detector:
         self.mean_edge = float(np.linalg.norm(edges, axis=1).mean())
         self.margin = 0.2 * self.mean_edge if margin is None else float(margin)
         self.body_pairs = bool(body_contact) and len(system.bodies) > 1
+        self.n_vertices = system.n
+        self.edge_pairs = EdgePairs(self.tris, self.tri_body) if self.body_pairs else None
+
+    def body_contacts(self, cs):
+        """Mask (k,) of the contacts of ``cs`` between two bodies (not with a collider)."""
+        base = self.n_vertices * self.n_kinds
+        return (cs.key >= base) | (cs.key % self.n_kinds >= len(self.colliders))
 
     def find(self, x, v, dt):
         """All contacts at positions x (n, 3) with vertex velocities v (n, 3), or None.
@@ -192,8 +209,11 @@ class Detector:
                 sets.append(ContactSet(vtx, np.repeat(vtx[:, None], 3, axis=1), np.zeros((hit.size, 3)), n[hit],
                                        d[hit], vtx * self.n_kinds + ci))
         if self.body_pairs:
-            sv = self.surface
+            sv = self.body_vertices
             sets += self._body_contacts(x, v, x[sv], v[sv], dt)
+            found = self._edge_contacts(x, v, dt)
+            if found is not None:
+                sets.append(found)
         if not sets:
             return None
         return concat(sets)
@@ -206,11 +226,36 @@ class Detector:
             d, _ = col.query(x[self.collider_vertices])
             depth = max(depth, float(-d.min(initial=0.0)))
         if bodies and self.body_pairs:
-            xs = x[self.surface]
+            xs = x[self.body_vertices]
             zero = np.zeros_like(xs)
             for cs in self._body_contacts(x, np.zeros_like(x), xs, zero, 0.0):
                 depth = max(depth, float(-cs.distance.min(initial=0.0)))
         return depth
+
+    def _speeds(self, owner, vs):
+        """Mean velocity (B, 3) of each body's vertices ``vs`` (owners ``owner``), each vertex's speed
+        relative to its body's mean, and its body's largest such speed (B,)."""
+        nb = int(self.body_of_vertex.max()) + 1
+        mean_v = group_sum(owner, vs, nb) / np.maximum(np.bincount(owner, minlength=nb), 1)[:, None]
+        spread = np.linalg.norm(vs - mean_v[owner], axis=1)
+        max_spread = np.zeros(nb)
+        np.maximum.at(max_spread, owner, spread)
+        return mean_v, spread, max_spread
+
+    def _edge_contacts(self, x, v, dt):
+        """Speculative edge-edge contacts between surface edges of different bodies (:mod:`edges`)."""
+        ep = self.edge_pairs
+        ends = ep.edges.ravel()
+        _, _, max_spread = self._speeds(self.body_of_vertex[ends], v[ends])
+        found = ep.find(x, v, dt, self.margin, max_spread)
+        if found is None:
+            return None
+        ea, eb, s, t, normal, d = found
+        a0, a1 = ep.edges[ea, 0], ep.edges[ea, 1]
+        others = np.column_stack([a1, ep.edges[eb]])
+        weights = np.column_stack([-s, 1.0 - t, t])
+        key = self.n_vertices * self.n_kinds + ea * len(ep.edges) + eb
+        return ContactSet(a0, others, weights, normal, d, key, own=1.0 - s)
 
     def _body_contacts(self, x, v, xs, vs, dt):
         """Surface vertices of every body against the boundary triangles of each other body.
@@ -221,14 +266,10 @@ class Detector:
         :func:`closest_surface_points`; a pair is a contact when its gap may close at the
         relative normal approach speed.
         """
-        sv, out = self.surface, []
+        sv, out = self.body_vertices, []
         owner = self.body_of_vertex[sv]
-        nb = int(self.body_of_vertex.max()) + 1
         # |v_i - v_j| <= |v_i - vbar_a| + |vbar_a - vbar_b| + max_j |v_j - vbar_b| for i in a, j in b
-        mean_v = group_sum(owner, vs, nb) / np.maximum(np.bincount(owner, minlength=nb), 1)[:, None]
-        spread = np.linalg.norm(vs - mean_v[owner], axis=1)
-        max_spread = np.zeros(nb)
-        np.maximum.at(max_spread, owner, spread)
+        mean_v, spread, max_spread = self._speeds(owner, vs)
         for b in np.unique(self.tri_body):
             tris = self.tris[self.tri_body == b]
             corners = x[tris]                                             # (T, 3 corners, 3)
