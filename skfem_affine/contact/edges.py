@@ -73,12 +73,16 @@ class EdgePairs:
         self.edge_body = tri_body[self.faces[:, 0]]
         self.cos_sharp = np.cos(SHARP_ANGLE)
 
-    def find(self, x, v, dt, margin, speed_bound):
+    def find(self, x, v, dt, margin, speed_bound, held=None):
         """Edge-edge contacts at x (n, 3) with velocities v (n, 3).
 
         ``speed_bound`` (n_bodies,) bounds each body's vertex speeds relative to its mean, and
         the means are taken from v, so that ``margin + 2 h`` times a bound on any pair's
         relative speed is the reach of the broad phase.
+
+        ``held`` (n,) marks vertices touching another body (a vertex contact within ``margin``):
+        a pair whose four end vertices are all held lies inside a resting contact patch, whose
+        vertex contacts hold it, and is skipped.
 
         Returns ``(edge_a, edge_b, s, t, normal, distance)`` (edge a is the one whose closest
         point the normal points to) or None."""
@@ -98,27 +102,37 @@ class EdgePairs:
         count = np.maximum(np.bincount(body, minlength=nb), 1)[:, None]
         vm = 0.5 * (v[edges[:, 0]] + v[edges[:, 1]])
         mean_v = np.stack([np.bincount(body, vm[:, k], nb) for k in range(3)], axis=1) / count
-        pairs = []
-        for b in range(nb):
-            mine = np.flatnonzero(body == b)
-            if not mine.size:
-                continue
-            rel = np.linalg.norm(mean_v - mean_v[b], axis=1) + speed_bound + speed_bound[b]
-            reach = margin + 2.0 * dt * rel                                   # per other body
-            # pairs with at least one sharp edge: (sharp other, any of b) and (flat other, sharp of b)
-            for other_mask, mine_sel in ((sharp, mine), (~sharp, mine[sharp[mine]])):
-                others = np.flatnonzero(other_mask & (body > b))               # each body pair once
-                if not others.size or not mine_sel.size:
+        # reach of each pair of bodies: margin + 2 h |relative speed| bound
+        rel = np.linalg.norm(mean_v[:, None] - mean_v[None], axis=2) + speed_bound[:, None] + speed_bound[None]
+        reach = margin + 2.0 * dt * rel
+        # sharp edges inside another body's bounding box grown by the pair's reach
+        grow = reach + 2.0 * half.max()
+        lo = np.stack([np.bincount(body, minlength=nb) * 0.0 + np.inf for _ in range(3)], axis=1)
+        hi = -lo
+        np.minimum.at(lo, body, mid)
+        np.maximum.at(hi, body, mid)
+        g = grow[body]                                                        # (E, B)
+        inbox = np.all((mid[:, None] >= lo[None] - g[:, :, None]) & (mid[:, None] <= hi[None] + g[:, :, None]), axis=2)
+        inbox[np.arange(len(body)), body] = False
+        sel = sharp & inbox.any(axis=1)
+        # one KD-tree per body, queried by each other body whose box it reaches
+        trees = {b: (idx, cKDTree(mid[idx])) for b in np.unique(body[sel]) for idx in [np.flatnonzero(sel & (body == b))]}
+        found = []
+        for b1, (i1, t1) in trees.items():
+            for b2, (i2, t2) in trees.items():
+                if b2 <= b1 or not inbox[i1, b2].any():
                     continue
-                radius = reach[body[others]] + half[others] + half[mine_sel].max()
-                hits = cKDTree(mid[mine_sel]).query_ball_point(mid[others], radius)
-                lens = np.fromiter((len(hh) for hh in hits), int, len(hits))
-                if lens.sum():
-                    pairs.append(np.column_stack([np.repeat(others, lens),
-                                                  mine_sel[np.concatenate(hits).astype(int)]]))
-        if not pairs:
+                m = t1.sparse_distance_matrix(t2, reach[b1, b2] + 2.0 * half.max(), output_type="ndarray")
+                if len(m):
+                    found.append(np.column_stack([i1[m["i"]], i2[m["j"]]]))
+        if not found:
             return None
-        ea, eb = np.concatenate(pairs).T
+        ea, eb = np.concatenate(found).T
+        near = np.linalg.norm(mid[ea] - mid[eb], axis=1) <= reach[body[ea], body[eb]] + half[ea] + half[eb]
+        ea, eb = ea[near], eb[near]
+        if held is not None:
+            patch = held[edges[ea]].all(axis=1) & held[edges[eb]].all(axis=1)
+            ea, eb = ea[~patch], eb[~patch]
         # edges sharing a vertex cannot belong to different bodies; no check needed
         a0, a1, b0, b1 = e0[ea], e1[ea], e0[eb], e1[eb]
         s, t, parallel = segment_closest_points(a0, a1, b0, b1)

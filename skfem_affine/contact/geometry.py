@@ -210,8 +210,12 @@ class Detector:
                                        d[hit], vtx * self.n_kinds + ci))
         if self.body_pairs:
             sv = self.body_vertices
-            sets += self._body_contacts(x, v, x[sv], v[sv], dt)
-            found = self._edge_contacts(x, v, dt)
+            vertex_sets = self._body_contacts(x, v, x[sv], v[sv], dt)
+            held = np.zeros(len(x), dtype=bool)
+            for cs in vertex_sets:
+                held[cs.vertex[np.abs(cs.distance) < self.margin]] = True
+            sets += vertex_sets
+            found = self._edge_contacts(x, v, dt, held)
             if found is not None:
                 sets.append(found)
         if not sets:
@@ -242,12 +246,12 @@ class Detector:
         np.maximum.at(max_spread, owner, spread)
         return mean_v, spread, max_spread
 
-    def _edge_contacts(self, x, v, dt):
+    def _edge_contacts(self, x, v, dt, held):
         """Speculative edge-edge contacts between surface edges of different bodies (:mod:`edges`)."""
         ep = self.edge_pairs
         ends = ep.edges.ravel()
         _, _, max_spread = self._speeds(self.body_of_vertex[ends], v[ends])
-        found = ep.find(x, v, dt, self.margin, max_spread)
+        found = ep.find(x, v, dt, self.margin, max_spread, held)
         if found is None:
             return None
         ea, eb, s, t, normal, d = found
