@@ -2,20 +2,26 @@ r"""Edge-edge contacts between the boundary surfaces of different bodies (specul
 
 A vertex-triangle test sees a vertex that crosses a surface, but not two edges that cross
 while every vertex stays outside the other body: two bars crossing like an X, a thin plate's
-rim cutting through another's. For such a pair of surface edges, of different bodies, the
-closest points ``p_a = (1 - s) a0 + s a1`` and ``p_b = (1 - t) b0 + t b1`` at x_t, interior to
-both edges, give a separating direction ``n = (p_a - p_b) / |p_a - p_b|``; the contact keeps
-``n . (v(p_a) - v(p_b)) >= -d / h`` (d = |p_a - p_b|), so that the two edges may close their gap
-within the step but not cross (the same speculative rule as a vertex against a triangle).
+rim cutting through another's. For such a pair of surface edges a0-a1 (body A) and b0-b1 (body
+B), with closest points ``p_a = (1 - s) a0 + s a1`` and ``p_b = (1 - t) b0 + t b1`` at x_t
+interior to both edges, the separating direction is across both edges,
+``n = (a1 - a0) x (b1 - b0) / |...|``, turned to point out of B towards A (an edge's outward
+direction is the sum of its two faces' normals); it stays defined when the edges touch, where
+``p_a - p_b`` vanishes. The signed gap is ``d = n . (p_a - p_b)`` and the contact keeps
+``n . (v(p_a) - v(p_b)) >= -max(d, 0) / h``: the edges may close their gap within the step but
+not cross (the speculative rule of a vertex against a triangle), and a pair that has crossed
+(d < 0) may not cross further and is pushed back like any penetration.
 
 Which pairs. Only pairs whose closest points are strictly inside both edges (an endpoint is
-a vertex, which the vertex-triangle test handles), not parallel, seen from outside both
-bodies (``n`` points out of B at B's edge and into A at A's edge, the outward direction of an
-edge being the sum of its two faces' normals: a pair already crossed is left to the vertex
-contacts' push-out), and with at least one *sharp* edge
-(its two faces turn by more than :data:`SHARP_ANGLE`): where both surfaces are flat around the
-edges, the faces' own vertex-triangle contacts already hold them apart, and stacked boxes
-would otherwise get one contact per crossing pair of face edges.
+a vertex, which the vertex-triangle test handles), not parallel, with ``n`` pointing out of B at
+B's edge and into A at A's edge (both edges seen from outside the other body), gap below
+``margin + 2 h`` times the approach speed and above ``-margin``, and both edges *sharp* (their
+two faces turn by more than :data:`SHARP_ANGLE`). An edge inside a flat region of a surface
+cannot be crossed alone: the region's vertex contacts hold it, and an edge crossing the region
+without a vertex entering it must cross the region's border, a sharp edge. The rule keeps
+stacked boxes from getting one contact per crossing pair of face edges. Pairs whose four end
+vertices all rest on the other body (vertex contacts within ``margin``) lie inside a contact
+patch that those vertex contacts hold, and are skipped too.
 """
 import numpy as np
 from scipy.spatial import cKDTree
@@ -138,11 +144,14 @@ class EdgePairs:
         s, t, parallel = segment_closest_points(a0, a1, b0, b1)
         pa = a0 + s[:, None] * (a1 - a0)
         pb = b0 + t[:, None] * (b1 - b0)
-        diff = pa - pb
-        d = np.linalg.norm(diff, axis=1)
-        n = diff / np.maximum(d, 1e-300)[:, None]
+        # the normal of two crossing edges is across both, e_a x e_b (well defined when they touch,
+        # d = 0, where p_a - p_b is not), turned to point out of B, towards A
+        n = np.cross(a1 - a0, b1 - b0)
+        n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+        n *= np.where(np.einsum("ij,ij->i", n, outward[eb] - outward[ea]) < 0, -1.0, 1.0)[:, None]
+        d = np.einsum("ij,ij->i", n, pa - pb)  # signed: negative once the edges have crossed
         inside = 1e-6
-        ok = (~parallel & (s > inside) & (s < 1 - inside) & (t > inside) & (t < 1 - inside) & (d > 0)
+        ok = (~parallel & (s > inside) & (s < 1 - inside) & (t > inside) & (t < 1 - inside) & (d > -margin)
               & (np.einsum("ij,ij->i", n, outward[eb]) > 0) & (np.einsum("ij,ij->i", n, outward[ea]) < 0))
         va = (1 - s)[:, None] * v[edges[ea, 0]] + s[:, None] * v[edges[ea, 1]]
         vb = (1 - t)[:, None] * v[edges[eb, 0]] + t[:, None] * v[edges[eb, 1]]
