@@ -13,8 +13,11 @@ not cross (the speculative rule of a vertex against a triangle), and a pair that
 (d < 0) may not cross further and is pushed back like any penetration.
 
 Which pairs. Only pairs whose closest points are strictly inside both edges (an endpoint is
-a vertex, which the vertex-triangle test handles), not parallel, with ``n`` pointing out of B at
-B's edge and into A at A's edge (both edges seen from outside the other body), gap below
+a vertex, which the vertex-triangle test handles), not parallel, with ``n`` inside the normal
+cone of B's edge (making an angle below 90 degrees, up to :data:`CONE_TOLERANCE`, with both of its
+faces' normals) and ``-n`` inside A's (the edges face each other), for a crossed pair (d < 0)
+within :data:`CROSSED_TOLERANCE` (each closest point is inside the other edge's wedge: the
+edges have crossed, they do not merely lie side by side), gap below
 ``margin + 2 h`` times the approach speed and above ``-margin``, and both edges *sharp* (their
 two faces turn by more than :data:`SHARP_ANGLE`). An edge inside a flat region of a surface
 cannot be crossed alone: the region's vertex contacts hold it, and an edge crossing the region
@@ -28,6 +31,9 @@ from scipy.spatial import cKDTree
 
 # An edge is sharp when the normals of its two faces differ by more than this angle (radians).
 SHARP_ANGLE = np.deg2rad(20.0)
+# How far (cosine) a face normal of either edge may turn away from the pair's normal.
+CONE_TOLERANCE = 0.2
+CROSSED_TOLERANCE = 0.05
 
 
 def surface_edges(tris):
@@ -151,8 +157,15 @@ class EdgePairs:
         n *= np.where(np.einsum("ij,ij->i", n, outward[eb] - outward[ea]) < 0, -1.0, 1.0)[:, None]
         d = np.einsum("ij,ij->i", n, pa - pb)  # signed: negative once the edges have crossed
         inside = 1e-6
+        # n within B's edge's normal cone (between its two face normals) and -n within A's: the
+        # edges face each other, so that d < 0 means really crossed (CONE_TOLERANCE: a face
+        # normal may lie across n, as for two bars crossing face to face)
+        cone = np.minimum.reduce([np.einsum("ij,ij->i", n, f[e]) * sign for f, e, sign in
+                                  ((n0, eb, 1.0), (n1, eb, 1.0), (n0, ea, -1.0), (n1, ea, -1.0))])
+        # a crossed pair (d < 0) must have each closest point inside the other edge's wedge (both
+        # faces' planes): n inside both cones up to CROSSED_TOLERANCE only
         ok = (~parallel & (s > inside) & (s < 1 - inside) & (t > inside) & (t < 1 - inside) & (d > -margin)
-              & (np.einsum("ij,ij->i", n, outward[eb]) > 0) & (np.einsum("ij,ij->i", n, outward[ea]) < 0))
+              & (cone > np.where(d < 0, -CROSSED_TOLERANCE, -CONE_TOLERANCE)))
         va = (1 - s)[:, None] * v[edges[ea, 0]] + s[:, None] * v[edges[ea, 1]]
         vb = (1 - t)[:, None] * v[edges[eb, 0]] + t[:, None] * v[edges[eb, 1]]
         approach = np.maximum(0.0, -np.einsum("ij,ij->i", va - vb, n))

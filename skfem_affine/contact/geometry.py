@@ -1,11 +1,12 @@
 """Contact detection: boundary surfaces, closest points, and the contacts of one frame (Algorithm 1).
 
 Every free vertex (interior ones too) is tested against the static colliders (signed distance
-queries, :mod:`skfem_affine.contact.colliders`), and surface vertices against the boundary
-triangles of the *other* bodies (a KD-tree on each body's triangle centroids as broad phase, exact point-triangle
-distance as narrow phase; self-contact is not detected). A contact i has a signed gap d_i
-(negative: penetration), a normal n_i pointing from the obstacle towards the vertex, and two
-tangents. A vertex becomes a contact when its gap is below ``margin + 2 h`` times its normal
+queries, :mod:`skfem_affine.contact.colliders`) and against the boundary triangles of the *other*
+bodies (a KD-tree on each body's triangle centroids as broad phase, exact point-triangle
+distance as narrow phase), and sharp surface edges of different bodies against each other
+(:mod:`skfem_affine.contact.edges`); self-contact is not detected. A contact i has a signed gap
+d_i (negative: penetration), a normal n_i pointing from the obstacle towards the vertex (or edge),
+and two tangents. A pair becomes a contact when its gap is below ``margin + 2 h`` times its normal
 approach speed (speculative contact).
 """
 from dataclasses import dataclass
@@ -155,7 +156,7 @@ def concat(sets):
 
 
 class Detector:
-    """Finds the contacts of a system's surface vertices against colliders and other bodies.
+    """Finds the contacts of a system's vertices and edges against colliders and other bodies.
 
     Parameters
     ----------
@@ -195,8 +196,8 @@ class Detector:
     def find(self, x, v, dt):
         """All contacts at positions x (n, 3) with vertex velocities v (n, 3), or None.
 
-        A surface vertex is a contact when its gap is below ``margin + 2 h`` times its
-        normal approach speed (towards a collider, or relative to the other body)."""
+        A vertex (or a pair of edges) is a contact when its gap is below ``margin + 2 h`` times
+        its normal approach speed (towards a collider, or relative to the other body)."""
         sets = []
         cv = self.collider_vertices
         xc, vc = x[cv], v[cv]
@@ -223,8 +224,8 @@ class Detector:
         return concat(sets)
 
     def max_penetration(self, x, bodies=True):
-        """Largest penetration depth (m, >= 0) of a vertex into a collider or (``bodies``) of a
-        surface vertex into another body at x."""
+        """Largest penetration depth (m, >= 0) of a vertex into a collider or (``bodies``) into
+        another body at x."""
         depth = 0.0
         for col in self.colliders:
             d, _ = col.query(x[self.collider_vertices])
@@ -262,7 +263,8 @@ class Detector:
         return ContactSet(a0, others, weights, normal, d, key, own=1.0 - s)
 
     def _body_contacts(self, x, v, xs, vs, dt):
-        """Surface vertices of every body against the boundary triangles of each other body.
+        """Vertices ``xs`` (surface and free interior) of every body against the boundary triangles
+        of each other body.
 
         Broad phase: the other body's bounding box grown by a bound on the relative
         motion within the step, then a KD-tree on its triangle centroids (the

@@ -3,10 +3,11 @@ r"""Frictional contact by projected Gauss-Seidel (paper sec. 3.1, 3.3, 3.4 and A
 One frame, in the order of Algorithm 1:
 
 1. **Find contacts** (:meth:`Contact.detect`, at x_t; :mod:`skfem_affine.contact.geometry`):
-   surface vertices against the static colliders and the boundary triangles of the other
-   bodies. The three Jacobian rows of contact i give the relative velocity
-   ``u_i = [n, t1, t2]^T (v_a - sum_k w_k v_k)`` of the vertex a against the closest point
-   (barycentric weights w_k; for a collider, against the static obstacle).
+   free vertices against the static colliders and the boundary triangles of the other
+   bodies, and sharp surface edges of different bodies against each other. The three Jacobian
+   rows of contact i give the relative velocity ``u_i = [n, t1, t2]^T (v_a - sum_k w_k v_k)`` of
+   the vertex a against the closest point (barycentric weights w_k; for a collider, against the
+   static obstacle; for two edges, of the closest point on one against the other's).
 2. **Prediction impulses** (sec. 3.4): the oracle's one PCG iteration gets
    ``J^T lambda_pred`` as explicit impulses: the warm-started impulses of contacts
    that persist, and, for new contacts, a cheap bilateral estimate (one Jacobi step
@@ -88,7 +89,8 @@ class PGS:
     warm_start : bool
         Start from the previous frame's impulses matched by contact identity.
     body_contact : bool
-        Detect contact between different bodies (surface vertices vs boundary triangles).
+        Detect contact between different bodies (vertices vs boundary triangles, sharp edges
+        vs sharp edges).
     block : int
         Columns of J^T solved at once when building the Delassus operator (memory bound).
     """
