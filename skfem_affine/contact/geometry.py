@@ -260,7 +260,10 @@ class Detector:
         others = np.column_stack([a1, ep.edges[eb]])
         weights = np.column_stack([-s, 1.0 - t, t])
         key = self.n_vertices * self.n_kinds + ea * len(ep.edges) + eb
-        return ContactSet(a0, others, weights, normal, d, key, own=1.0 - s)
+        # a crossed pair (d < 0) only may not cross further: its line-line gap is no reliable depth
+        # (nearly parallel edges in a contact patch give large ones), so pushing out and the
+        # recorded penetration are left to the vertex contacts
+        return ContactSet(a0, others, weights, normal, np.maximum(d, 0.0), key, own=1.0 - s)
 
     def _body_contacts(self, x, v, xs, vs, dt):
         """Vertices ``xs`` (surface and free interior) of every body against the boundary triangles
