@@ -10,8 +10,8 @@ direction is the sum of its two faces' normals); it stays defined when the edges
 ``p_a - p_b`` vanishes. The signed gap is ``d = n . (p_a - p_b)`` and the contact keeps
 ``n . (v(p_a) - v(p_b)) >= -max(d, 0) / h``: the edges may close their gap within the step but
 not cross (the speculative rule of a vertex against a triangle), and a pair that has crossed
-(d < 0) may not cross further; pushing it back is left to the vertex contacts (the detector
-records its gap as 0).
+(d < 0) may not cross further and is pushed back like a penetration (its gap is not counted in
+the recorded penetration, a depth of vertices).
 
 Which pairs. Only pairs whose closest points are strictly inside both edges (an endpoint is
 a vertex, which the vertex-triangle test handles), not parallel, with ``n`` inside the normal

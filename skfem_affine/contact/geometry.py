@@ -188,10 +188,12 @@ class Detector:
         self.n_vertices = system.n
         self.edge_pairs = EdgePairs(self.tris, self.tri_body) if self.body_pairs else None
 
-    def body_contacts(self, cs):
-        """Mask (k,) of the contacts of ``cs`` between two bodies (not with a collider)."""
+    def body_contacts(self, cs, edges=True):
+        """Mask (k,) of the contacts of ``cs`` between two bodies (not with a collider), with or
+        without the edge-edge ones."""
         base = self.n_vertices * self.n_kinds
-        return (cs.key >= base) | (cs.key % self.n_kinds >= len(self.colliders))
+        vertex = (cs.key < base) & (cs.key % self.n_kinds >= len(self.colliders))
+        return vertex | (cs.key >= base) if edges else vertex
 
     def find(self, x, v, dt):
         """All contacts at positions x (n, 3) with vertex velocities v (n, 3), or None.
@@ -260,10 +262,7 @@ class Detector:
         others = np.column_stack([a1, ep.edges[eb]])
         weights = np.column_stack([-s, 1.0 - t, t])
         key = self.n_vertices * self.n_kinds + ea * len(ep.edges) + eb
-        # a crossed pair (d < 0) only may not cross further: its line-line gap is no reliable depth
-        # (nearly parallel edges in a contact patch give large ones), so pushing out and the
-        # recorded penetration are left to the vertex contacts
-        return ContactSet(a0, others, weights, normal, np.maximum(d, 0.0), key, own=1.0 - s)
+        return ContactSet(a0, others, weights, normal, d, key, own=1.0 - s)
 
     def _body_contacts(self, x, v, xs, vs, dt):
         """Vertices ``xs`` (surface and free interior) of every body against the boundary triangles

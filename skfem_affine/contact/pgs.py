@@ -277,7 +277,8 @@ class Contact:
         rec["n_contacts"] = 0 if cs is None else cs.size
         # penetrations between bodies at x_t (every penetrating pair is a contact): the frame's record
         # reports them without a second detection at x_{t+1}
-        rec["body_penetration"] = 0.0 if cs is None else float(-cs.distance[self.detector.body_contacts(cs)]
+        # (of vertices: the gap of two crossed edges is a line-line distance, no depth)
+        rec["body_penetration"] = 0.0 if cs is None else float(-cs.distance[self.detector.body_contacts(cs, False)]
                                                                  .min(initial=0.0))
         rec["contact"] = rec.get("contact", 0.0) + time.perf_counter() - t0
         return cs
