@@ -23,9 +23,10 @@ edges have crossed, they do not merely lie side by side), gap below
 two faces turn by more than :data:`SHARP_ANGLE`). An edge inside a flat region of a surface
 cannot be crossed alone: the region's vertex contacts hold it, and an edge crossing the region
 without a vertex entering it must cross the region's border, a sharp edge. The rule keeps
-stacked boxes from getting one contact per crossing pair of face edges. Pairs whose four end
-vertices all rest on the other body (vertex contacts within ``margin``) lie inside a contact
-patch that those vertex contacts hold, and are skipped too.
+stacked boxes from getting one contact per crossing pair of face edges. A slow pair (it cannot
+close ``margin`` within two steps) one of whose edges rests on the other body at both ends
+(vertex contacts within ``margin``) is held by those two vertex contacts and skipped too: resting
+stacks then get no edge contacts where their vertex contacts suffice.
 """
 import numpy as np
 from scipy.spatial import cKDTree
@@ -94,8 +95,7 @@ class EdgePairs:
         relative speed is the reach of the broad phase.
 
         ``held`` (n,) marks vertices touching another body (a vertex contact within ``margin``):
-        a pair whose four end vertices are all held lies inside a resting contact patch, whose
-        vertex contacts hold it, and is skipped.
+        a slow pair with an edge held at both ends is skipped (see the module docstring).
 
         Returns ``(edge_a, edge_b, s, t, normal, distance)`` (edge a is the one whose closest
         point the normal points to) or None."""
@@ -143,9 +143,6 @@ class EdgePairs:
         ea, eb = np.concatenate(found).T
         near = np.linalg.norm(mid[ea] - mid[eb], axis=1) <= reach[body[ea], body[eb]] + half[ea] + half[eb]
         ea, eb = ea[near], eb[near]
-        if held is not None:
-            patch = held[edges[ea]].all(axis=1) & held[edges[eb]].all(axis=1)
-            ea, eb = ea[~patch], eb[~patch]
         # edges sharing a vertex cannot belong to different bodies; no check needed
         a0, a1, b0, b1 = e0[ea], e1[ea], e0[eb], e1[eb]
         s, t, parallel = segment_closest_points(a0, a1, b0, b1)
@@ -170,7 +167,10 @@ class EdgePairs:
         va = (1 - s)[:, None] * v[edges[ea, 0]] + s[:, None] * v[edges[ea, 1]]
         vb = (1 - t)[:, None] * v[edges[eb, 0]] + t[:, None] * v[edges[eb, 1]]
         approach = np.maximum(0.0, -np.einsum("ij,ij->i", va - vb, n))
-        hit = np.flatnonzero(ok & (d < margin + 2.0 * dt * approach))
+        reach = 2.0 * dt * approach
+        if held is not None:  # a slow pair with an edge resting on the other body at both ends
+            ok &= ~((held[edges[ea]].all(axis=1) | held[edges[eb]].all(axis=1)) & (reach < margin))
+        hit = np.flatnonzero(ok & (d < margin + reach))
         if not hit.size:
             return None
         return ea[hit], eb[hit], s[hit], t[hit], n[hit], d[hit]
