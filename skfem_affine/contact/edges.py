@@ -83,8 +83,12 @@ class EdgePairs:
 
     def __init__(self, tris, tri_body):
         self.tris = tris
-        self.edges, self.faces = surface_edges(tris)
-        self.edge_body = tri_body[self.faces[:, 0]]
+        edges, faces = surface_edges(tris)
+        body = tri_body[faces[:, 0]]
+        order = np.argsort(body, kind="stable")                  # each body's edges contiguous
+        self.edges, self.faces, self.edge_body = edges[order], faces[order], body[order]
+        self.n_bodies = int(body.max()) + 1
+        self.starts = np.searchsorted(self.edge_body, np.arange(self.n_bodies))
         self.cos_sharp = np.cos(SHARP_ANGLE)
 
     def find(self, x, v, dt, margin, speed_bound, held=None):
@@ -111,36 +115,41 @@ class EdgePairs:
         e0, e1 = x[edges[:, 0]], x[edges[:, 1]]
         mid = 0.5 * (e0 + e1)
         half = 0.5 * np.linalg.norm(e1 - e0, axis=1)
-        nb = int(body.max()) + 1
-        count = np.maximum(np.bincount(body, minlength=nb), 1)[:, None]
+        nb, starts = self.n_bodies, self.starts
+        count = np.maximum(np.diff(np.append(starts, len(body))), 1)[:, None]
         vm = 0.5 * (v[edges[:, 0]] + v[edges[:, 1]])
-        mean_v = np.stack([np.bincount(body, vm[:, k], nb) for k in range(3)], axis=1) / count
+        mean_v = np.add.reduceat(vm, starts) / count
         # reach of each pair of bodies: margin + 2 h |relative speed| bound
         rel = np.linalg.norm(mean_v[:, None] - mean_v[None], axis=2) + speed_bound[:, None] + speed_bound[None]
-        reach = margin + 2.0 * dt * rel
-        # sharp edges inside another body's bounding box grown by the pair's reach
-        grow = reach + 2.0 * half.max()
-        lo = np.stack([np.bincount(body, minlength=nb) * 0.0 + np.inf for _ in range(3)], axis=1)
-        hi = -lo
-        np.minimum.at(lo, body, mid)
-        np.maximum.at(hi, body, mid)
-        g = grow[body]                                                        # (E, B)
-        inbox = np.all((mid[:, None] >= lo[None] - g[:, :, None]) & (mid[:, None] <= hi[None] + g[:, :, None]), axis=2)
-        inbox[np.arange(len(body)), body] = False
-        sel = sharp & inbox.any(axis=1)
-        # one KD-tree per body, queried by each other body whose box it reaches
-        trees = {b: (idx, cKDTree(mid[idx])) for b in np.unique(body[sel]) for idx in [np.flatnonzero(sel & (body == b))]}
+        grow = margin + 2.0 * dt * rel + 2.0 * half.max()
+        lo, hi = np.minimum.reduceat(mid, starts), np.maximum.reduceat(mid, starts)
+        # pairs of bodies whose grown boxes overlap, then the sharp edges of each inside the other's
+        touch = np.all((lo[:, None] <= hi[None] + grow[:, :, None]) & (hi[:, None] >= lo[None] - grow[:, :, None]), axis=2)
+        np.fill_diagonal(touch, False)
+        if not touch.any():
+            return None
+        # per body: its sharp edges inside the grown box of a body it may touch, in one KD-tree
+        trees = {}
+        for b in np.flatnonzero(touch.any(axis=1)):
+            r = slice(starts[b], starts[b + 1] if b + 1 < nb else len(body))
+            o = np.flatnonzero(touch[b])
+            m = mid[r]
+            inside = np.any(np.all((m[:, None] >= lo[o] - grow[b, o][:, None]) & (m[:, None] <= hi[o] + grow[b, o][:, None]),
+                                   axis=2), axis=1)
+            idx = r.start + np.flatnonzero(sharp[r] & inside)
+            if idx.size:
+                trees[b] = (idx, cKDTree(mid[idx]))
         found = []
-        for b1, (i1, t1) in trees.items():
-            for b2, (i2, t2) in trees.items():
-                if b2 <= b1 or not inbox[i1, b2].any():
-                    continue
-                m = t1.sparse_distance_matrix(t2, reach[b1, b2] + 2.0 * half.max(), output_type="ndarray")
+        for b1, b2 in zip(*np.nonzero(np.triu(touch, 1))):
+            if b1 in trees and b2 in trees:
+                (i1, t1), (i2, t2) = trees[b1], trees[b2]
+                m = t1.sparse_distance_matrix(t2, grow[b1, b2], output_type="ndarray")
                 if len(m):
                     found.append(np.column_stack([i1[m["i"]], i2[m["j"]]]))
         if not found:
             return None
         ea, eb = np.concatenate(found).T
+        reach = grow - 2.0 * half.max()
         near = np.linalg.norm(mid[ea] - mid[eb], axis=1) <= reach[body[ea], body[eb]] + half[ea] + half[eb]
         ea, eb = ea[near], eb[near]
         # edges sharing a vertex cannot belong to different bodies; no check needed

@@ -213,12 +213,13 @@ class Detector:
                                        d[hit], vtx * self.n_kinds + ci))
         if self.body_pairs:
             sv = self.body_vertices
-            vertex_sets = self._body_contacts(x, v, x[sv], v[sv], dt)
+            speeds = self._speeds(self.body_of_vertex[sv], v[sv])
+            vertex_sets = self._body_contacts(x, v, x[sv], v[sv], dt, speeds)
             held = np.zeros(len(x), dtype=bool)
             for cs in vertex_sets:
                 held[cs.vertex[np.abs(cs.distance) < self.margin]] = True
             sets += vertex_sets
-            found = self._edge_contacts(x, v, dt, held)
+            found = self._edge_contacts(x, v, dt, held, speeds[2])
             if found is not None:
                 sets.append(found)
         if not sets:
@@ -249,11 +250,9 @@ class Detector:
         np.maximum.at(max_spread, owner, spread)
         return mean_v, spread, max_spread
 
-    def _edge_contacts(self, x, v, dt, held):
+    def _edge_contacts(self, x, v, dt, held, max_spread):
         """Speculative edge-edge contacts between surface edges of different bodies (:mod:`edges`)."""
         ep = self.edge_pairs
-        ends = ep.edges.ravel()
-        _, _, max_spread = self._speeds(self.body_of_vertex[ends], v[ends])
         found = ep.find(x, v, dt, self.margin, max_spread, held)
         if found is None:
             return None
@@ -264,7 +263,7 @@ class Detector:
         key = self.n_vertices * self.n_kinds + ea * len(ep.edges) + eb
         return ContactSet(a0, others, weights, normal, d, key, own=1.0 - s)
 
-    def _body_contacts(self, x, v, xs, vs, dt):
+    def _body_contacts(self, x, v, xs, vs, dt, speeds=None):
         """Vertices ``xs`` (surface and free interior) of every body against the boundary triangles
         of each other body.
 
@@ -277,7 +276,7 @@ class Detector:
         sv, out = self.body_vertices, []
         owner = self.body_of_vertex[sv]
         # |v_i - v_j| <= |v_i - vbar_a| + |vbar_a - vbar_b| + max_j |v_j - vbar_b| for i in a, j in b
-        mean_v, spread, max_spread = self._speeds(owner, vs)
+        mean_v, spread, max_spread = self._speeds(owner, vs) if speeds is None else speeds
         for b in np.unique(self.tri_body):
             tris = self.tris[self.tri_body == b]
             corners = x[tris]                                             # (T, 3 corners, 3)
