@@ -39,6 +39,8 @@ def main(argv=None):
     p.add_argument("other", help="the other version's package folder (renamed, see above)")
     p.add_argument("--scenes", nargs="+", default=["stacked_beams", "pills"], choices=sorted(SCENES))
     p.add_argument("--frames", type=int, default=60)
+    p.add_argument("--detection", action="store_true",
+                   help="also time contact detection alone: both versions' detectors on the same states")
     args = p.parse_args(argv)
     path = os.path.abspath(args.other)
     other = load_other(path, alias=os.path.basename(path))
@@ -54,6 +56,26 @@ def main(argv=None):
         nc = [np.mean([r.get("n_contacts", 0) for r in s.stats]) for s in sims]
         print(f"{scene:>14} {walls[0]:8.2f} {walls[1]:8.2f} {walls[1] / walls[0]:10.3f} "
               f"{np.median(times[:, 1] / times[:, 0]):18.3f} {nc[0]:7.1f}/{nc[1]:7.1f} {dx:13.1e}", flush=True)
+        if args.detection:
+            print(f"{'':>14} detection per frame: other {detection(sims, args.frames):s}", flush=True)
+
+
+def detection(sims, frames, repeats=3):
+    """Both versions' contact detection on the states of a fresh run of this version, in turn;
+    mean milliseconds per frame of each, as a string."""
+    import time
+    fresh = make(sa, sims[1].scene)
+    states = [(s.x.copy(), s.v.copy()) for s in fresh.run(frames)]
+    dets = [sim.contact.detector for sim in sims]
+    ms = np.zeros(2)
+    for _ in range(repeats):
+        for x, v in states:
+            for i, det in enumerate(dets):
+                t0 = time.perf_counter()
+                det.find(x, v, fresh.model.dt)
+                ms[i] += time.perf_counter() - t0
+    ms *= 1e3 / (repeats * len(states))
+    return f"{ms[0]:.2f} ms, this {ms[1]:.2f} ms"
 
 
 if __name__ == "__main__":

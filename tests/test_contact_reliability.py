@@ -165,3 +165,19 @@ def test_a_small_fast_body_does_not_tunnel_through_a_thin_plate():
     pen = [r["max_penetration"] for r in sim.stats]
     assert max(pen) < 0.025  # a quarter of the cube (measured 2 cm, in the plate's dent after the impact)
     assert not any(r["inverted_elements"] for r in sim.stats)
+
+
+def test_edge_contact_is_a_checked_switch():
+    with pytest.raises(TypeError, match="edge_contact"):
+        sa.PGS(edge_contact="no")
+    # without edge-edge contacts the crossing bars pass through each other: the switch works
+    w, gap = 0.1, 0.05
+    first = scenes.box_mesh((w, 1.0, w), (1, 5, 1), (-(w + gap) / 2, 0, 0))
+    second = scenes.box_mesh((w, w, 1.0), (1, 1, 5), ((w + gap) / 2, 0, 0))
+    mat = sa.NeoHookean(E=1e8, nu=0.35)
+    sim = sa.Simulation([sa.ElasticBody(first, mat, velocity=(20.0, 0, 0)),
+                         sa.ElasticBody(second, mat, velocity=(-20.0, 0, 0))],
+                        dt=0.01, gravity=(0, 0, 0), contact=sa.PGS(edge_contact=False))
+    middle = np.concatenate([np.abs(first.p[1]) < 0.11, np.abs(second.p[2]) < 0.11])
+    order, _, _ = _order(sim, 5, middle)
+    assert order[-1] > 0

@@ -124,7 +124,8 @@ class EdgePairs:
         grow = margin + 2.0 * dt * rel + 2.0 * half.max()
         lo, hi = np.minimum.reduceat(mid, starts), np.maximum.reduceat(mid, starts)
         # pairs of bodies whose grown boxes overlap, then the sharp edges of each inside the other's
-        touch = np.all((lo[:, None] <= hi[None] + grow[:, :, None]) & (hi[:, None] >= lo[None] - grow[:, :, None]), axis=2)
+        g = grow[:, :, None]
+        touch = np.all((lo[:, None] <= hi[None] + g) & (hi[:, None] >= lo[None] - g), axis=2)
         np.fill_diagonal(touch, False)
         if not touch.any():
             return None
@@ -134,8 +135,8 @@ class EdgePairs:
             r = slice(starts[b], starts[b + 1] if b + 1 < nb else len(body))
             o = np.flatnonzero(touch[b])
             m = mid[r]
-            inside = np.any(np.all((m[:, None] >= lo[o] - grow[b, o][:, None]) & (m[:, None] <= hi[o] + grow[b, o][:, None]),
-                                   axis=2), axis=1)
+            g = grow[b, o][:, None]
+            inside = np.any(np.all((m[:, None] >= lo[o] - g) & (m[:, None] <= hi[o] + g), axis=2), axis=1)
             idx = r.start + np.flatnonzero(sharp[r] & inside)
             if idx.size:
                 trees[b] = (idx, cKDTree(mid[idx]))

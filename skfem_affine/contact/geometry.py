@@ -166,9 +166,11 @@ class Detector:
         Speculative contact distance; None: a fifth of the mean surface edge length.
     body_contact : bool
         Detect contact between different bodies.
+    edge_contact : bool
+        Detect edge-edge contacts between different bodies too.
     """
 
-    def __init__(self, system, colliders, margin=None, body_contact=True):
+    def __init__(self, system, colliders, margin=None, body_contact=True, edge_contact=True):
         self.colliders = colliders
         self.tris, self.tri_body = boundary_surface(system)
         self.surface = np.unique(self.tris)
@@ -186,7 +188,7 @@ class Detector:
         self.margin = 0.2 * self.mean_edge if margin is None else float(margin)
         self.body_pairs = bool(body_contact) and len(system.bodies) > 1
         self.n_vertices = system.n
-        self.edge_pairs = EdgePairs(self.tris, self.tri_body) if self.body_pairs else None
+        self.edge_pairs = EdgePairs(self.tris, self.tri_body) if self.body_pairs and edge_contact else None
 
     def body_contacts(self, cs, edges=True):
         """Mask (k,) of the contacts of ``cs`` between two bodies (not with a collider), with or
@@ -219,7 +221,7 @@ class Detector:
             for cs in vertex_sets:
                 held[cs.vertex[np.abs(cs.distance) < self.margin]] = True
             sets += vertex_sets
-            found = self._edge_contacts(x, v, dt, held, speeds[2])
+            found = None if self.edge_pairs is None else self._edge_contacts(x, v, dt, held, speeds[2])
             if found is not None:
                 sets.append(found)
         if not sets:
@@ -251,7 +253,8 @@ class Detector:
         return mean_v, spread, max_spread
 
     def _edge_contacts(self, x, v, dt, held, max_spread):
-        """Speculative edge-edge contacts between surface edges of different bodies (:mod:`edges`)."""
+        """Speculative edge-edge contacts between sharp surface edges of different bodies
+        (:mod:`~skfem_affine.contact.edges`)."""
         ep = self.edge_pairs
         found = ep.find(x, v, dt, self.margin, max_spread, held)
         if found is None:

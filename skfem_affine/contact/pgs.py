@@ -93,6 +93,11 @@ class PGS:
         vs sharp edges).
     block : int
         Columns of J^T solved at once when building the Delassus operator (memory bound).
+    edge_contact : bool
+        Edge-edge contacts between sharp surface edges of different bodies
+        (:mod:`~skfem_affine.contact.edges`), so that edges cannot cross where no vertex meets a
+        face; False leaves vertex contacts only (cheaper for stacks of coarse curved bodies,
+        whose many sharp edges add contacts).
     """
 
     friction: float = 0.5
@@ -104,6 +109,7 @@ class PGS:
     warm_start: bool = True
     body_contact: bool = True
     block: int = 64
+    edge_contact: bool = True
 
     def __post_init__(self):
         put = object.__setattr__  # frozen: store the checked values
@@ -118,6 +124,7 @@ class PGS:
         put(self, "warm_start", flag(self.warm_start, "PGS warm_start"))
         put(self, "body_contact", flag(self.body_contact, "PGS body_contact"))
         put(self, "block", integer(self.block, "PGS block", low=1))
+        put(self, "edge_contact", flag(self.edge_contact, "PGS edge_contact"))
 
 
 @njit(cache=True)
@@ -189,7 +196,8 @@ class Contact:
         if not isinstance(self.settings, PGS):
             raise TypeError(f"contact must be sa.PGS(...), got {type(settings).__name__}")
         sysm = model.system
-        self.detector = Detector(sysm, check_colliders(colliders), self.settings.margin, self.settings.body_contact)
+        self.detector = Detector(sysm, check_colliders(colliders), self.settings.margin, self.settings.body_contact,
+                                 self.settings.edge_contact)
         self.colliders = self.detector.colliders
         self.inv_mass = 1.0 / np.repeat(sysm.lumped_mass, 3)[sysm.free]
         self.previous = None  # (sorted keys, world impulses)
