@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 import skfem_affine as sa
+from skfem_affine.contact.geometry import boundary_surface, closest_surface_points
 from skfem_affine.lab import scenes
 
 
@@ -82,3 +83,101 @@ def test_push_limit_is_checked_and_bounds_the_correction():
     _bottoms(sim, 3)
     pen = [r["max_penetration"] for r in sim.stats]
     assert 0.0 < pen[0] - pen[1] <= 0.01 + 1e-9
+
+
+def _pair(first, second, speed, E, reducer=None):
+    """Two bodies meeting along x, each at ``speed``, no gravity, full space or ``reducer``."""
+    mat = sa.NeoHookean(E=E, nu=0.35)
+    bodies = [sa.ElasticBody(first, mat, density=1000.0, velocity=(speed, 0, 0)),
+              sa.ElasticBody(second, mat, density=1000.0, velocity=(-speed, 0, 0))]
+    return sa.Simulation(bodies, dt=0.01, gravity=(0, 0, 0), contact=sa.PGS(), reducer=reducer)
+
+
+def _order(sim, frames, middle=None):
+    """Per frame: the mean x of body 0's vertices minus body 1's (of the vertices ``middle`` (n,)
+    only, default all), the recorded penetration, inverted elements."""
+    n0 = sim.system.vertex_offsets[1]
+    middle = np.ones(sim.system.n, dtype=bool) if middle is None else middle
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", sa.SimulationWarning)
+        order = np.array([s.x[:n0][middle[:n0], 0].mean() - s.x[n0:][middle[n0:], 0].mean()
+                          for s in sim.run(frames)])
+    pen = np.array([r["max_penetration"] for r in sim.stats])
+    inverted = np.array([r["inverted_elements"] for r in sim.stats])
+    return order, pen, inverted
+
+
+@pytest.mark.parametrize("speed", [20.0, 50.0, 200.0])
+def test_cubes_meeting_head_on_do_not_pass_through(speed):
+    size, gap = 0.5, 0.05
+    cube = [scenes.box_mesh(size, 4, (s * (size + gap) / 2, 0, 0)) for s in (-1, 1)]
+    sim = _pair(*cube, speed, E=1e7)  # wave speed 100 m/s: 200 m/s is twice it
+    order, pen, inverted = _order(sim, 20)
+    n0 = sim.system.vertex_offsets[1]
+    assert np.all(order < -0.2)  # the centroids never come closer than 0.2 m (0.55 m at the start)
+    assert pen.max() < 1e-3  # at most 1 mm (0.2 % of the cube) inside the other cube
+    assert not inverted.any()
+    assert sim.state.x[:n0, 0].max() < sim.state.x[n0:, 0].min()  # separated, each on its side
+    assert np.linalg.norm(sim.state.v, axis=1).max() < speed  # not launched
+    assert sim.stats[-1]["energy"] < sim.stats[0]["energy"] + 1e-9
+
+
+@pytest.mark.parametrize("reducer", [None, "affinification"])
+@pytest.mark.parametrize("speed", [1.0, 20.0, 200.0])
+def test_crossing_bars_do_not_pass_through_each_other(speed, reducer):
+    # two bars crossing like an X: no vertex of one ever comes near a face of the other (the
+    # vertices of one bar are 0.2 m apart, the other is 0.1 m wide), only edges meet
+    w, gap = 0.1, 0.05
+    first = scenes.box_mesh((w, 1.0, w), (1, 5, 1), (-(w + gap) / 2, 0, 0))
+    second = scenes.box_mesh((w, w, 1.0), (1, 1, 5), ((w + gap) / 2, 0, 0))
+    sim = _pair(first, second, speed, E=1e8,
+                reducer=None if reducer is None else sa.Affinification(0.01, 0.02))
+    # where they cross: the vertices of each bar within 0.1 m of the crossing (the ends bend on)
+    middle = np.concatenate([np.abs(first.p[1]) < 0.11, np.abs(second.p[2]) < 0.11])
+    order, pen, inverted = _order(sim, 15, middle)
+    assert np.all(order < -0.05)  # started at -0.15; passing through makes it positive
+    assert pen.max() < 1e-3 and not inverted.any()
+    assert np.linalg.norm(sim.state.v, axis=1).max() < speed
+
+
+def test_a_small_fast_body_does_not_tunnel_through_a_thin_plate():
+    # a stiff 0.1 m cube at 200 m/s (2 m per step) against a soft 2 cm plate pinned at its rim,
+    # one element thick (a softer cube is crushed flat into the plate: inverted elements)
+    small = scenes.box_mesh(0.1, 2, (-0.085, 0.03, 0.02))
+    plate = scenes.box_mesh((0.02, 1.0, 1.0), (1, 8, 8))
+    rim = np.flatnonzero(np.abs(plate.p[1:]).max(axis=0) > 0.499)
+    sim = sa.Simulation([sa.ElasticBody(small, sa.NeoHookean(E=1e8, nu=0.35), density=1000.0,
+                                        velocity=(200.0, 0, 0)),
+                         sa.ElasticBody(plate, sa.NeoHookean(E=1e6, nu=0.35), density=1000.0, fixed=rim)],
+                        dt=0.01, gravity=(0, 0, 0), contact=sa.PGS())
+    n0 = sim.system.vertex_offsets[1]
+    tris, owner = boundary_surface(sim.system)
+    tris = tris[owner == 1]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", sa.SimulationWarning)
+        for state in sim.run(12):
+            # the plate's surface point closest to the cube's centre: its normal towards the centre
+            # points back (-x) while the cube is on its side of the plate, however bent
+            centre = state.x[:n0].mean(axis=0)[None]
+            *_, normal = closest_surface_points(centre, np.zeros(len(tris), dtype=int), np.arange(len(tris)),
+                                                state.x[tris], 1e-12)
+            assert normal[0, 0] < 0.0
+    pen = [r["max_penetration"] for r in sim.stats]
+    assert max(pen) < 0.025  # a quarter of the cube (measured 2 cm, in the plate's dent after the impact)
+    assert not any(r["inverted_elements"] for r in sim.stats)
+
+
+def test_edge_contact_is_a_checked_switch():
+    with pytest.raises(TypeError, match="edge_contact"):
+        sa.PGS(edge_contact="no")
+    # without edge-edge contacts the crossing bars pass through each other: the switch works
+    w, gap = 0.1, 0.05
+    first = scenes.box_mesh((w, 1.0, w), (1, 5, 1), (-(w + gap) / 2, 0, 0))
+    second = scenes.box_mesh((w, w, 1.0), (1, 1, 5), ((w + gap) / 2, 0, 0))
+    mat = sa.NeoHookean(E=1e8, nu=0.35)
+    sim = sa.Simulation([sa.ElasticBody(first, mat, velocity=(20.0, 0, 0)),
+                         sa.ElasticBody(second, mat, velocity=(-20.0, 0, 0))],
+                        dt=0.01, gravity=(0, 0, 0), contact=sa.PGS(edge_contact=False))
+    middle = np.concatenate([np.abs(first.p[1]) < 0.11, np.abs(second.p[2]) < 0.11])
+    order, _, _ = _order(sim, 5, middle)
+    assert order[-1] > 0

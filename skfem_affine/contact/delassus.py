@@ -25,11 +25,13 @@ BLOCK_DIRECT_MIN = 2000
 
 
 def jacobian(contacts, n_vertices, free):
-    """J (3k x n_free): row 3i + r is frame row r of contact i on v_a - sum_k w_k v_k (fixed DOFs dropped)."""
+    """J (3k x n_free): row 3i + r is frame row r of contact i on w_a v_a - sum_k w_k v_k (w_a the
+    contact's ``own`` weight, 1 for a vertex; fixed DOFs dropped)."""
     k = contacts.size
     frames = contacts.frames()                                        # (k, 3, 3)
     verts = np.column_stack([contacts.vertex, contacts.others])       # (k, 4)
-    coef = np.column_stack([np.ones(k), -contacts.weights])           # (k, 4)
+    own = np.ones(k) if contacts.own is None else contacts.own
+    coef = np.column_stack([own, -contacts.weights])                  # (k, 4)
     vals = coef[:, None, :, None] * frames[:, :, None, :]             # (k, 3 rows, 4 verts, 3 comps)
     rows = np.broadcast_to((3 * np.arange(k)[:, None] + np.arange(3))[:, :, None, None], vals.shape)
     cols = np.broadcast_to((3 * verts[:, :, None] + np.arange(3))[:, None, :, :], vals.shape)

@@ -1,11 +1,12 @@
 """Contact detection: boundary surfaces, closest points, and the contacts of one frame (Algorithm 1).
 
 Every free vertex (interior ones too) is tested against the static colliders (signed distance
-queries, :mod:`skfem_affine.contact.colliders`), and surface vertices against the boundary
-triangles of the *other* bodies (a KD-tree on each body's triangle centroids as broad phase, exact point-triangle
-distance as narrow phase; self-contact is not detected). A contact i has a signed gap d_i
-(negative: penetration), a normal n_i pointing from the obstacle towards the vertex, and two
-tangents. A vertex becomes a contact when its gap is below ``margin + 2 h`` times its normal
+queries, :mod:`skfem_affine.contact.colliders`) and against the boundary triangles of the *other*
+bodies (a KD-tree on each body's triangle centroids as broad phase, exact point-triangle
+distance as narrow phase), and sharp surface edges of different bodies against each other
+(:mod:`skfem_affine.contact.edges`); self-contact is not detected. A contact i has a signed gap
+d_i (negative: penetration), a normal n_i pointing from the obstacle towards the vertex (or edge),
+and two tangents. A pair becomes a contact when its gap is below ``margin + 2 h`` times its normal
 approach speed (speculative contact).
 """
 from dataclasses import dataclass
@@ -14,6 +15,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
+from skfem_affine.contact.edges import EdgePairs
 from skfem_affine.reducers.affine.mapping import group_sum
 
 # Broad phase: candidate triangles per vertex (nearest centroids within reach).
@@ -126,8 +128,12 @@ class ContactSet:
     weights: np.ndarray   # (k, 3) barycentric weights of the closest point (zeros for colliders)
     normal: np.ndarray    # (k, 3) unit normal, pointing from the obstacle towards the vertex
     distance: np.ndarray  # (k,) signed gap (negative: penetration)
-    key: np.ndarray       # (k,) identity: vertex * n_kinds + (collider index | n_colliders + other body)
+    key: np.ndarray       # (k,) identity: vertex * n_kinds + (collider index | n_colliders + other body),
+    #                       or, for an edge-edge contact, n_vertices * n_kinds + edge_a * n_edges + edge_b
     J: sp.csr_matrix = None  # (3k, n_free) rows n, t1, t2 per contact
+    own: np.ndarray = None   # (k,) weight of ``vertex`` in the contact point (None: all 1); an edge-edge
+    #                          contact is the point (1 - s) a0 + s a1: vertex a0, own 1 - s, others
+    #                          (a1, b0, b1) with weights (-s, 1 - t, t)
 
     @property
     def size(self):
@@ -142,12 +148,15 @@ class ContactSet:
 def concat(sets):
     """One ContactSet from several."""
     fields = ("vertex", "others", "weights", "normal", "distance", "key")
-    return ContactSet(*[np.concatenate([getattr(s, f) for s in sets]) for f in fields])
+    out = ContactSet(*[np.concatenate([getattr(s, f) for s in sets]) for f in fields])
+    if any(s.own is not None for s in sets):
+        out.own = np.concatenate([np.ones(s.size) if s.own is None else s.own for s in sets])
+    return out
 
 
 
 class Detector:
-    """Finds the contacts of a system's surface vertices against colliders and other bodies.
+    """Finds the contacts of a system's vertices and edges against colliders and other bodies.
 
     Parameters
     ----------
@@ -157,12 +166,16 @@ class Detector:
         Speculative contact distance; None: a fifth of the mean surface edge length.
     body_contact : bool
         Detect contact between different bodies.
+    edge_contact : bool
+        Detect edge-edge contacts between different bodies too.
     """
 
-    def __init__(self, system, colliders, margin=None, body_contact=True):
+    def __init__(self, system, colliders, margin=None, body_contact=True, edge_contact=True):
         self.colliders = colliders
         self.tris, self.tri_body = boundary_surface(system)
         self.surface = np.unique(self.tris)
+        # vertices tested against the other bodies' triangles: the surface and every free vertex
+        self.body_vertices = np.union1d(self.surface, np.flatnonzero(~system.fixed))
         # every vertex that can move is tested against the colliders, interior ones too: an impact
         # faster than the material's wave speed inverts elements and would carry interior vertices
         # through a collider that the surface vertices never cross
@@ -174,12 +187,21 @@ class Detector:
         self.mean_edge = float(np.linalg.norm(edges, axis=1).mean())
         self.margin = 0.2 * self.mean_edge if margin is None else float(margin)
         self.body_pairs = bool(body_contact) and len(system.bodies) > 1
+        self.n_vertices = system.n
+        self.edge_pairs = EdgePairs(self.tris, self.tri_body) if self.body_pairs and edge_contact else None
+
+    def body_contacts(self, cs, edges=True):
+        """Mask (k,) of the contacts of ``cs`` between two bodies (not with a collider), with or
+        without the edge-edge ones."""
+        base = self.n_vertices * self.n_kinds
+        vertex = (cs.key < base) & (cs.key % self.n_kinds >= len(self.colliders))
+        return vertex | (cs.key >= base) if edges else vertex
 
     def find(self, x, v, dt):
         """All contacts at positions x (n, 3) with vertex velocities v (n, 3), or None.
 
-        A surface vertex is a contact when its gap is below ``margin + 2 h`` times its
-        normal approach speed (towards a collider, or relative to the other body)."""
+        A vertex (or a pair of edges) is a contact when its gap is below ``margin + 2 h`` times
+        its normal approach speed (towards a collider, or relative to the other body)."""
         sets = []
         cv = self.collider_vertices
         xc, vc = x[cv], v[cv]
@@ -192,28 +214,61 @@ class Detector:
                 sets.append(ContactSet(vtx, np.repeat(vtx[:, None], 3, axis=1), np.zeros((hit.size, 3)), n[hit],
                                        d[hit], vtx * self.n_kinds + ci))
         if self.body_pairs:
-            sv = self.surface
-            sets += self._body_contacts(x, v, x[sv], v[sv], dt)
+            sv = self.body_vertices
+            speeds = self._speeds(self.body_of_vertex[sv], v[sv])
+            vertex_sets = self._body_contacts(x, v, x[sv], v[sv], dt, speeds)
+            held = np.zeros(len(x), dtype=bool)
+            for cs in vertex_sets:
+                held[cs.vertex[np.abs(cs.distance) < self.margin]] = True
+            sets += vertex_sets
+            found = None if self.edge_pairs is None else self._edge_contacts(x, v, dt, held, speeds[2])
+            if found is not None:
+                sets.append(found)
         if not sets:
             return None
         return concat(sets)
 
     def max_penetration(self, x, bodies=True):
-        """Largest penetration depth (m, >= 0) of a vertex into a collider or (``bodies``) of a
-        surface vertex into another body at x."""
+        """Largest penetration depth (m, >= 0) of a vertex into a collider or (``bodies``) into
+        another body at x."""
         depth = 0.0
         for col in self.colliders:
             d, _ = col.query(x[self.collider_vertices])
             depth = max(depth, float(-d.min(initial=0.0)))
         if bodies and self.body_pairs:
-            xs = x[self.surface]
+            xs = x[self.body_vertices]
             zero = np.zeros_like(xs)
             for cs in self._body_contacts(x, np.zeros_like(x), xs, zero, 0.0):
                 depth = max(depth, float(-cs.distance.min(initial=0.0)))
         return depth
 
-    def _body_contacts(self, x, v, xs, vs, dt):
-        """Surface vertices of every body against the boundary triangles of each other body.
+    def _speeds(self, owner, vs):
+        """Mean velocity (B, 3) of each body's vertices ``vs`` (owners ``owner``), each vertex's speed
+        relative to its body's mean, and its body's largest such speed (B,)."""
+        nb = int(self.body_of_vertex.max()) + 1
+        mean_v = group_sum(owner, vs, nb) / np.maximum(np.bincount(owner, minlength=nb), 1)[:, None]
+        spread = np.linalg.norm(vs - mean_v[owner], axis=1)
+        max_spread = np.zeros(nb)
+        np.maximum.at(max_spread, owner, spread)
+        return mean_v, spread, max_spread
+
+    def _edge_contacts(self, x, v, dt, held, max_spread):
+        """Speculative edge-edge contacts between sharp surface edges of different bodies
+        (:mod:`~skfem_affine.contact.edges`)."""
+        ep = self.edge_pairs
+        found = ep.find(x, v, dt, self.margin, max_spread, held)
+        if found is None:
+            return None
+        ea, eb, s, t, normal, d = found
+        a0, a1 = ep.edges[ea, 0], ep.edges[ea, 1]
+        others = np.column_stack([a1, ep.edges[eb]])
+        weights = np.column_stack([-s, 1.0 - t, t])
+        key = self.n_vertices * self.n_kinds + ea * len(ep.edges) + eb
+        return ContactSet(a0, others, weights, normal, d, key, own=1.0 - s)
+
+    def _body_contacts(self, x, v, xs, vs, dt, speeds=None):
+        """Vertices ``xs`` (surface and free interior) of every body against the boundary triangles
+        of each other body.
 
         Broad phase: the other body's bounding box grown by a bound on the relative
         motion within the step, then a KD-tree on its triangle centroids (the
@@ -221,14 +276,10 @@ class Detector:
         :func:`closest_surface_points`; a pair is a contact when its gap may close at the
         relative normal approach speed.
         """
-        sv, out = self.surface, []
+        sv, out = self.body_vertices, []
         owner = self.body_of_vertex[sv]
-        nb = int(self.body_of_vertex.max()) + 1
         # |v_i - v_j| <= |v_i - vbar_a| + |vbar_a - vbar_b| + max_j |v_j - vbar_b| for i in a, j in b
-        mean_v = group_sum(owner, vs, nb) / np.maximum(np.bincount(owner, minlength=nb), 1)[:, None]
-        spread = np.linalg.norm(vs - mean_v[owner], axis=1)
-        max_spread = np.zeros(nb)
-        np.maximum.at(max_spread, owner, spread)
+        mean_v, spread, max_spread = self._speeds(owner, vs) if speeds is None else speeds
         for b in np.unique(self.tri_body):
             tris = self.tris[self.tri_body == b]
             corners = x[tris]                                             # (T, 3 corners, 3)

@@ -1,0 +1,186 @@
+r"""Edge-edge contacts between the boundary surfaces of different bodies (speculative).
+
+A vertex-triangle test sees a vertex that crosses a surface, but not two edges that cross
+while every vertex stays outside the other body: two bars crossing like an X, a thin plate's
+rim cutting through another's. For such a pair of surface edges a0-a1 (body A) and b0-b1 (body
+B), with closest points ``p_a = (1 - s) a0 + s a1`` and ``p_b = (1 - t) b0 + t b1`` at x_t
+interior to both edges, the separating direction is across both edges,
+``n = (a1 - a0) x (b1 - b0) / |...|``, turned to point out of B towards A (an edge's outward
+direction is the sum of its two faces' normals); it stays defined when the edges touch, where
+``p_a - p_b`` vanishes. The signed gap is ``d = n . (p_a - p_b)`` and the contact keeps
+``n . (v(p_a) - v(p_b)) >= -max(d, 0) / h``: the edges may close their gap within the step but
+not cross (the speculative rule of a vertex against a triangle), and a pair that has crossed
+(d < 0) may not cross further and is pushed back like a penetration (its gap is not counted in
+the recorded penetration, a depth of vertices).
+
+Which pairs. Only pairs whose closest points are strictly inside both edges (an endpoint is
+a vertex, which the vertex-triangle test handles), not parallel, with ``n`` inside the normal
+cone of B's edge (making an angle below 90 degrees, up to :data:`CONE_TOLERANCE`, with both of its
+faces' normals) and ``-n`` inside A's (the edges face each other), for a crossed pair (d < 0)
+within :data:`CROSSED_TOLERANCE` (each closest point is inside the other edge's wedge: the
+edges have crossed, they do not merely lie side by side), gap below
+``margin + 2 h`` times the approach speed and above ``-margin``, and both edges *sharp* (their
+two faces turn by more than :data:`SHARP_ANGLE`). An edge inside a flat region of a surface
+cannot be crossed alone: the region's vertex contacts hold it, and an edge crossing the region
+without a vertex entering it must cross the region's border, a sharp edge. The rule keeps
+stacked boxes from getting one contact per crossing pair of face edges. A slow pair (it cannot
+close ``margin`` within two steps) one of whose edges rests on the other body at both ends
+(vertex contacts within ``margin``) is held by those two vertex contacts and skipped too: resting
+stacks then get no edge contacts where their vertex contacts suffice.
+"""
+import numpy as np
+from scipy.spatial import cKDTree
+
+# An edge is sharp when the normals of its two faces differ by more than this angle (radians).
+SHARP_ANGLE = np.deg2rad(20.0)
+# How far (cosine) a face normal of either edge may turn away from the pair's normal.
+CONE_TOLERANCE = 0.2
+CROSSED_TOLERANCE = 0.05
+
+
+def surface_edges(tris):
+    """Unique edges (E, 2) of outward-oriented triangles (T, 3) and their two faces (E, 2).
+
+    An edge of a closed manifold surface has exactly two faces; an edge with one face (an
+    open surface) repeats it, and is then never sharp."""
+    e = np.concatenate([tris[:, [0, 1]], tris[:, [1, 2]], tris[:, [2, 0]]])
+    face = np.tile(np.arange(len(tris)), 3)
+    key = np.sort(e, axis=1)
+    edges, inverse = np.unique(key, axis=0, return_inverse=True)
+    inverse = inverse.ravel()
+    order = np.argsort(inverse, kind="stable")
+    start = np.searchsorted(inverse[order], np.arange(len(edges)))
+    count = np.bincount(inverse, minlength=len(edges))
+    first = face[order[start]]
+    second = face[order[np.minimum(start + 1, len(order) - 1)]]
+    second = np.where(count >= 2, second, first)
+    return edges, np.column_stack([first, second])
+
+
+def segment_closest_points(a0, a1, b0, b1):
+    """Parameters s, t (k,) of the closest points of segments a0-a1 and b0-b1 (k, 3 each), and
+    whether the segments are parallel (k,) (their closest points are then not unique)."""
+    u, w, r = a1 - a0, b1 - b0, a0 - b0
+    uu, ww, uw = (np.einsum("ij,ij->i", p, q) for p, q in ((u, u), (w, w), (u, w)))
+    ur, wr = np.einsum("ij,ij->i", u, r), np.einsum("ij,ij->i", w, r)
+    den = uu * ww - uw * uw
+    parallel = den <= 1e-12 * uu * ww
+    safe = np.where(parallel, 1.0, den)
+    s = np.clip((uw * wr - ww * ur) / safe, 0.0, 1.0)
+    t = np.clip((uw * s + wr) / np.maximum(ww, 1e-300), 0.0, 1.0)
+    s = np.clip((uw * t - ur) / np.maximum(uu, 1e-300), 0.0, 1.0)
+    return s, t, parallel
+
+
+class EdgePairs:
+    """Surface edges of every body and their speculative edge-edge contacts with other bodies.
+
+    Parameters
+    ----------
+    tris : (T, 3) outward boundary triangles (global vertex ids)
+    tri_body : (T,) the body of each triangle
+    """
+
+    def __init__(self, tris, tri_body):
+        self.tris = tris
+        edges, faces = surface_edges(tris)
+        body = tri_body[faces[:, 0]]
+        order = np.argsort(body, kind="stable")                  # each body's edges contiguous
+        self.edges, self.faces, self.edge_body = edges[order], faces[order], body[order]
+        self.n_bodies = int(body.max()) + 1
+        self.starts = np.searchsorted(self.edge_body, np.arange(self.n_bodies))
+        self.cos_sharp = np.cos(SHARP_ANGLE)
+
+    def find(self, x, v, dt, margin, speed_bound, held=None):
+        """Edge-edge contacts at x (n, 3) with velocities v (n, 3).
+
+        ``speed_bound`` (n_bodies,) bounds each body's vertex speeds relative to its mean, and
+        the means are taken from v, so that ``margin + 2 h`` times a bound on any pair's
+        relative speed is the reach of the broad phase.
+
+        ``held`` (n,) marks vertices touching another body (a vertex contact within ``margin``):
+        a slow pair with an edge held at both ends is skipped (see the module docstring).
+
+        Returns ``(edge_a, edge_b, s, t, normal, distance)`` (edge a is the one whose closest
+        point the normal points to) or None."""
+        edges, body = self.edges, self.edge_body
+        p = x[self.tris]
+        fn = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+        fn /= np.maximum(np.linalg.norm(fn, axis=1, keepdims=True), 1e-300)
+        n0, n1 = fn[self.faces[:, 0]], fn[self.faces[:, 1]]
+        sharp = np.einsum("ij,ij->i", n0, n1) < self.cos_sharp
+        if not sharp.any():
+            return None
+        outward = n0 + n1
+        e0, e1 = x[edges[:, 0]], x[edges[:, 1]]
+        mid = 0.5 * (e0 + e1)
+        half = 0.5 * np.linalg.norm(e1 - e0, axis=1)
+        nb, starts = self.n_bodies, self.starts
+        count = np.maximum(np.diff(np.append(starts, len(body))), 1)[:, None]
+        vm = 0.5 * (v[edges[:, 0]] + v[edges[:, 1]])
+        mean_v = np.add.reduceat(vm, starts) / count
+        # reach of each pair of bodies: margin + 2 h |relative speed| bound
+        rel = np.linalg.norm(mean_v[:, None] - mean_v[None], axis=2) + speed_bound[:, None] + speed_bound[None]
+        grow = margin + 2.0 * dt * rel + 2.0 * half.max()
+        lo, hi = np.minimum.reduceat(mid, starts), np.maximum.reduceat(mid, starts)
+        # pairs of bodies whose grown boxes overlap, then the sharp edges of each inside the other's
+        g = grow[:, :, None]
+        touch = np.all((lo[:, None] <= hi[None] + g) & (hi[:, None] >= lo[None] - g), axis=2)
+        np.fill_diagonal(touch, False)
+        if not touch.any():
+            return None
+        # per body: its sharp edges inside the grown box of a body it may touch, in one KD-tree
+        trees = {}
+        for b in np.flatnonzero(touch.any(axis=1)):
+            r = slice(starts[b], starts[b + 1] if b + 1 < nb else len(body))
+            o = np.flatnonzero(touch[b])
+            m = mid[r]
+            g = grow[b, o][:, None]
+            inside = np.any(np.all((m[:, None] >= lo[o] - g) & (m[:, None] <= hi[o] + g), axis=2), axis=1)
+            idx = r.start + np.flatnonzero(sharp[r] & inside)
+            if idx.size:
+                trees[b] = (idx, cKDTree(mid[idx]))
+        found = []
+        for b1, b2 in zip(*np.nonzero(np.triu(touch, 1))):
+            if b1 in trees and b2 in trees:
+                (i1, t1), (i2, t2) = trees[b1], trees[b2]
+                m = t1.sparse_distance_matrix(t2, grow[b1, b2], output_type="ndarray")
+                if len(m):
+                    found.append(np.column_stack([i1[m["i"]], i2[m["j"]]]))
+        if not found:
+            return None
+        ea, eb = np.concatenate(found).T
+        reach = grow - 2.0 * half.max()
+        near = np.linalg.norm(mid[ea] - mid[eb], axis=1) <= reach[body[ea], body[eb]] + half[ea] + half[eb]
+        ea, eb = ea[near], eb[near]
+        # edges sharing a vertex cannot belong to different bodies; no check needed
+        a0, a1, b0, b1 = e0[ea], e1[ea], e0[eb], e1[eb]
+        s, t, parallel = segment_closest_points(a0, a1, b0, b1)
+        pa = a0 + s[:, None] * (a1 - a0)
+        pb = b0 + t[:, None] * (b1 - b0)
+        # the normal of two crossing edges is across both, e_a x e_b (well defined when they touch,
+        # d = 0, where p_a - p_b is not), turned to point out of B, towards A
+        n = np.cross(a1 - a0, b1 - b0)
+        n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+        n *= np.where(np.einsum("ij,ij->i", n, outward[eb] - outward[ea]) < 0, -1.0, 1.0)[:, None]
+        d = np.einsum("ij,ij->i", n, pa - pb)  # signed: negative once the edges have crossed
+        inside = 1e-6
+        # n within B's edge's normal cone (between its two face normals) and -n within A's: the
+        # edges face each other, so that d < 0 means really crossed (CONE_TOLERANCE: a face
+        # normal may lie across n, as for two bars crossing face to face)
+        cone = np.minimum.reduce([np.einsum("ij,ij->i", n, f[e]) * sign for f, e, sign in
+                                  ((n0, eb, 1.0), (n1, eb, 1.0), (n0, ea, -1.0), (n1, ea, -1.0))])
+        # a crossed pair (d < 0) must have each closest point inside the other edge's wedge (both
+        # faces' planes): n inside both cones up to CROSSED_TOLERANCE only
+        ok = (~parallel & (s > inside) & (s < 1 - inside) & (t > inside) & (t < 1 - inside) & (d > -margin)
+              & (cone > np.where(d < 0, -CROSSED_TOLERANCE, -CONE_TOLERANCE)))
+        va = (1 - s)[:, None] * v[edges[ea, 0]] + s[:, None] * v[edges[ea, 1]]
+        vb = (1 - t)[:, None] * v[edges[eb, 0]] + t[:, None] * v[edges[eb, 1]]
+        approach = np.maximum(0.0, -np.einsum("ij,ij->i", va - vb, n))
+        reach = 2.0 * dt * approach
+        if held is not None:  # a slow pair with an edge resting on the other body at both ends
+            ok &= ~((held[edges[ea]].all(axis=1) | held[edges[eb]].all(axis=1)) & (reach < margin))
+        hit = np.flatnonzero(ok & (d < margin + reach))
+        if not hit.size:
+            return None
+        return ea[hit], eb[hit], s[hit], t[hit], n[hit], d[hit]
