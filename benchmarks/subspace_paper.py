@@ -188,9 +188,12 @@ def _fastest(fn, repeats):
     return best, out
 
 
-def linear_solves(sim, reducer, x, v, solver, repeats=3):
-    """Table 3 at state (x, v): the Schur solve of our coupled system (eq. 19) at x against the
-    full-space Newton system at x by ``solver`` (factorization + solve) and by block-Jacobi CG."""
+def linear_solves(sim, reducer, x, v, solver, repeats=3, system=None):
+    """Table 3 at state (x, v): the Schur solve of our coupled system (eq. 19) against the
+    full-space Newton system at x by ``solver`` (factorization + solve) and by block-Jacobi CG.
+
+    ``system``: our coupled system ``(Hq, C, Hx, gq, gx)`` as the run built it (the last reduced
+    iterate of the step); without it, the reducer (in its state after the run) builds it at x."""
     contact = sim.integrator.barrier
     ip = IncrementalPotential(sim.model, x, v, barrier=contact, tol=1e-3, max_iters=1)
     contact.begin_step(ip.x_t, ip.x_hat, ip.c)
@@ -204,17 +207,21 @@ def linear_solves(sim, reducer, x, v, solver, repeats=3):
 
     t_direct, _ = _fastest(direct_solve, repeats)
     t_cg, (_, it_cg) = _fastest(lambda: linalg.pcg(lambda p: A @ p, -g, linalg.block_jacobi(A), 1e-5, 10000), repeats)
-    keep = reducer.fallback
-    reducer.fallback = None  # the coupled system itself, whatever the enrichment
-    try:
-        reducer.solve(ip)
-    finally:
-        reducer.fallback = keep
-    Hq, C, Hx, gq, gx = reducer.last_system
+    captured = system is not None
+    if not captured:
+        keep = reducer.fallback
+        reducer.fallback = None  # the coupled system itself, whatever the enrichment
+        try:
+            reducer.solve(ip)
+        finally:
+            reducer.fallback = keep
+        system = reducer.last_system
+    Hq, C, Hx, gq, gx = system
     t_schur, (_, _, it_schur, _) = _fastest(lambda: linalg.schur_solve(Hq, C, Hx, gq, gx, 1e-5, 10000), repeats)
     return {"schur_s": t_schur, "direct_s": t_direct, "cg_s": t_cg, "schur_iters": int(it_schur),
             "cg_iters": int(it_cg), "nnz_ours": int(Hq.size + 2 * C.size + Hx.nnz), "nnz_full": int(A.nnz),
-            "enriched_dofs": int(Hx.shape[0]), "modes": int(Hq.shape[0]), "direct": direct.name}
+            "enriched_dofs": int(Hx.shape[0]), "modes": int(Hq.shape[0]), "direct": direct.name,
+            "system": "captured" if captured else "rebuilt"}
 
 
 def _frame_line(frame, running, errors, contact_s):
@@ -239,8 +246,29 @@ def run_scene(kind, args):
     seen = {name: {"ipc_eval": 0.0, "ipc_ccd": 0.0} for name in sims}
     states = [(full.state.x.copy(), full.state.v.copy())]
     errors = {name: [] for name in reducers}
+    # our coupled systems (the last reduced iterate's) at the hard step so far and at the step with
+    # the most enriched DOFs, for Table 3; a step that built none (fell back) leaves None
+    last = {name: None for name in reducers}
+    hard_key, systems = [None], {name: {"hard": None, "enriched": None} for name in reducers}
+
+    def capture(frame, running):
+        rf = running["full"].stats[-1]
+        key = (rf.get("newton_iters", 0), rf["wall"])
+        harder = hard_key[0] is None or key > hard_key[0]
+        if harder:
+            hard_key[0] = key
+        for name, (_, red) in reducers.items():
+            system = red.last_system if name in running and red.last_system is not last[name] else None
+            last[name] = red.last_system
+            if harder:
+                systems[name]["hard"] = (frame - 1, system)
+            best = systems[name]["enriched"]
+            if system is not None and system[2].shape[0] > 0 and (best is None or system[2].shape[0] > best[1][2].shape[0]):
+                systems[name]["enriched"] = (frame - 1, system)
 
     def on_frame(frame, running):
+        if "full" in running:
+            capture(frame, running)
         contact_s = {}
         for name, sim in running.items():  # this frame's IPC time into the frame's record
             rec = sim.stats[-1]
@@ -290,9 +318,16 @@ def run_scene(kind, args):
                             "reduced": [bool(r.get("reduced", True)) for r in ro[:n]], "error": errors[name][:n]}
         row["step_speedup"] = row["step_full_s"] / row["step_ours_s"]
         row["run_speedup"] = row["wall_full_s"] / row["wall_ours_s"]
-        x, v = states[hard]
         if args.repeats:
-            row.update(linear_solves(sims[name], red, x.reshape(-1), v.reshape(-1), args.solver, args.repeats))
+            at, system = systems[name]["hard"]
+            x, v = states[at]
+            row.update(linear_solves(sims[name], red, x.reshape(-1), v.reshape(-1), args.solver, args.repeats,
+                                     system if at == hard else None))
+            if systems[name]["enriched"] is not None:  # Table 3 where our system has enriched DOFs
+                at, system = systems[name]["enriched"]
+                x, v = states[at]
+                solves = linear_solves(sims[name], red, x.reshape(-1), v.reshape(-1), args.solver, args.repeats, system)
+                row.update({f"enr_{k}": val for k, val in solves.items()}, enr_step=at + 1)
         rows.append(row)
     return rows
 
@@ -306,11 +341,13 @@ def print_table(rows, out=None):
               f"{r['step_ours_s']:>10.3f} {r['step_full_s']:>10.3f} {r['step_speedup']:>7.2f} {r['run_speedup']:>11.2f} "
               f"{r['enriched']:>8.3f} {r['modes']:>3}/{r['modes_available']:<3} {r['reduced_steps']:>7.2f} "
               f"{r['max_error']:>8.1e}", file=out)
-    solved = [r for r in rows if "schur_s" in r]
-    print(f"\n{'scene':>7} {'eps':>6} {'schur (s)':>9} {'direct (s)':>10} {'BJ-CG (s)':>9} {'direct/schur':>12} {'CG/schur':>8} "
+    solved = [(r, "hard") for r in rows if "schur_s" in r]
+    solved += [({k[4:]: v for k, v in r.items() if k.startswith("enr_")} | {"scene": r["scene"], "eps": r["eps"]},
+                f"step {r['enr_step']}") for r in rows if "enr_schur_s" in r]
+    print(f"\n{'scene':>7} {'eps':>6} {'at':>8} {'schur (s)':>9} {'direct (s)':>10} {'BJ-CG (s)':>9} {'direct/schur':>12} {'CG/schur':>8} "
           f"{'schur it':>8} {'CG it':>6} {'nnz ours':>9} {'nnz full':>9} {'enr dofs':>8}", file=out)
-    for r in solved:
-        print(f"{r['scene']:>7} {r['eps']:>6g} {r['schur_s']:>9.4f} {r['direct_s']:>10.4f} {r['cg_s']:>9.4f} "
+    for r, at in solved:
+        print(f"{r['scene']:>7} {r['eps']:>6g} {at:>8} {r['schur_s']:>9.4f} {r['direct_s']:>10.4f} {r['cg_s']:>9.4f} "
               f"{r['direct_s'] / r['schur_s']:>12.1f} {r['cg_s'] / r['schur_s']:>8.1f} {r['schur_iters']:>8} "
               f"{r['cg_iters']:>6} {r['nnz_ours']:>9} {r['nnz_full']:>9} {r['enriched_dofs']:>8}", file=out)
     keys = [k for k in sa.Stats.PHASES + ("ipc_eval", "ipc_ccd")
