@@ -129,7 +129,8 @@ def scene(kind, cells, reducer=None, solver="auto", newton_tol=1e-3, dt=0.01, li
 
 
 def subspace(args, eps):
-    return sa.AdaptiveSubspace(basis=sa.SkinningEigenmodes(n=args.modes), eps_nodal=eps, eps_modal=eps,
+    eps_modal = eps if args.eps_modal is None else args.eps_modal
+    return sa.AdaptiveSubspace(basis=sa.SkinningEigenmodes(n=args.modes), eps_nodal=eps, eps_modal=eps_modal,
                                subdomains=args.subdomains, fallback=_fallback(args.fallback))
 
 
@@ -263,7 +264,8 @@ def run_scene(kind, args):
             if harder:
                 systems[name]["hard"] = (frame - 1, system)
             best = systems[name]["enriched"]
-            if system is not None and system[2].shape[0] > 0 and (best is None or system[2].shape[0] > best[1][2].shape[0]):
+            size = 0 if system is None else system[2].shape[0]
+            if size > 0 and (best is None or size > best[1][2].shape[0]):
                 systems[name]["enriched"] = (frame - 1, system)
 
     def on_frame(frame, running):
@@ -295,7 +297,8 @@ def run_scene(kind, args):
             raise RuntimeError(f"{kind}: no step finished ({result['full'].summary['message']} "
                                f"{result[name].summary['message']})")
         hard = max(range(n), key=lambda i: (rf[i].get("newton_iters", 0), rf[i]["wall"]))
-        row = {"scene": kind, "eps": eps, "tets": int(full.system.m), "vertices": int(full.system.n), "frames": n,
+        row = {"scene": kind, "eps": eps, "eps_modal": float(red.eps_modal), "tets": int(full.system.m),
+               "vertices": int(full.system.n), "frames": n,
                "hard_step": hard + 1,
                "newton_ours": int(ro[hard].get("newton_iters", 0)), "newton_full": int(rf[hard].get("newton_iters", 0)),
                "step_ours_s": float(ro[hard]["wall"]), "step_full_s": float(rf[hard]["wall"]),
@@ -377,6 +380,7 @@ def main(argv=None):
     p.add_argument("--eps", type=float, nargs="+", default=[0.5],
                    help="eps_nodal = eps_modal (the paper's 0.5 for most scenes); several: one full-space run "
                         "serves them all, a row each")
+    p.add_argument("--eps-modal", type=float, default=None, help="eps_modal for every run (default: each --eps)")
     p.add_argument("--modes", type=int, default=16, help="Skinning Eigenmodes weights (12 columns each)")
     p.add_argument("--subdomains", type=int, default=200)
     p.add_argument("--fallback", default="nnz",
