@@ -140,18 +140,19 @@ def _fallback(text):
     return float(text)
 
 
-#: IPC entry points timed per frame by :func:`_time_contact`: the barrier (and friction) terms, the
-#: per-vertex energy shares of the oracle, and continuous collision detection (the line search's
-#: largest intersection-free step).
-CONTACT_EVAL = ("begin_step", "energy", "gradient", "hessian", "hessian_parts", "hessian_data", "vertex_energy")
-CONTACT_CCD = ("max_step", "step_collision_free", "intersection_free")
+#: IPC entry points timed per frame by :func:`_time_contact`: the barrier (and friction) terms
+#: (``ipc_eval``), the per-vertex energy shares the oracle asks for (``ipc_shares``), and continuous
+#: collision detection (``ipc_ccd``: the line search's largest intersection-free step).
+CONTACT_TIMERS = {"ipc_eval": ("begin_step", "energy", "gradient", "hessian", "hessian_parts", "hessian_data"),
+                  "ipc_shares": ("vertex_energy",),
+                  "ipc_ccd": ("max_step", "step_collision_free", "intersection_free")}
 
 
 def _time_contact(sim):
     """Wrap the IPC contact object's entry points with timers; returns the running totals
-    ``{"ipc_eval": s, "ipc_ccd": s}`` (nested calls are counted once)."""
+    (seconds, keys of :data:`CONTACT_TIMERS`; nested calls are counted once)."""
     contact = sim.integrator.barrier
-    totals = {"ipc_eval": 0.0, "ipc_ccd": 0.0}
+    totals = {key: 0.0 for key in CONTACT_TIMERS}
     if contact is None:
         return totals
     depth = [0]
@@ -171,12 +172,10 @@ def _time_contact(sim):
                 depth[0] -= 1
         setattr(contact, name, timed)
 
-    for name in CONTACT_EVAL:
-        if hasattr(contact, name):
-            wrap(name, "ipc_eval")
-    for name in CONTACT_CCD:
-        if hasattr(contact, name):
-            wrap(name, "ipc_ccd")
+    for key, names in CONTACT_TIMERS.items():
+        for name in names:
+            if hasattr(contact, name):
+                wrap(name, key)
     return totals
 
 
@@ -244,7 +243,7 @@ def run_scene(kind, args):
     reducers = {f"eps={eps:g}": (eps, subspace(args, eps)) for eps in args.eps}
     sims = {"full": full, **{name: scene(kind, args.cells, reducer=red) for name, (_, red) in reducers.items()}}
     totals = {name: _time_contact(sim) for name, sim in sims.items()}
-    seen = {name: {"ipc_eval": 0.0, "ipc_ccd": 0.0} for name in sims}
+    seen = {name: dict.fromkeys(CONTACT_TIMERS, 0.0) for name in sims}
     states = [(full.state.x.copy(), full.state.v.copy())]
     errors = {name: [] for name in reducers}
     # our coupled systems (the last reduced iterate's) at the hard step so far and at the step with
@@ -274,10 +273,10 @@ def run_scene(kind, args):
         contact_s = {}
         for name, sim in running.items():  # this frame's IPC time into the frame's record
             rec = sim.stats[-1]
-            for key in ("ipc_eval", "ipc_ccd"):
+            for key in CONTACT_TIMERS:
                 rec[key] = totals[name][key] - seen[name][key]
                 seen[name][key] = totals[name][key]
-            contact_s[name] = rec["ipc_eval"] + rec["ipc_ccd"]
+            contact_s[name] = sum(rec[key] for key in CONTACT_TIMERS)
         if "full" in running:
             states.append((running["full"].state.x.copy(), running["full"].state.v.copy()))
             for name in reducers:
@@ -308,7 +307,7 @@ def run_scene(kind, args):
                "reduced_steps": float(np.mean([r.get("reduced", True) for r in ro[:n]])),
                "max_error": max(errors[name][:n], default=0.0),
                "status": f"{result['full'].summary['status']}/{result[name].summary['status']}"}
-        keys = sa.Stats.PHASES + ("ipc_eval", "ipc_ccd")
+        keys = sa.Stats.PHASES + tuple(CONTACT_TIMERS)
         so, sf = sims[name].stats[hard], full.stats[hard]  # the records with the IPC times added by on_frame
         row["phases_ours"] = {k: float(so[k]) for k in keys if k in so}
         row["phases_full"] = {k: float(sf[k]) for k in keys if k in sf}
@@ -353,10 +352,10 @@ def print_table(rows, out=None):
         print(f"{r['scene']:>7} {r['eps']:>6g} {at:>8} {r['schur_s']:>9.4f} {r['direct_s']:>10.4f} {r['cg_s']:>9.4f} "
               f"{r['direct_s'] / r['schur_s']:>12.1f} {r['cg_s'] / r['schur_s']:>8.1f} {r['schur_iters']:>8} "
               f"{r['cg_iters']:>6} {r['nnz_ours']:>9} {r['nnz_full']:>9} {r['enriched_dofs']:>8}", file=out)
-    keys = [k for k in sa.Stats.PHASES + ("ipc_eval", "ipc_ccd")
+    keys = [k for k in sa.Stats.PHASES + tuple(CONTACT_TIMERS)
             if any(k in r["phases_ours"] or k in r["phases_full"] for r in rows)]
-    print("\nThe hard step by phase, ours / full (s; ipc_eval and ipc_ccd are inside assembly, prediction "
-          "and line_search):", file=out)
+    print("\nThe hard step by phase, ours / full (s; the ipc_* times are inside assembly, prediction, "
+          "reduced_assembly and line_search):", file=out)
     print(f"{'scene':>7} {'eps':>6} " + " ".join(f"{k:>17}" for k in keys), file=out)
     for r in rows:
         print(f"{r['scene']:>7} {r['eps']:>6g} " + " ".join(f"{r['phases_ours'].get(k, 0):>8.3f}/{r['phases_full'].get(k, 0):<8.3f}"

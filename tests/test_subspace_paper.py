@@ -20,6 +20,7 @@ def test_two_frames_of_every_scene_give_the_tables(tmp_path, capsys):
         # the hard step's phase breakdown, with the IPC time measured inside the phases
         assert r["phases_full"]["factorization"] > 0 and r["phases_full"]["ipc_eval"] > 0
         assert r["phases_full"]["ipc_ccd"] > 0 and r["phases_ours"]["ipc_eval"] > 0
+        assert r["phases_ours"]["ipc_shares"] > 0 and r["phases_full"]["ipc_shares"] == 0  # the oracle's only
         assert r["phases_full"]["ipc_eval"] < r["step_full_s"]
         assert r["system"] in ("captured", "rebuilt") and r.get("enr_enriched_dofs", 1) > 0
         assert len(r["per_frame"]["wall_full"]) == 2 and max(r["per_frame"]["error"]) == r["max_error"]
