@@ -128,8 +128,17 @@ def scene(kind, cells, reducer=None, solver="auto", newton_tol=1e-3, dt=0.01, li
     raise ValueError(f"scene must be one of {SCENES}, got {kind!r}")
 
 
-def subspace(args, eps):
-    eps_modal = eps if args.eps_modal is None else args.eps_modal
+def thresholds(args):
+    """(eps_nodal, eps_modal) of each run: ``--eps`` with ``--eps-modal`` (one value for all, or one each)."""
+    modal = args.eps if args.eps_modal is None else args.eps_modal
+    if len(modal) == 1:
+        modal = modal * len(args.eps)
+    if len(modal) != len(args.eps):
+        raise ValueError(f"--eps-modal needs one value or one per --eps ({len(args.eps)}), got {len(modal)}")
+    return list(zip(args.eps, modal))
+
+
+def subspace(args, eps, eps_modal):
     return sa.AdaptiveSubspace(basis=sa.SkinningEigenmodes(n=args.modes), eps_nodal=eps, eps_modal=eps_modal,
                                subdomains=args.subdomains, fallback=_fallback(args.fallback))
 
@@ -240,7 +249,8 @@ def run_scene(kind, args):
     """Full-space IPC Newton and the adaptive subspace at each of ``args.eps``, all stepped frame
     by frame in turn in one process; a row per threshold (the hard step and Table 3)."""
     full = scene(kind, args.cells, solver=args.solver)
-    reducers = {f"eps={eps:g}": (eps, subspace(args, eps)) for eps in args.eps}
+    reducers = {f"eps={eps:g}" + (f"/{modal:g}" if modal != eps else ""): (eps, subspace(args, eps, modal))
+                for eps, modal in thresholds(args)}
     sims = {"full": full, **{name: scene(kind, args.cells, reducer=red) for name, (_, red) in reducers.items()}}
     totals = {name: _time_contact(sim) for name, sim in sims.items()}
     seen = {name: dict.fromkeys(CONTACT_TIMERS, 0.0) for name in sims}
@@ -334,31 +344,36 @@ def run_scene(kind, args):
     return rows
 
 
+def _eps(r):
+    return f"{r['eps']:g}" + (f"/{r['eps_modal']:g}" if r["eps_modal"] != r["eps"] else "")
+
+
 def print_table(rows, out=None):
     out = sys.stdout if out is None else out
-    print(f"\n{'scene':>7} {'eps':>6} {'tets':>7} {'hard':>4} {'newton o/f':>10} {'step o (s)':>10} {'step f (s)':>10} "
+    print(f"\n{'scene':>7} {"eps":>9} {'tets':>7} {'hard':>4} {'newton o/f':>10} {'step o (s)':>10} {'step f (s)':>10} "
           f"{'speedup':>7} {'run speedup':>11} {'enriched':>8} {'modes':>7} {'reduced':>7} {'max err':>8}", file=out)
     for r in rows:
-        print(f"{r['scene']:>7} {r['eps']:>6g} {r['tets']:>7} {r['hard_step']:>4} {r['newton_ours']:>4}/{r['newton_full']:<5} "
+        print(f"{r['scene']:>7} {_eps(r):>9} {r['tets']:>7} {r['hard_step']:>4} {r['newton_ours']:>4}/{r['newton_full']:<5} "
               f"{r['step_ours_s']:>10.3f} {r['step_full_s']:>10.3f} {r['step_speedup']:>7.2f} {r['run_speedup']:>11.2f} "
               f"{r['enriched']:>8.3f} {r['modes']:>3}/{r['modes_available']:<3} {r['reduced_steps']:>7.2f} "
               f"{r['max_error']:>8.1e}", file=out)
     solved = [(r, "hard") for r in rows if "schur_s" in r]
-    solved += [({k[4:]: v for k, v in r.items() if k.startswith("enr_")} | {"scene": r["scene"], "eps": r["eps"]},
-                f"step {r['enr_step']}") for r in rows if "enr_schur_s" in r]
-    print(f"\n{'scene':>7} {'eps':>6} {'at':>8} {'schur (s)':>9} {'direct (s)':>10} {'BJ-CG (s)':>9} {'direct/schur':>12} {'CG/schur':>8} "
+    solved += [({k[4:]: v for k, v in r.items() if k.startswith("enr_")}
+                | {k: r[k] for k in ("scene", "eps", "eps_modal")}, f"step {r['enr_step']}")
+               for r in rows if "enr_schur_s" in r]
+    print(f"\n{'scene':>7} {"eps":>9} {'at':>8} {'schur (s)':>9} {'direct (s)':>10} {'BJ-CG (s)':>9} {'direct/schur':>12} {'CG/schur':>8} "
           f"{'schur it':>8} {'CG it':>6} {'nnz ours':>9} {'nnz full':>9} {'enr dofs':>8}", file=out)
     for r, at in solved:
-        print(f"{r['scene']:>7} {r['eps']:>6g} {at:>8} {r['schur_s']:>9.4f} {r['direct_s']:>10.4f} {r['cg_s']:>9.4f} "
+        print(f"{r['scene']:>7} {_eps(r):>9} {at:>8} {r['schur_s']:>9.4f} {r['direct_s']:>10.4f} {r['cg_s']:>9.4f} "
               f"{r['direct_s'] / r['schur_s']:>12.1f} {r['cg_s'] / r['schur_s']:>8.1f} {r['schur_iters']:>8} "
               f"{r['cg_iters']:>6} {r['nnz_ours']:>9} {r['nnz_full']:>9} {r['enriched_dofs']:>8}", file=out)
     keys = [k for k in sa.Stats.PHASES + tuple(CONTACT_TIMERS)
             if any(k in r["phases_ours"] or k in r["phases_full"] for r in rows)]
     print("\nThe hard step by phase, ours / full (s; the ipc_* times are inside assembly, prediction, "
           "reduced_assembly and line_search):", file=out)
-    print(f"{'scene':>7} {'eps':>6} " + " ".join(f"{k:>17}" for k in keys), file=out)
+    print(f"{'scene':>7} {"eps":>9} " + " ".join(f"{k:>17}" for k in keys), file=out)
     for r in rows:
-        print(f"{r['scene']:>7} {r['eps']:>6g} " + " ".join(f"{r['phases_ours'].get(k, 0):>8.3f}/{r['phases_full'].get(k, 0):<8.3f}"
+        print(f"{r['scene']:>7} {_eps(r):>9} " + " ".join(f"{r['phases_ours'].get(k, 0):>8.3f}/{r['phases_full'].get(k, 0):<8.3f}"
                                               for k in keys), file=out)
     print("\nThe paper (Table 1 step times ours/IPC in s, Table 3 solves ours/LLT/CG in s) for the nearest scene:", file=out)
     for r in {r["scene"]: r for r in rows}.values():
@@ -379,7 +394,8 @@ def main(argv=None):
     p.add_argument("--eps", type=float, nargs="+", default=[0.5],
                    help="eps_nodal = eps_modal (the paper's 0.5 for most scenes); several: one full-space run "
                         "serves them all, a row each")
-    p.add_argument("--eps-modal", type=float, default=None, help="eps_modal for every run (default: each --eps)")
+    p.add_argument("--eps-modal", type=float, nargs="+", default=None,
+                   help="eps_modal: one for every run or one per --eps (default: eps_modal = eps_nodal = --eps)")
     p.add_argument("--modes", type=int, default=16, help="Skinning Eigenmodes weights (12 columns each)")
     p.add_argument("--subdomains", type=int, default=200)
     p.add_argument("--fallback", default="nnz",
