@@ -350,7 +350,7 @@ def _eps(r):
 
 def print_table(rows, out=None):
     out = sys.stdout if out is None else out
-    print(f"\n{'scene':>7} {"eps":>9} {'tets':>7} {'hard':>4} {'newton o/f':>10} {'step o (s)':>10} {'step f (s)':>10} "
+    print(f"\n{'scene':>7} {'eps':>9} {'tets':>7} {'hard':>4} {'newton o/f':>10} {'step o (s)':>10} {'step f (s)':>10} "
           f"{'speedup':>7} {'run speedup':>11} {'enriched':>8} {'modes':>7} {'reduced':>7} {'max err':>8}", file=out)
     for r in rows:
         print(f"{r['scene']:>7} {_eps(r):>9} {r['tets']:>7} {r['hard_step']:>4} {r['newton_ours']:>4}/{r['newton_full']:<5} "
@@ -361,7 +361,7 @@ def print_table(rows, out=None):
     solved += [({k[4:]: v for k, v in r.items() if k.startswith("enr_")}
                 | {k: r[k] for k in ("scene", "eps", "eps_modal")}, f"step {r['enr_step']}")
                for r in rows if "enr_schur_s" in r]
-    print(f"\n{'scene':>7} {"eps":>9} {'at':>8} {'schur (s)':>9} {'direct (s)':>10} {'BJ-CG (s)':>9} {'direct/schur':>12} {'CG/schur':>8} "
+    print(f"\n{'scene':>7} {'eps':>9} {'at':>8} {'schur (s)':>9} {'direct (s)':>10} {'BJ-CG (s)':>9} {'direct/schur':>12} {'CG/schur':>8} "
           f"{'schur it':>8} {'CG it':>6} {'nnz ours':>9} {'nnz full':>9} {'enr dofs':>8}", file=out)
     for r, at in solved:
         print(f"{r['scene']:>7} {_eps(r):>9} {at:>8} {r['schur_s']:>9.4f} {r['direct_s']:>10.4f} {r['cg_s']:>9.4f} "
@@ -371,7 +371,7 @@ def print_table(rows, out=None):
             if any(k in r["phases_ours"] or k in r["phases_full"] for r in rows)]
     print("\nThe hard step by phase, ours / full (s; the ipc_* times are inside assembly, prediction, "
           "reduced_assembly and line_search):", file=out)
-    print(f"{'scene':>7} {"eps":>9} " + " ".join(f"{k:>17}" for k in keys), file=out)
+    print(f"{'scene':>7} {'eps':>9} " + " ".join(f"{k:>17}" for k in keys), file=out)
     for r in rows:
         print(f"{r['scene']:>7} {_eps(r):>9} " + " ".join(f"{r['phases_ours'].get(k, 0):>8.3f}/{r['phases_full'].get(k, 0):<8.3f}"
                                               for k in keys), file=out)
