@@ -32,6 +32,7 @@ Usage::
 
     python benchmarks/subspace_paper.py --cells 6 --frames 20            # ~1.3k tets per box
     python benchmarks/subspace_paper.py --scenes drop stack --cells 16 --frames 30 --eps 0.5
+    python benchmarks/subspace_paper.py --scenes drop --cells 16 --frames 20 --eps 0.05 0.01 --verbose
 """
 import argparse
 import json
@@ -127,8 +128,18 @@ def scene(kind, cells, reducer=None, solver="auto", newton_tol=1e-3, dt=0.01, li
     raise ValueError(f"scene must be one of {SCENES}, got {kind!r}")
 
 
-def subspace(args):
-    return sa.AdaptiveSubspace(basis=sa.SkinningEigenmodes(n=args.modes), eps_nodal=args.eps, eps_modal=args.eps,
+def thresholds(args):
+    """(eps_nodal, eps_modal) of each run: ``--eps`` with ``--eps-modal`` (one value for all, or one each)."""
+    modal = args.eps if args.eps_modal is None else args.eps_modal
+    if len(modal) == 1:
+        modal = modal * len(args.eps)
+    if len(modal) != len(args.eps):
+        raise ValueError(f"--eps-modal needs one value or one per --eps ({len(args.eps)}), got {len(modal)}")
+    return list(zip(args.eps, modal))
+
+
+def subspace(args, eps, eps_modal):
+    return sa.AdaptiveSubspace(basis=sa.SkinningEigenmodes(n=args.modes), eps_nodal=eps, eps_modal=eps_modal,
                                subdomains=args.subdomains, fallback=_fallback(args.fallback))
 
 
@@ -136,6 +147,45 @@ def _fallback(text):
     if text in ("nnz", "none"):
         return None if text == "none" else text
     return float(text)
+
+
+#: IPC entry points timed per frame by :func:`_time_contact`: the barrier (and friction) terms
+#: (``ipc_eval``), the per-vertex energy shares the oracle asks for (``ipc_shares``), and continuous
+#: collision detection (``ipc_ccd``: the line search's largest intersection-free step).
+CONTACT_TIMERS = {"ipc_eval": ("begin_step", "energy", "gradient", "hessian", "hessian_parts", "hessian_data"),
+                  "ipc_shares": ("vertex_energy",),
+                  "ipc_ccd": ("max_step", "step_collision_free", "intersection_free")}
+
+
+def _time_contact(sim):
+    """Wrap the IPC contact object's entry points with timers; returns the running totals
+    (seconds, keys of :data:`CONTACT_TIMERS`; nested calls are counted once)."""
+    contact = sim.integrator.barrier
+    totals = {key: 0.0 for key in CONTACT_TIMERS}
+    if contact is None:
+        return totals
+    depth = [0]
+
+    def wrap(name, key):
+        inner = getattr(contact, name)
+
+        def timed(*a, **kw):
+            if depth[0]:
+                return inner(*a, **kw)
+            depth[0] += 1
+            t0 = time.perf_counter()
+            try:
+                return inner(*a, **kw)
+            finally:
+                totals[key] += time.perf_counter() - t0
+                depth[0] -= 1
+        setattr(contact, name, timed)
+
+    for key, names in CONTACT_TIMERS.items():
+        for name in names:
+            if hasattr(contact, name):
+                wrap(name, key)
+    return totals
 
 
 def _fastest(fn, repeats):
@@ -147,9 +197,12 @@ def _fastest(fn, repeats):
     return best, out
 
 
-def linear_solves(sim, reducer, x, v, solver, repeats=3):
-    """Table 3 at state (x, v): the Schur solve of our coupled system (eq. 19) at x against the
-    full-space Newton system at x by ``solver`` (factorization + solve) and by block-Jacobi CG."""
+def linear_solves(sim, reducer, x, v, solver, repeats=3, system=None):
+    """Table 3 at state (x, v): the Schur solve of our coupled system (eq. 19) against the
+    full-space Newton system at x by ``solver`` (factorization + solve) and by block-Jacobi CG.
+
+    ``system``: our coupled system ``(Hq, C, Hx, gq, gx)`` as the run built it (the last reduced
+    iterate of the step); without it, the reducer (in its state after the run) builds it at x."""
     contact = sim.integrator.barrier
     ip = IncrementalPotential(sim.model, x, v, barrier=contact, tol=1e-3, max_iters=1)
     contact.begin_step(ip.x_t, ip.x_hat, ip.c)
@@ -163,74 +216,167 @@ def linear_solves(sim, reducer, x, v, solver, repeats=3):
 
     t_direct, _ = _fastest(direct_solve, repeats)
     t_cg, (_, it_cg) = _fastest(lambda: linalg.pcg(lambda p: A @ p, -g, linalg.block_jacobi(A), 1e-5, 10000), repeats)
-    keep = reducer.fallback
-    reducer.fallback = None  # the coupled system itself, whatever the enrichment
-    try:
-        reducer.solve(ip)
-    finally:
-        reducer.fallback = keep
-    Hq, C, Hx, gq, gx = reducer.last_system
+    captured = system is not None
+    if not captured:
+        keep = reducer.fallback
+        reducer.fallback = None  # the coupled system itself, whatever the enrichment
+        try:
+            reducer.solve(ip)
+        finally:
+            reducer.fallback = keep
+        system = reducer.last_system
+    Hq, C, Hx, gq, gx = system
     t_schur, (_, _, it_schur, _) = _fastest(lambda: linalg.schur_solve(Hq, C, Hx, gq, gx, 1e-5, 10000), repeats)
     return {"schur_s": t_schur, "direct_s": t_direct, "cg_s": t_cg, "schur_iters": int(it_schur),
             "cg_iters": int(it_cg), "nnz_ours": int(Hq.size + 2 * C.size + Hx.nnz), "nnz_full": int(A.nnz),
-            "enriched_dofs": int(Hx.shape[0]), "modes": int(Hq.shape[0]), "direct": direct.name}
+            "enriched_dofs": int(Hx.shape[0]), "modes": int(Hq.shape[0]), "direct": direct.name,
+            "system": "captured" if captured else "rebuilt"}
+
+
+def _frame_line(frame, running, errors, contact_s):
+    parts = [f"frame {frame}"]
+    for name, sim in running.items():
+        r = sim.stats[-1]
+        text = f"{name}: {r['wall']:.2f} s, {r.get('newton_iters', 0)} it, ipc {contact_s[name]:.2f} s"
+        if name != "full":
+            text += (f", enriched {r.get('enriched_ratio', 0):.3f}, cols {r.get('active_modes', 0)}, "
+                     f"reduced {r.get('reduced', True)}, err {errors[name][-1]:.2e}" if errors[name] else "")
+        parts.append(text)
+    return " | ".join(parts)
 
 
 def run_scene(kind, args):
-    """Full-space IPC Newton and the adaptive subspace, interleaved; the hard step and Table 3."""
-    red = subspace(args)
+    """Full-space IPC Newton and the adaptive subspace at each of ``args.eps``, all stepped frame
+    by frame in turn in one process; a row per threshold (the hard step and Table 3)."""
     full = scene(kind, args.cells, solver=args.solver)
-    ours = scene(kind, args.cells, reducer=red)
+    reducers = {f"eps={eps:g}" + (f"/{modal:g}" if modal != eps else ""): (eps, subspace(args, eps, modal))
+                for eps, modal in thresholds(args)}
+    sims = {"full": full, **{name: scene(kind, args.cells, reducer=red) for name, (_, red) in reducers.items()}}
+    totals = {name: _time_contact(sim) for name, sim in sims.items()}
+    seen = {name: dict.fromkeys(CONTACT_TIMERS, 0.0) for name in sims}
     states = [(full.state.x.copy(), full.state.v.copy())]
-    err = [0.0]
+    errors = {name: [] for name in reducers}
+    # our coupled systems (the last reduced iterate's) at the hard step so far and at the step with
+    # the most enriched DOFs, for Table 3; a step that built none (fell back) leaves None
+    last = {name: None for name in reducers}
+    hard_key, systems = [None], {name: {"hard": None, "enriched": None} for name in reducers}
+
+    def capture(frame, running):
+        rf = running["full"].stats[-1]
+        key = (rf.get("newton_iters", 0), rf["wall"])
+        harder = hard_key[0] is None or key > hard_key[0]
+        if harder:
+            hard_key[0] = key
+        for name, (_, red) in reducers.items():
+            system = red.last_system if name in running and red.last_system is not last[name] else None
+            last[name] = red.last_system
+            if harder:
+                systems[name]["hard"] = (frame - 1, system)
+            best = systems[name]["enriched"]
+            size = 0 if system is None else system[2].shape[0]
+            if size > 0 and (best is None or size > best[1][2].shape[0]):
+                systems[name]["enriched"] = (frame - 1, system)
 
     def on_frame(frame, running):
         if "full" in running:
+            capture(frame, running)
+        contact_s = {}
+        for name, sim in running.items():  # this frame's IPC time into the frame's record
+            rec = sim.stats[-1]
+            for key in CONTACT_TIMERS:
+                rec[key] = totals[name][key] - seen[name][key]
+                seen[name][key] = totals[name][key]
+            contact_s[name] = sum(rec[key] for key in CONTACT_TIMERS)
+        if "full" in running:
             states.append((running["full"].state.x.copy(), running["full"].state.v.copy()))
-            if "ours" in running:
-                d = np.linalg.norm(running["ours"].state.x - running["full"].state.x, axis=1).max()
-                err[0] = max(err[0], d / full.size)
+            for name in reducers:
+                if name in running:
+                    d = np.linalg.norm(running[name].state.x - running["full"].state.x, axis=1).max()
+                    errors[name].append(float(d / full.size))
+        if args.verbose:
+            print(_frame_line(frame, running, errors, contact_s), flush=True)
 
-    result = runs.interleaved({"full": full, "ours": ours}, args.frames, on_frame=on_frame)
-    rf, ro = result["full"].records, result["ours"].records
-    n = min(len(rf), len(ro))
-    if n == 0:
-        raise RuntimeError(f"{kind}: no step finished ({result['full'].summary['message']} "
-                           f"{result['ours'].summary['message']})")
-    hard = max(range(n), key=lambda i: (rf[i].get("newton_iters", 0), rf[i]["wall"]))
-    row = {"scene": kind, "tets": int(full.system.m), "vertices": int(full.system.n), "frames": n,
-           "hard_step": hard + 1,
-           "newton_ours": int(ro[hard].get("newton_iters", 0)), "newton_full": int(rf[hard].get("newton_iters", 0)),
-           "step_ours_s": float(ro[hard]["wall"]), "step_full_s": float(rf[hard]["wall"]),
-           "enriched": float(ro[hard].get("enriched_ratio", 0.0)), "modes": int(ro[hard].get("active_modes", 0)),
-           "modes_available": int(red.basis.size), "reduced": bool(ro[hard].get("reduced", True)),
-           "wall_ours_s": float(sum(r["wall"] for r in ro[:n])), "wall_full_s": float(sum(r["wall"] for r in rf[:n])),
-           "reduced_steps": float(np.mean([r.get("reduced", True) for r in ro[:n]])),
-           "max_error": err[0], "status": f"{result['full'].summary['status']}/{result['ours'].summary['status']}"}
-    row["step_speedup"] = row["step_full_s"] / row["step_ours_s"]
-    row["run_speedup"] = row["wall_full_s"] / row["wall_ours_s"]
-    x, v = states[hard]
-    row.update(linear_solves(ours, red, x.reshape(-1), v.reshape(-1), args.solver, args.repeats))
-    return row
+    result = runs.interleaved(sims, args.frames, on_frame=on_frame)
+    rf = result["full"].records
+    rows = []
+    for name, (eps, red) in reducers.items():
+        ro = result[name].records
+        n = min(len(rf), len(ro))
+        if n == 0:
+            raise RuntimeError(f"{kind}: no step finished ({result['full'].summary['message']} "
+                               f"{result[name].summary['message']})")
+        hard = max(range(n), key=lambda i: (rf[i].get("newton_iters", 0), rf[i]["wall"]))
+        row = {"scene": kind, "eps": eps, "eps_modal": float(red.eps_modal), "tets": int(full.system.m),
+               "vertices": int(full.system.n), "frames": n,
+               "hard_step": hard + 1,
+               "newton_ours": int(ro[hard].get("newton_iters", 0)), "newton_full": int(rf[hard].get("newton_iters", 0)),
+               "step_ours_s": float(ro[hard]["wall"]), "step_full_s": float(rf[hard]["wall"]),
+               "enriched": float(ro[hard].get("enriched_ratio", 0.0)), "modes": int(ro[hard].get("active_modes", 0)),
+               "modes_available": int(red.basis.size), "reduced": bool(ro[hard].get("reduced", True)),
+               "wall_ours_s": float(sum(r["wall"] for r in ro[:n])), "wall_full_s": float(sum(r["wall"] for r in rf[:n])),
+               "reduced_steps": float(np.mean([r.get("reduced", True) for r in ro[:n]])),
+               "max_error": max(errors[name][:n], default=0.0),
+               "status": f"{result['full'].summary['status']}/{result[name].summary['status']}"}
+        keys = sa.Stats.PHASES + tuple(CONTACT_TIMERS)
+        so, sf = sims[name].stats[hard], full.stats[hard]  # the records with the IPC times added by on_frame
+        row["phases_ours"] = {k: float(so[k]) for k in keys if k in so}
+        row["phases_full"] = {k: float(sf[k]) for k in keys if k in sf}
+        row["per_frame"] = {"wall_ours": [float(r["wall"]) for r in ro[:n]],
+                            "wall_full": [float(r["wall"]) for r in rf[:n]],
+                            "newton_ours": [int(r.get("newton_iters", 0)) for r in ro[:n]],
+                            "newton_full": [int(r.get("newton_iters", 0)) for r in rf[:n]],
+                            "enriched": [float(r.get("enriched_ratio", 0.0)) for r in ro[:n]],
+                            "modes": [int(r.get("active_modes", 0)) for r in ro[:n]],
+                            "reduced": [bool(r.get("reduced", True)) for r in ro[:n]], "error": errors[name][:n]}
+        row["step_speedup"] = row["step_full_s"] / row["step_ours_s"]
+        row["run_speedup"] = row["wall_full_s"] / row["wall_ours_s"]
+        if args.repeats:
+            at, system = systems[name]["hard"]
+            x, v = states[at]
+            row.update(linear_solves(sims[name], red, x.reshape(-1), v.reshape(-1), args.solver, args.repeats,
+                                     system if at == hard else None))
+            if systems[name]["enriched"] is not None:  # Table 3 where our system has enriched DOFs
+                at, system = systems[name]["enriched"]
+                x, v = states[at]
+                solves = linear_solves(sims[name], red, x.reshape(-1), v.reshape(-1), args.solver, args.repeats, system)
+                row.update({f"enr_{k}": val for k, val in solves.items()}, enr_step=at + 1)
+        rows.append(row)
+    return rows
+
+
+def _eps(r):
+    return f"{r['eps']:g}" + (f"/{r['eps_modal']:g}" if r["eps_modal"] != r["eps"] else "")
 
 
 def print_table(rows, out=None):
     out = sys.stdout if out is None else out
-    print(f"\n{'scene':>7} {'tets':>7} {'hard':>4} {'newton o/f':>10} {'step o (s)':>10} {'step f (s)':>10} "
+    print(f"\n{'scene':>7} {'eps':>9} {'tets':>7} {'hard':>4} {'newton o/f':>10} {'step o (s)':>10} {'step f (s)':>10} "
           f"{'speedup':>7} {'run speedup':>11} {'enriched':>8} {'modes':>7} {'reduced':>7} {'max err':>8}", file=out)
     for r in rows:
-        print(f"{r['scene']:>7} {r['tets']:>7} {r['hard_step']:>4} {r['newton_ours']:>4}/{r['newton_full']:<5} "
+        print(f"{r['scene']:>7} {_eps(r):>9} {r['tets']:>7} {r['hard_step']:>4} {r['newton_ours']:>4}/{r['newton_full']:<5} "
               f"{r['step_ours_s']:>10.3f} {r['step_full_s']:>10.3f} {r['step_speedup']:>7.2f} {r['run_speedup']:>11.2f} "
               f"{r['enriched']:>8.3f} {r['modes']:>3}/{r['modes_available']:<3} {r['reduced_steps']:>7.2f} "
               f"{r['max_error']:>8.1e}", file=out)
-    print(f"\n{'scene':>7} {'schur (s)':>9} {'direct (s)':>10} {'BJ-CG (s)':>9} {'direct/schur':>12} {'CG/schur':>8} "
+    solved = [(r, "hard") for r in rows if "schur_s" in r]
+    solved += [({k[4:]: v for k, v in r.items() if k.startswith("enr_")}
+                | {k: r[k] for k in ("scene", "eps", "eps_modal")}, f"step {r['enr_step']}")
+               for r in rows if "enr_schur_s" in r]
+    print(f"\n{'scene':>7} {'eps':>9} {'at':>8} {'schur (s)':>9} {'direct (s)':>10} {'BJ-CG (s)':>9} {'direct/schur':>12} {'CG/schur':>8} "
           f"{'schur it':>8} {'CG it':>6} {'nnz ours':>9} {'nnz full':>9} {'enr dofs':>8}", file=out)
-    for r in rows:
-        print(f"{r['scene']:>7} {r['schur_s']:>9.4f} {r['direct_s']:>10.4f} {r['cg_s']:>9.4f} "
+    for r, at in solved:
+        print(f"{r['scene']:>7} {_eps(r):>9} {at:>8} {r['schur_s']:>9.4f} {r['direct_s']:>10.4f} {r['cg_s']:>9.4f} "
               f"{r['direct_s'] / r['schur_s']:>12.1f} {r['cg_s'] / r['schur_s']:>8.1f} {r['schur_iters']:>8} "
               f"{r['cg_iters']:>6} {r['nnz_ours']:>9} {r['nnz_full']:>9} {r['enriched_dofs']:>8}", file=out)
-    print("\nThe paper (Table 1 step times ours/IPC in s, Table 3 solves ours/LLT/CG in s) for the nearest scene:", file=out)
+    keys = [k for k in sa.Stats.PHASES + tuple(CONTACT_TIMERS)
+            if any(k in r["phases_ours"] or k in r["phases_full"] for r in rows)]
+    print("\nThe hard step by phase, ours / full (s; the ipc_* times are inside assembly, prediction, "
+          "reduced_assembly and line_search):", file=out)
+    print(f"{'scene':>7} {'eps':>9} " + " ".join(f"{k:>17}" for k in keys), file=out)
     for r in rows:
+        print(f"{r['scene']:>7} {_eps(r):>9} " + " ".join(f"{r['phases_ours'].get(k, 0):>8.3f}/{r['phases_full'].get(k, 0):<8.3f}"
+                                              for k in keys), file=out)
+    print("\nThe paper (Table 1 step times ours/IPC in s, Table 3 solves ours/LLT/CG in s) for the nearest scene:", file=out)
+    for r in {r["scene"]: r for r in rows}.values():
         name = NEAREST[r["scene"]]
         if name is None:
             print(f"{r['scene']:>7}: Fig. 5 (no timing; the paper: no enrichment while the cube slides)", file=out)
@@ -245,24 +391,31 @@ def main(argv=None):
     p.add_argument("--scenes", nargs="+", choices=SCENES, default=list(SCENES))
     p.add_argument("--cells", type=int, default=6, help="tensor cells per box side (6 cells^3 tets per box)")
     p.add_argument("--frames", type=int, default=20)
-    p.add_argument("--eps", type=float, default=0.5, help="eps_nodal = eps_modal (the paper's 0.5 for most scenes)")
+    p.add_argument("--eps", type=float, nargs="+", default=[0.5],
+                   help="eps_nodal = eps_modal (the paper's 0.5 for most scenes); several: one full-space run "
+                        "serves them all, a row each")
+    p.add_argument("--eps-modal", type=float, nargs="+", default=None,
+                   help="eps_modal: one for every run or one per --eps (default: eps_modal = eps_nodal = --eps)")
     p.add_argument("--modes", type=int, default=16, help="Skinning Eigenmodes weights (12 columns each)")
     p.add_argument("--subdomains", type=int, default=200)
     p.add_argument("--fallback", default="nnz",
                    help="the reducer's fallback: 'nnz' (default), a fraction of the free DOFs, or 'none'")
     p.add_argument("--solver", default="pardiso" if sa.solvers.has_pardiso() else "superlu")
-    p.add_argument("--repeats", type=int, default=3, help="linear solves timed as the fastest of this many")
-    p.add_argument("--json", default="benchmarks/results/subspace_paper.json")
+    p.add_argument("--repeats", type=int, default=3,
+                   help="linear solves timed as the fastest of this many (0: no linear-solve comparison)")
+    p.add_argument("--json", default="benchmarks/results/subspace_paper.json",
+                   help="written after each scene (the scenes done so far)")
+    p.add_argument("--verbose", action="store_true", help="a line per frame: wall, Newton iterations, IPC time, error")
     args = p.parse_args(argv)
     rows = []
     for kind in args.scenes:
-        rows.append(run_scene(kind, args))
+        rows.extend(run_scene(kind, args))
         print(f"{kind}: done ({rows[-1]['tets']} tets, {rows[-1]['frames']} frames)", flush=True)
+        if args.json:
+            os.makedirs(os.path.dirname(os.path.abspath(args.json)), exist_ok=True)
+            with open(args.json, "w") as fh:
+                json.dump({"args": vars(args), "rows": rows}, fh, indent=1, default=float)
     print_table(rows)
-    if args.json:
-        os.makedirs(os.path.dirname(os.path.abspath(args.json)), exist_ok=True)
-        with open(args.json, "w") as fh:
-            json.dump({"args": vars(args), "rows": rows}, fh, indent=1, default=float)
     return rows
 
 

@@ -17,9 +17,16 @@ def test_two_frames_of_every_scene_give_the_tables(tmp_path, capsys):
         assert r["newton_full"] >= 1 and r["newton_ours"] >= 1
         assert r["step_ours_s"] > 0 and r["step_full_s"] > 0 and r["direct_s"] > 0 and r["cg_iters"] >= 1
         assert 0 <= r["max_error"] < 0.05 and 0 <= r["enriched"] <= 1 and r["nnz_full"] > 0
+        # the hard step's phase breakdown, with the IPC time measured inside the phases
+        assert r["phases_full"]["factorization"] > 0 and r["phases_full"]["ipc_eval"] > 0
+        assert r["phases_full"]["ipc_ccd"] > 0 and r["phases_ours"]["ipc_eval"] > 0
+        assert r["phases_ours"]["ipc_shares"] > 0 and r["phases_full"]["ipc_shares"] == 0  # the oracle's only
+        assert r["phases_full"]["ipc_eval"] < r["step_full_s"]
+        assert r["system"] in ("captured", "rebuilt") and r.get("enr_enriched_dofs", 1) > 0
+        assert len(r["per_frame"]["wall_full"]) == 2 and max(r["per_frame"]["error"]) == r["max_error"]
     assert json.loads(out.read_text())["rows"][0]["scene"] == "drop"
     text = capsys.readouterr().out
-    assert "Jello Rubber" in text and "Fig. 5" in text
+    assert "Jello Rubber" in text and "Fig. 5" in text and "by phase" in text
 
 
 def test_unknown_scene_is_a_clear_error():
