@@ -1,0 +1,162 @@
+r"""The error budget, time budget and never-slower fall-back of :class:`AdaptiveSubspace`.
+
+The controllers are those of :mod:`skfem_affine.reducers.budget` (``ErrorBudget``,
+``ShadowClock``, ``TimeBudget``, ``PaysOff``); this module says what the subspace reducer
+feeds them and what it reads back.
+
+* **Error budget.** The threshold the budget drives is ``eps_nodal`` (``eps_modal = 3
+  eps_nodal``, :data:`MODAL_RATIO`). The local error of a step is the largest vertex norm of
+  :math:`(x_{red} - x_{full}) / h`, the velocity error against a full-space Newton solve of the
+  same incremental potential from the same state. It is measured on *shadow* steps (the reduced
+  step, then full-space Newton; the full solution is returned) and estimated on the others by a
+  proxy: the Jacobi-scaled full-space gradient at the reduced Newton loop's last iterate,
+  :math:`\|D^{-1}\nabla E\|_\infty / h` with D the diagonal of
+  :math:`M + w D_{damp} + w K(X)` (rest stiffness), which the shadows calibrate
+  (:meth:`~skfem_affine.reducers.budget.ErrorBudget.local`). A step that continued in full space
+  (the nnz rule or the deadline below) introduces no error.
+* **Time budget.** Its knob is the enrichment: the forced fraction f of
+  :class:`~skfem_affine.reducers.budget.TimeBudget` caps the enriched vertices at (1 - f) of the
+  free vertices (the subdomains with the largest nodal errors first).
+* **Never slower.** :class:`~skfem_affine.reducers.budget.PaysOff` compares the measured wall
+  time of whole reduced steps (oracle, Schur solves, line searches, downdating) with that of
+  full-space Newton steps. The first :data:`WARMUP` steps are full-space steps (they measure
+  the full cost; the first includes the solver's symbolic analysis and is not counted). A
+  reduced step that runs past the full cost (the *deadline*) continues by full-space Newton
+  directions, so a step that does not pay costs at most about one full step more; a probe
+  (a shadow step) that runs past it stops its reduced part at once.
+"""
+import numpy as np
+
+from skfem_affine.checks import flag, integer, positive, real
+from skfem_affine.reducers import budget as budgets
+
+#: eps_modal / eps_nodal under an error budget.
+MODAL_RATIO = 3.0
+#: Where the error budget's eps_nodal starts, and its bounds.
+EPS_START, EPS_MIN, EPS_MAX = 1e-2, 1e-6, 10.0
+#: The eps of a reducer given neither thresholds nor a budget (the paper's value).
+DEFAULT_EPS = 0.5
+#: Full-space steps before the first reduced step when the fall-back is on.
+WARMUP = 2
+
+
+def resolve(eps_nodal, eps_modal, target_error, never_slower):
+    """(eps_nodal, eps_modal, target_error, never_slower) from what the user gave.
+
+    Thresholds given (either one) switch every controller off unless asked for (a missing one is
+    :data:`DEFAULT_EPS`, as before budgets existed); ``target_error`` with a threshold is refused.
+    ``never_slower`` defaults to on unless a threshold is given.
+    """
+    explicit = eps_nodal is not None or eps_modal is not None
+    if explicit and target_error is not None:
+        raise ValueError("give the thresholds (eps_nodal, eps_modal) or target_error, not both")
+    if target_error is not None:
+        target_error = real(target_error, "target_error", low=0.0, high=1.0, include_low=False)
+        eps_nodal, eps_modal = EPS_START, MODAL_RATIO * EPS_START
+    eps_nodal = DEFAULT_EPS if eps_nodal is None else eps_nodal
+    eps_modal = DEFAULT_EPS if eps_modal is None else eps_modal
+    never_slower = (not explicit) if never_slower is None else flag(never_slower, "never_slower")
+    return eps_nodal, eps_modal, target_error, never_slower
+
+
+class Controllers:
+    """The budgets of one run of the subspace reducer and the plan of each step.
+
+    Parameters
+    ----------
+    target_error, time_budget : float or None
+    never_slower : bool
+    shadow_every : int
+        Reduced steps per shadow step (error budget); doubles up to 4x while the calibration holds.
+    memory : float
+        The error estimate's memory time T (s).
+    """
+
+    NAMES = ("error_budget", "timer", "pays", "shadows")
+
+    def __init__(self, target_error=None, time_budget=None, never_slower=False, shadow_every=10, memory=0.5):
+        self.error_budget = self.timer = self.pays = self.shadows = None
+        if target_error is not None:
+            self.error_budget = budgets.ErrorBudget(target_error, EPS_START, memory=memory,
+                                                    tau_min=EPS_MIN, tau_max=EPS_MAX)
+        if time_budget is not None:
+            self.timer = budgets.TimeBudget(time_budget)
+        if never_slower:
+            # patience: under a budget eps starts small (much enrichment), so judge after a few steps
+            self.pays = budgets.PaysOff(patience=3 if target_error is not None else 1)
+        if target_error is not None:
+            self.shadows = budgets.ShadowClock(shadow_every)
+        self.warmup = WARMUP if never_slower else 0
+
+    def plan(self):
+        """"full", "probe" (a reduced step with a shadow) or "reduced" (with a shadow when due)."""
+        if self.warmup > 0:
+            self.warmup -= 1
+            return "full"
+        pays = self.pays
+        if pays is None:
+            return "reduced"
+        if pays.in_full and pays.wait > 0 and pays.reduced_samples and pays.pays(self.shadow_period(), pays.margin):
+            pays.wait = 0  # full steps grew dearer than the reduced steps measured: probe now
+        return pays.plan()
+
+    def shadow_period(self):
+        return None if self.shadows is None else self.shadows.every
+
+    def deadline(self):
+        """Seconds a reduced step may run before it continues in full space (None: no limit)."""
+        if self.pays is None or not self.pays.full_samples:
+            return None
+        return self.pays.full_cost
+
+    def shadow_due(self, mode):
+        return mode == "probe" or (self.shadows is not None and self.shadows.due())
+
+    def state(self):
+        """{controller: {attribute: plain number}} (checkpoints)."""
+        out = {name: dict(vars(obj)) for name in self.NAMES if (obj := getattr(self, name)) is not None}
+        out["plan"] = {"warmup": self.warmup}
+        return out
+
+    def restore(self, state):
+        for name, values in state.items():
+            target = self if name == "plan" else getattr(self, name, None)
+            if target is None:
+                raise ValueError(f"this reducer has no controller {name!r} to restore")
+            for key, value in values.items():
+                setattr(target, key, value)
+
+
+def check_settings(time_budget, shadow_every, memory):
+    """The budget settings checked: (time_budget or None, shadow_every, memory)."""
+    return (None if time_budget is None else positive(time_budget, "time_budget"),
+            integer(shadow_every, "shadow_every", low=1), positive(memory, "memory"))
+
+
+def rest_stiffness_diagonal(system, project):
+    """diag K(X) on the free DOFs (the proxy's scaling)."""
+    rest = system.evaluate(system.p0, project=project)
+    slot = system.pattern.slot.reshape(system.m, 144).ravel()
+    ok = slot >= 0
+    data = np.bincount(slot[ok], weights=rest.He.reshape(-1)[ok], minlength=system.pattern.nnz)
+    return system.pattern.matrix(data).diagonal()
+
+
+def proxy(g, diagonal, free, n, h):
+    """||D^-1 g||_inf / h as a largest vertex norm (m/s): the local error's per-step estimate."""
+    return budgets.vertex_max_norm(g / diagonal, free, n) / h
+
+
+def capped_enrichment(add, enriched, parts, part_of, score, cap):
+    """Of the subdomains ``parts`` whose free vertices ``add`` would enrich, those with the largest
+    ``score`` (per vertex) while at most ``cap`` vertices are enriched in all."""
+    room = int(cap) - int(enriched.sum())
+    if room <= 0:
+        return np.zeros_like(add)
+    new = add & ~enriched
+    best = np.full(parts.max() + 1, -np.inf)
+    np.maximum.at(best, part_of[new], score[new])
+    sizes = np.bincount(part_of[new], minlength=parts.max() + 1)
+    order = parts[np.argsort(-best[parts], kind="stable")]
+    take = order[np.cumsum(sizes[order]) <= room]
+    return add & np.isin(part_of, take)
