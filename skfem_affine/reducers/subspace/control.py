@@ -36,8 +36,15 @@ MODAL_RATIO = 3.0
 EPS_START, EPS_MIN, EPS_MAX = 1e-2, 1e-6, 10.0
 #: The eps of a reducer given neither thresholds nor a budget (the paper's value).
 DEFAULT_EPS = 0.5
+#: A shadow step calibrates the proxy only when its measured error exceeds NOISE times the Newton
+#: tolerance (a velocity, ``newton_tol * size``): both solves stop within it, so smaller differences
+#: are the tolerance's, and a ratio of them says nothing about the proxy (free flight measures 1e-14).
+NOISE = 2.0
 #: Full-space steps before the first reduced step when the fall-back is on.
 WARMUP = 2
+#: While in full space, probe at once when the reduced steps measured cost at most 1 - EARLY_PROBE
+#: of the full steps measured since (a hard phase made full steps dearer).
+EARLY_PROBE = 0.5
 
 
 def resolve(eps_nodal, eps_modal, target_error, never_slower):
@@ -96,8 +103,8 @@ class Controllers:
         pays = self.pays
         if pays is None:
             return "reduced"
-        if pays.in_full and pays.wait > 0 and pays.reduced_samples and pays.pays(self.shadow_period(), pays.margin):
-            pays.wait = 0  # full steps grew dearer than the reduced steps measured: probe now
+        if pays.in_full and pays.wait > 0 and pays.reduced_samples and pays.pays(self.shadow_period(), EARLY_PROBE):
+            pays.wait = 0  # full steps grew twice as dear as the reduced steps measured: probe now
         return pays.plan()
 
     def shadow_period(self):

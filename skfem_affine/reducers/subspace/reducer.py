@@ -342,14 +342,19 @@ class AdaptiveSubspace(Reducer):
                 eb.decay(h)
             else:
                 estimate = 0.0 if went_full else control.proxy(step.last_g, step.diagonal(), free, n, h)
-                delta = eb.local(estimate, measured)
-                if shadow and c.shadows is not None:
+                if measured is not None and measured > control.NOISE * ip.tol * size:
+                    delta = eb.local(estimate, measured)  # calibrates the proxy
                     c.shadows.settled(eb.stable and eb.estimate < eb.goal)
+                else:  # no shadow, or a measured error at the Newton tolerance's level: nothing to calibrate by
+                    delta = eb.local(estimate) if measured is None else measured
                 eb.advance(delta, h, size, introduced=rec["reduced"])
                 rec["local_error"] = delta / size
                 # the smallest space (no enrichment, the permanent modes only): a larger eps gains nothing
                 smallest = not went_full and not self.step_enriched.any() and rec["active_modes"] <= self.permanent_columns
-                eb.adapt(saturated=smallest)
+                # a step solved in full space says nothing about eps's error: eps may grow while the
+                # estimate is under the goal (so that steps reduce again), and holds over it
+                if not went_full or eb.estimate <= eb.goal:
+                    eb.adapt(saturated=smallest)
         if pays is not None:
             pays.reduced_solved(reduced_seconds, rec["reduced_dofs"] / max(free.size, 1), fresh=mode == "probe")
             pays.decide(c.shadow_period(), probed=mode == "probe")
