@@ -21,9 +21,10 @@ feeds them and what it reads back.
   time of whole reduced steps (oracle, Schur solves, line searches, downdating) with that of
   full-space Newton steps. The first :data:`WARMUP` steps are full-space steps (they measure
   the full cost; the first includes the solver's symbolic analysis and is not counted). A
-  reduced step that runs past the full cost (the *deadline*) continues by full-space Newton
-  directions, so a step that does not pay costs at most about one full step more; a probe
-  (a shadow step) that runs past it stops its reduced part at once.
+  reduced step (or probe) that runs past the full cost (the *deadline*) stops and the step is
+  solved by full-space Newton from x_t, so a step that does not pay costs about one full step
+  more. Full-space steps run outside the reduced step's BLAS thread limit, as the full-space run
+  does.
 """
 import numpy as np
 

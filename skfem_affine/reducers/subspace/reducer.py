@@ -40,6 +40,11 @@ the modal coordinates are the least-squares fit of the step's displacement on th
 columns, and downdating proceeds as usual, so nodes the subspace captures again are released and
 the reducer returns to reduced steps. ``rec["reduced"]`` says which kind each step was.
 
+Never slower by measured time, and the error and time budgets (not in the paper; the default
+unless thresholds are given): :mod:`~skfem_affine.reducers.subspace.control` says what is
+measured and estimated; the controllers are :mod:`skfem_affine.reducers.budget`'s. Explicit
+thresholds without budgets run exactly the paper's algorithm above.
+
 Choices where the paper is silent, stated here: subdomains are element sets (an element belongs
 to the METIS part of its first vertex), so the subdomain energies sum exactly to Psi and no
 interface averaging is needed in eq. 20; the BFGS update is skipped when y^T s <= 0 (keeping
@@ -276,8 +281,10 @@ class AdaptiveSubspace(Reducer):
             raise ValueError("AdaptiveSubspace runs with integrator='implicit_euler' or 'bdf2' "
                              f"(it minimises the incremental potential), got a {type(problem).__name__}")
         rec = {}
+        if self.control is not None:  # full-space steps run with the BLAS threads of the full-space run
+            return StepResult(x=self._controlled(problem, rec), stats=rec)
         with threads.blas_threads(self.blas_threads):
-            x = self._controlled(problem, rec) if self.control is not None else self._step(problem, rec)
+            x = self._step(problem, rec)
         return StepResult(x=x, stats=rec)
 
     def end_frame(self, rec):
@@ -317,13 +324,14 @@ class AdaptiveSubspace(Reducer):
             self.eps_nodal, self.eps_modal = eb.tau, control.MODAL_RATIO * eb.tau
         shadow = c.shadow_due(mode)
         t0 = self.clock()
-        x_red, step = self._step(ip, rec, deadline=c.deadline(), abort=shadow, keep=True)
+        with threads.blas_threads(self.blas_threads):
+            x_red, step = self._step(ip, rec, deadline=c.deadline(), keep=True)
         reduced_seconds = self.clock() - t0
         went_full = x_red is None or step.full  # the result (if any) is a converged full-space one
         rec["reduced_dofs"] = rec.get("dofs", int(free.size))
         measured = None
         x = x_red
-        if shadow:
+        if shadow or x_red is None:  # a shadow, or a reduced step out of time: full-space Newton from x_t
             part = {}
             x, seconds = self._full_step(ip, part)
             if pays is not None:
@@ -334,7 +342,7 @@ class AdaptiveSubspace(Reducer):
                 measured = budgets.vertex_max_norm((x_red - x)[free], free, n) / h
                 rec["local_error_measured"] = measured / size
             rec.update(dofs=int(free.size), solver=self.fallback_solver.name, full_solve=seconds,
-                       shadow_newton_iters=part.get("newton_iters", 0))
+                       full_newton_iters=part.get("newton_iters", 0))
         rec["shadow"] = bool(shadow)
         rec["reduced"] = bool(not shadow and not went_full)
         if eb is not None:
@@ -375,12 +383,12 @@ class AdaptiveSubspace(Reducer):
         return falls_back(int(self._enriched_dofs().size), int(self.system.free.size), int(self.columns().size),
                           int(self.system.pattern.nnz), self.fallback)
 
-    def _step(self, ip, rec, deadline=None, abort=False, keep=False):
-        """One adaptive Newton solve. ``deadline`` (s): past it, the step continues by full-space
-        directions, or with ``abort`` stops and returns None. ``keep``: return (x, iteration)."""
+    def _step(self, ip, rec, deadline=None, keep=False):
+        """One adaptive Newton solve. ``deadline`` (s): past it, the step stops and x is None.
+        ``keep``: return (x, iteration)."""
         step = _Iteration(self, ip, full=self._too_enriched())
         if deadline is not None:
-            step.deadline, step.abort = self.clock() + deadline, abort
+            step.deadline = self.clock() + deadline
         try:
             x, _ = newton.newton(ip, step.direction, rec, step.after_step, blocks=step.full)
         except _OverDeadline:
@@ -528,7 +536,7 @@ class AdaptiveSubspace(Reducer):
 
 
 class _OverDeadline(Exception):
-    """A probe's reduced part ran past the full step's cost (the never-slower fall-back)."""
+    """A reduced step ran past the full step's cost (the never-slower fall-back)."""
 
 
 class _Iteration:
@@ -558,7 +566,7 @@ class _Iteration:
         self.He = np.empty((sysm.m, 12, 12))
         self.he_valid = np.zeros(sysm.m, dtype=bool)
         self.cols = self.dq = None
-        self.deadline, self.abort = None, False
+        self.deadline = None  # the never-slower fall-back's: past it the step stops (clock time)
         self.last_g = None  # the gradient at the latest iterate (the error budget's proxy)
 
     def diagonal(self):
@@ -607,7 +615,7 @@ class _Iteration:
         t3 = time.perf_counter()
         rec["prediction"] = rec.get("prediction", 0.0) + t3 - t2
         self._check_deadline(rec)
-        if self.full or red._too_enriched():  # out of time, or enrichment grew past the fallback: full space
+        if red._too_enriched():  # enrichment grew past the fallback: full space from here on
             self.full = True
             return self._full(x, g, data, rec, e)
         if changed == "modes":
@@ -649,13 +657,12 @@ class _Iteration:
         return d
 
     def _check_deadline(self, rec):
-        """Past the deadline (the never-slower fall-back), a probe stops and a reduced step continues
-        by full-space directions: reduction costs more than a full step here."""
+        """Past the deadline (the never-slower fall-back) the step stops: reduction costs more than a
+        full step here, and the caller solves the step by full-space Newton from x_t (continuing
+        from a reduced iterate near contact measured up to 50 Newton iterations)."""
         if self.deadline is not None and not self.full and self.red.clock() > self.deadline:
             rec["over_deadline"] = True
-            if self.abort:
-                raise _OverDeadline
-            self.full = True
+            raise _OverDeadline
 
     def _full(self, x, g, data, rec, e):
         """The full-space Newton direction (the fallback), with the element blocks at x."""
