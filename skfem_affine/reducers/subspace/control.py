@@ -23,7 +23,9 @@ feeds them and what it reads back.
   the full cost; the first includes the solver's symbolic analysis and is not counted). A
   reduced step (or probe) that runs past the full cost (the *deadline*) stops and the step is
   solved by full-space Newton from x_t, so a step that does not pay costs about one full step
-  more. Full-space steps run outside the reduced step's BLAS thread limit, as the full-space run
+  more. Every ``shadow_every`` reduced steps (doubling up to 4x while reduction keeps paying) a
+  shadow step measures the full cost again, so a verdict does not rest on full steps of another
+  phase of the run (an impact's). Full-space steps run outside the reduced step's BLAS thread limit, as the full-space run
   does.
 """
 import numpy as np
@@ -94,6 +96,9 @@ class Controllers:
             self.pays = budgets.PaysOff(patience=3 if target_error is not None else 1)
         if target_error is not None:
             self.shadows = budgets.ShadowClock(shadow_every)
+        elif never_slower:  # shadows keep the full cost current (the warm-up measured it first)
+            self.shadows = budgets.ShadowClock(shadow_every, first=0)
+            self.shadows.since = 1  # the first after shadow_every reduced steps
         self.warmup = WARMUP if never_slower else 0
 
     def plan(self):

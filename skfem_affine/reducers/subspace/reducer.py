@@ -366,6 +366,8 @@ class AdaptiveSubspace(Reducer):
         if pays is not None:
             pays.reduced_solved(reduced_seconds, rec["reduced_dofs"] / max(free.size, 1), fresh=mode == "probe")
             pays.decide(c.shadow_period(), probed=mode == "probe")
+            if shadow and eb is None and c.shadows is not None:
+                c.shadows.settled(not pays.in_full)  # the fall-back's shadows space out while reduction pays
         self._record(rec, forced)
         return x
 
