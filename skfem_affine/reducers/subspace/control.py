@@ -48,6 +48,9 @@ WARMUP = 2
 #: While in full space, probe at once when the reduced steps measured cost at most 1 - EARLY_PROBE
 #: of the full steps measured since (a hard phase made full steps dearer).
 EARLY_PROBE = 0.5
+#: A reduced step that costs less than PHASE times the reduced step measured beside the latest full
+#: cost is a shadow step: the run's phase changed (an impact ended), and the full cost with it.
+PHASE = 0.5
 
 
 def resolve(eps_nodal, eps_modal, target_error, never_slower):
@@ -92,17 +95,26 @@ class Controllers:
         if time_budget is not None:
             self.timer = budgets.TimeBudget(time_budget)
         if never_slower:
-            # patience: under a budget eps starts small (much enrichment), so judge after a few steps
-            self.pays = budgets.PaysOff(patience=3 if target_error is not None else 1)
+            self.pays = StepCosts(patience=1)
         if target_error is not None:
-            self.shadows = budgets.ShadowClock(shadow_every)
+            # the first reduced steps are shadows (they calibrate the proxy); after the fall-back's
+            # full-space warm-up one is enough
+            self.shadows = budgets.ShadowClock(shadow_every, first=1 if never_slower else 2)
         elif never_slower:  # shadows keep the full cost current (the warm-up measured it first)
             self.shadows = budgets.ShadowClock(shadow_every, first=0)
             self.shadows.since = 1  # the first after shadow_every reduced steps
         self.warmup = WARMUP if never_slower else 0
+        self.phase_cost = 0.0  # the reduced step's cost where the full cost was last measured beside it
+        self.last_reduced = 0.0
+        self.full_before = self.full_now = True  # whether the previous / this step is a full-space step
 
     def plan(self):
         """"full", "probe" (a reduced step with a shadow) or "reduced" (with a shadow when due)."""
+        mode = self._plan()
+        self.full_before, self.full_now = self.full_now, mode == "full"
+        return mode
+
+    def _plan(self):
         if self.warmup > 0:
             self.warmup -= 1
             return "full"
@@ -112,6 +124,13 @@ class Controllers:
         if pays.in_full and pays.wait > 0 and pays.reduced_samples and pays.pays(self.shadow_period(), EARLY_PROBE):
             pays.wait = 0  # full steps grew twice as dear as the reduced steps measured: probe now
         return pays.plan()
+
+    def reduced_measured(self, seconds, shadow):
+        """A reduced step's cost; it is the phase's when a full cost was measured beside it (a shadow,
+        or full-space steps just before)."""
+        self.last_reduced = float(seconds)
+        if shadow or self.full_before or not self.phase_cost:
+            self.phase_cost = float(seconds)
 
     def shadow_period(self):
         return None if self.shadows is None else self.shadows.every
@@ -123,12 +142,17 @@ class Controllers:
         return self.pays.full_cost
 
     def shadow_due(self, mode):
-        return mode == "probe" or (self.shadows is not None and self.shadows.due())
+        if mode == "probe":
+            return True
+        if self.pays is not None and self.last_reduced and self.last_reduced < PHASE * self.phase_cost:
+            return True  # reduced steps became much cheaper: measure the full step again
+        return self.shadows is not None and self.shadows.due()
 
     def state(self):
         """{controller: {attribute: plain number}} (checkpoints)."""
         out = {name: dict(vars(obj)) for name in self.NAMES if (obj := getattr(self, name)) is not None}
-        out["plan"] = {"warmup": self.warmup}
+        out["plan"] = {"warmup": self.warmup, "phase_cost": self.phase_cost, "last_reduced": self.last_reduced,
+                       "full_before": self.full_before, "full_now": self.full_now}
         return out
 
     def restore(self, state):
@@ -138,6 +162,20 @@ class Controllers:
                 raise ValueError(f"this reducer has no controller {name!r} to restore")
             for key, value in values.items():
                 setattr(target, key, value)
+
+
+class StepCosts(budgets.PaysOff):
+    """:class:`~skfem_affine.reducers.budget.PaysOff` whose full cost a shadow step sets.
+
+    A shadow measures the full step where the run is now; a full step's cost changes several-fold
+    between phases of a run (an impact's Newton solve took 10-16 iterations, free flight 1-3), so a
+    running mean over an earlier phase would judge today's reduced steps by yesterday's full ones.
+    """
+
+    def shadow_solved(self, seconds):
+        self.full_solved(seconds)
+        if self.full_samples:
+            self.full_cost = float(seconds)
 
 
 def check_settings(time_budget, shadow_every, memory):

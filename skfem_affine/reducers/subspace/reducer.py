@@ -335,7 +335,7 @@ class AdaptiveSubspace(Reducer):
             part = {}
             x, seconds = self._full_step(ip, part)
             if pays is not None:
-                pays.full_solved(seconds)
+                pays.shadow_solved(seconds) if shadow else pays.full_solved(seconds)
             for key in ("assembly", "line_search", "factorization", "solve"):
                 rec[key] = rec.get(key, 0.0) + part.get(key, 0.0)
             if x_red is not None:
@@ -364,6 +364,7 @@ class AdaptiveSubspace(Reducer):
                 if not went_full or eb.estimate <= eb.goal:
                     eb.adapt(saturated=smallest)
         if pays is not None:
+            c.reduced_measured(reduced_seconds, shadow)
             pays.reduced_solved(reduced_seconds, rec["reduced_dofs"] / max(free.size, 1), fresh=mode == "probe")
             pays.decide(c.shadow_period(), probed=mode == "probe")
             if shadow and eb is None and c.shadows is not None:
