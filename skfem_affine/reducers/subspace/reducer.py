@@ -346,7 +346,7 @@ class AdaptiveSubspace(Reducer):
         rec["shadow"] = bool(shadow)
         rec["reduced"] = bool(not shadow and not went_full)
         if eb is not None:
-            if x_red is None:  # the reduced part ran out of time: nothing measured, the full solution returned
+            if x_red is None and rec.get("over_deadline"):  # out of time: nothing measured, eps holds
                 eb.decay(h)
             else:
                 estimate = 0.0 if went_full else control.proxy(step.last_g, step.diagonal(), free, n, h)
@@ -394,7 +394,7 @@ class AdaptiveSubspace(Reducer):
             step.deadline = self.clock() + deadline
         try:
             x, _ = newton.newton(ip, step.direction, rec, step.after_step, blocks=step.full)
-        except _OverDeadline:
+        except _LeaveReduction:
             self.last_hessians = step.Hl
             rec["pcg_iters"] = step.pcg_total
             rec["dofs"] = int(self.columns().size + 3 * self.enriched.sum())
@@ -538,8 +538,9 @@ class AdaptiveSubspace(Reducer):
         rec["enriched_after_downdate"] = float(self.enriched.sum() / max(self.free_vertex.sum(), 1))
 
 
-class _OverDeadline(Exception):
-    """A reduced step ran past the full step's cost (the never-slower fall-back)."""
+class _LeaveReduction(Exception):
+    """Under the controllers, a reduced step stops: it ran past the full step's cost (the deadline),
+    or its enrichment grew past the nnz fallback; the step is solved by full-space Newton from x_t."""
 
 
 class _Iteration:
@@ -619,6 +620,8 @@ class _Iteration:
         rec["prediction"] = rec.get("prediction", 0.0) + t3 - t2
         self._check_deadline(rec)
         if red._too_enriched():  # enrichment grew past the fallback: full space from here on
+            if red.control is not None:  # (under the controllers from x_t, as after the deadline)
+                raise _LeaveReduction
             self.full = True
             return self._full(x, g, data, rec, e)
         if changed == "modes":
@@ -665,7 +668,7 @@ class _Iteration:
         from a reduced iterate near contact measured up to 50 Newton iterations)."""
         if self.deadline is not None and not self.full and self.red.clock() > self.deadline:
             rec["over_deadline"] = True
-            raise _OverDeadline
+            raise _LeaveReduction
 
     def _full(self, x, g, data, rec, e):
         """The full-space Newton direction (the fallback), with the element blocks at x."""
