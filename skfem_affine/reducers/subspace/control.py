@@ -165,17 +165,45 @@ class Controllers:
 
 
 class StepCosts(budgets.PaysOff):
-    """:class:`~skfem_affine.reducers.budget.PaysOff` whose full cost a shadow step sets.
+    """:class:`~skfem_affine.reducers.budget.PaysOff` for whole Newton steps: a shadow step sets the
+    full cost, and reduction pays only when its Newton iterations are also cheaper than full ones.
 
-    A shadow measures the full step where the run is now; a full step's cost changes several-fold
-    between phases of a run (an impact's Newton solve took 10-16 iterations, free flight 1-3), so a
-    running mean over an earlier phase would judge today's reduced steps by yesterday's full ones.
+    A full step's cost changes several-fold between phases of a run (an impact's Newton solve took
+    10-16 iterations, free flight 1-3), so a running mean over an earlier phase would judge today's
+    reduced steps by yesterday's full ones: a shadow measures the full step where the run is now,
+    and the cost per Newton iteration, which changes little between phases, is a second test that
+    needs no fresh full step.
     """
 
-    def shadow_solved(self, seconds):
-        self.full_solved(seconds)
+    def __init__(self, **kwargs):
+        super().__init__(**kwargs)
+        self.full_iteration = 0.0  # s per full-space Newton iteration (running mean)
+        self.reduced_iteration = 0.0  # s per reduced Newton iteration (the latest step, or running mean)
+
+    def shadow_solved(self, seconds, iterations=1):
+        self.full_solved(seconds, iterations)
         if self.full_samples:
             self.full_cost = float(seconds)
+
+    def full_solved(self, seconds, iterations=1):
+        counted = self.full_seen >= 1  # the first full solve (symbolic analysis) is not a sample
+        super().full_solved(seconds)
+        if counted:
+            per = float(seconds) / max(int(iterations), 1)
+            self.full_iteration = per if not self.full_iteration else self._mix(self.full_iteration, per, 1)
+
+    def reduced_solved(self, seconds, dof_ratio, fresh=False, iterations=1):
+        per = float(seconds) / max(int(iterations), 1)
+        self.reduced_iteration = per if (fresh or not self.reduced_iteration) else self._mix(self.reduced_iteration,
+                                                                                              per, 1)
+        super().reduced_solved(seconds, dof_ratio, fresh)
+
+    def pays(self, shadow_every=None, margin=0.0):
+        if not super().pays(shadow_every, margin):
+            return False
+        if not (self.full_iteration and self.reduced_iteration):
+            return True
+        return self.reduced_iteration <= (1.0 - margin) * self.full_iteration
 
 
 def check_settings(time_budget, shadow_every, memory):

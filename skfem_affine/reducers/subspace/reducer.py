@@ -313,7 +313,7 @@ class AdaptiveSubspace(Reducer):
         if mode == "full":
             x, seconds = self._full_step(ip, rec)
             if pays is not None:
-                pays.full_solved(seconds)
+                pays.full_solved(seconds, rec.get("newton_iters", 1))
             if eb is not None:
                 eb.decay(h)
             rec.update(reduced=False, shadow=False, dofs=int(free.size), solver=self.fallback_solver.name,
@@ -335,7 +335,8 @@ class AdaptiveSubspace(Reducer):
             part = {}
             x, seconds = self._full_step(ip, part)
             if pays is not None:
-                pays.shadow_solved(seconds) if shadow else pays.full_solved(seconds)
+                iterations = part.get("newton_iters", 1)
+                pays.shadow_solved(seconds, iterations) if shadow else pays.full_solved(seconds, iterations)
             for key in ("assembly", "line_search", "factorization", "solve"):
                 rec[key] = rec.get(key, 0.0) + part.get(key, 0.0)
             if x_red is not None:
@@ -365,7 +366,8 @@ class AdaptiveSubspace(Reducer):
                     eb.adapt(saturated=smallest)
         if pays is not None:
             c.reduced_measured(reduced_seconds, shadow)
-            pays.reduced_solved(reduced_seconds, rec["reduced_dofs"] / max(free.size, 1), fresh=mode == "probe")
+            pays.reduced_solved(reduced_seconds, rec["reduced_dofs"] / max(free.size, 1), fresh=mode == "probe",
+                                iterations=max(rec.get("newton_iters", 1), 1))
             pays.decide(c.shadow_period(), probed=mode == "probe")
             if shadow and eb is None and c.shadows is not None:
                 c.shadows.settled(not pays.in_full)  # the fall-back's shadows space out while reduction pays
