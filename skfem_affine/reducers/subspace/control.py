@@ -21,9 +21,9 @@ feeds them and what it reads back.
   time of whole reduced steps (oracle, Schur solves, line searches, downdating) with that of
   full-space Newton steps. The first :data:`WARMUP` steps are full-space steps (they measure
   the full cost; the first includes the solver's symbolic analysis and is not counted). A
-  reduced step (or probe) that runs past the full cost (the *deadline*) stops and the step is
-  solved by full-space Newton from x_t, so a step that does not pay costs about one full step
-  more. Every ``shadow_every`` reduced steps (doubling up to 4x while reduction keeps paying) a
+  reduced step that runs past the full cost (the *deadline*; half of it for the first reduced step
+  and for probes) stops and the step is solved by full-space Newton from x_t, so a step that does
+  not pay costs about half a full step to one full step more. Every ``shadow_every`` reduced steps (doubling up to 4x while reduction keeps paying) a
   shadow step measures the full cost again, so a verdict does not rest on full steps of another
   phase of the run (an impact's). Full-space steps run outside the reduced step's BLAS thread limit, as the full-space run
   does.
@@ -48,6 +48,9 @@ WARMUP = 2
 #: While in full space, probe at once when the reduced steps measured cost at most 1 - EARLY_PROBE
 #: of the full steps measured since (a hard phase made full steps dearer).
 EARLY_PROBE = 0.5
+#: The deadline of a reduced step that has not yet been shown to pay (the first, and probes), in
+#: full steps: such a step that does not pay costs at most about this much on top of a full step.
+TRIAL = 0.5
 #: A reduced step that costs less than PHASE times the reduced step measured beside the latest full
 #: cost is a shadow step: the run's phase changed (an impact ended), and the full cost with it.
 PHASE = 0.5
@@ -136,10 +139,12 @@ class Controllers:
         return None if self.shadows is None else self.shadows.every
 
     def deadline(self):
-        """Seconds a reduced step may run before it continues in full space (None: no limit)."""
-        if self.pays is None or not self.pays.full_samples:
+        """Seconds a reduced step may run before the step is solved in full space (None: no limit)."""
+        pays = self.pays
+        if pays is None or not pays.full_samples:
             return None
-        return self.pays.full_cost
+        trial = pays.in_full or not pays.reduced_samples  # a probe, or the first reduced step
+        return pays.full_cost * (TRIAL if trial else 1.0)
 
     def shadow_due(self, mode):
         if mode == "probe":
