@@ -12,21 +12,25 @@ feeds them and what it reads back.
   proxy: the Jacobi-scaled full-space gradient at the reduced Newton loop's last iterate,
   :math:`\|D^{-1}\nabla E\|_\infty / h` with D the diagonal of
   :math:`M + w D_{damp} + w K(X)` (rest stiffness), which the shadows calibrate
-  (:meth:`~skfem_affine.reducers.budget.ErrorBudget.local`). A step that continued in full space
-  (the nnz rule or the deadline below) introduces no error.
+  (:meth:`~skfem_affine.reducers.budget.ErrorBudget.local`) when they measure more than the
+  Newton tolerance (:data:`NOISE`). A step solved in full space (the nnz rule, the deadline
+  below) introduces no error, and lets eps grow only while the estimate is under its goal.
 * **Time budget.** Its knob is the enrichment: the forced fraction f of
   :class:`~skfem_affine.reducers.budget.TimeBudget` caps the enriched vertices at (1 - f) of the
   free vertices (the subdomains with the largest nodal errors first).
-* **Never slower.** :class:`~skfem_affine.reducers.budget.PaysOff` compares the measured wall
-  time of whole reduced steps (oracle, Schur solves, line searches, downdating) with that of
-  full-space Newton steps. The first :data:`WARMUP` steps are full-space steps (they measure
-  the full cost; the first includes the solver's symbolic analysis and is not counted). A
-  reduced step that runs past the full cost (the *deadline*; half of it for the first reduced step
-  and for probes) stops and the step is solved by full-space Newton from x_t, so a step that does
-  not pay costs about half a full step to one full step more. Every ``shadow_every`` reduced steps (doubling up to 4x while reduction keeps paying) a
-  shadow step measures the full cost again, so a verdict does not rest on full steps of another
-  phase of the run (an impact's). Full-space steps run outside the reduced step's BLAS thread limit, as the full-space run
-  does.
+* **Never slower.** :class:`StepCosts` (a :class:`~skfem_affine.reducers.budget.PaysOff`)
+  compares the measured wall time of whole reduced steps (oracle, Schur solves, line searches,
+  downdating), and of their Newton iterations, with those of full-space Newton steps. The first
+  :data:`WARMUP` steps are full-space steps (they measure the full cost; the first includes the
+  solver's symbolic analysis and is not counted). A reduced step that runs past the full cost
+  (the *deadline*; :data:`TRIAL` of it for the first reduced step and for probes), or whose
+  enrichment passes the nnz rule, stops, and the step is solved by full-space Newton from x_t,
+  so a step that does not pay costs about half a full step to one full step more. Every
+  ``shadow_every`` reduced steps (doubling up to 4x while reduction keeps paying), and when a
+  reduced step becomes much cheaper (:data:`PHASE`), a shadow step measures the full cost
+  again, so that a verdict does not rest on full steps of another phase of the run (an
+  impact's). Full-space steps run outside the reduced step's BLAS thread limit, as the
+  full-space run does.
 """
 import numpy as np
 
@@ -41,7 +45,7 @@ EPS_START, EPS_MIN, EPS_MAX = 1e-2, 1e-6, 10.0
 DEFAULT_EPS = 0.5
 #: A shadow step calibrates the proxy only when its measured error exceeds NOISE times the Newton
 #: tolerance (a velocity, ``newton_tol * size``): both solves stop within it, so smaller differences
-#: are the tolerance's, and a ratio of them says nothing about the proxy (free flight measures 1e-14).
+#: are the tolerance's, and a ratio of them says nothing about the proxy.
 NOISE = 2.0
 #: Full-space steps before the first reduced step when the fall-back is on.
 WARMUP = 2
@@ -173,8 +177,8 @@ class StepCosts(budgets.PaysOff):
     """:class:`~skfem_affine.reducers.budget.PaysOff` for whole Newton steps: a shadow step sets the
     full cost, and reduction pays only when its Newton iterations are also cheaper than full ones.
 
-    A full step's cost changes several-fold between phases of a run (an impact's Newton solve took
-    10-16 iterations, free flight 1-3), so a running mean over an earlier phase would judge today's
+    A full step's cost changes several-fold between phases of a run (an impact needs many more
+    Newton iterations than free flight), so a running mean over an earlier phase would judge today's
     reduced steps by yesterday's full ones: a shadow measures the full step where the run is now,
     and the cost per Newton iteration, which changes little between phases, is a second test that
     needs no fresh full step.

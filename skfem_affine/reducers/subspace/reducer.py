@@ -127,8 +127,9 @@ class AdaptiveSubspace(Reducer):
         probe reduction again later. Default: on unless a threshold is given. The decisions
         follow measured times, so such runs are not bit-reproducible.
     shadow_every : int
-        Reduced steps per shadow step under an error budget (doubling, up to 4x, while the
-        estimate's calibration holds).
+        Reduced steps per shadow step (a second, full-space solve of the step, whose solution is
+        returned), under an error budget or ``never_slower``; doubling, up to 4x, while the
+        estimate's calibration holds (or reduction keeps paying).
     memory : float
         Memory time T (s) of the error estimate.
     eps_progress : float
@@ -666,8 +667,8 @@ class _Iteration:
 
     def _check_deadline(self, rec):
         """Past the deadline (the never-slower fall-back) the step stops: reduction costs more than a
-        full step here, and the caller solves the step by full-space Newton from x_t (continuing
-        from a reduced iterate near contact measured up to 50 Newton iterations)."""
+        full step here, and the caller solves the step by full-space Newton from x_t (from a reduced
+        iterate near contact, full Newton can need many more iterations)."""
         if self.deadline is not None and not self.full and self.red.clock() > self.deadline:
             rec["over_deadline"] = True
             raise _LeaveReduction
