@@ -203,3 +203,31 @@ def test_controller_state_is_plain_numbers_and_restores():
     cantilever(plain)
     with pytest.raises(ValueError, match="no controllers"):
         plain.controllers = state
+
+
+def test_step_costs_judge_by_step_and_by_newton_iteration():
+    p = control.StepCosts(patience=1)
+    p.full_solved(9.0, iterations=3)  # the first (symbolic analysis) is no sample
+    p.full_solved(1.0, iterations=2)
+    assert p.full_cost == 1.0 and p.full_iteration == 0.5
+    p.reduced_solved(0.8, 0.1, iterations=1)  # cheaper per step, but one reduced iteration costs 0.8 > 0.5
+    assert not p.pays()
+    p.reduced_solved(0.8, 0.1, fresh=True, iterations=4)  # 0.2 per iteration
+    assert p.pays()
+    p.shadow_solved(0.4, iterations=2)  # a shadow measures the full step where the run is now
+    assert p.full_cost == 0.4 and not p.pays()
+
+
+def test_trial_steps_get_a_shorter_deadline_and_a_phase_change_asks_for_a_shadow():
+    c = control.Controllers(never_slower=True)
+    assert [c.plan() for _ in range(control.WARMUP)] == ["full"] * control.WARMUP and c.deadline() is None
+    c.pays.full_solved(5.0, 2)
+    c.pays.full_solved(1.0, 2)
+    assert c.plan() == "reduced" and c.deadline() == pytest.approx(control.TRIAL)  # the first reduced step
+    c.reduced_measured(0.4, shadow=False)
+    c.pays.reduced_solved(0.4, 0.1, iterations=2)
+    c.pays.decide(c.shadow_period())
+    assert c.plan() == "reduced" and c.deadline() == pytest.approx(1.0)
+    assert not c.shadow_due("reduced")
+    c.reduced_measured(0.1, shadow=False)  # four times cheaper than where the full cost was measured
+    assert c.shadow_due("reduced")
