@@ -348,8 +348,12 @@ class AdaptiveSubspace(Reducer):
         rec["shadow"] = bool(shadow)
         rec["reduced"] = bool(not shadow and not went_full)
         if eb is not None:
-            if x_red is None and rec.get("over_deadline"):  # out of time: nothing measured, eps holds
-                eb.decay(h)
+            if x_red is None and rec.get("over_deadline"):
+                # out of time: nothing measured; eps grows while the estimate is under the goal (a
+                # larger eps enriches less, which is what makes a reduced step cheaper)
+                eb.advance(0.0, h, size, introduced=False)
+                if eb.estimate <= eb.goal:
+                    eb.adapt()
             else:
                 estimate = 0.0 if went_full else control.proxy(step.last_g, step.diagonal(), free, n, h)
                 if measured is not None and measured > control.NOISE * ip.tol * size:
