@@ -42,7 +42,12 @@ SCENES = {
     "bdf2": lambda: sa.Simulation(_body(), gravity=(0, 0, -9.81), integrator="bdf2"),
     "adaptive-subspace": lambda: sa.Simulation(
         _body(), gravity=(0, 0, -9.81), integrator="bdf2",
-        reducer=sa.AdaptiveSubspace(basis=sa.SkinningEigenmodes(n=4, cache=False), subdomains=4)),
+        reducer=sa.AdaptiveSubspace(basis=sa.SkinningEigenmodes(n=4, cache=False), subdomains=4,
+                                    never_slower=False)),  # the fall-back follows measured times
+    "adaptive-subspace-error-budget": lambda: sa.Simulation(
+        _body(), gravity=(0, 0, -9.81), integrator="implicit_euler",
+        reducer=sa.AdaptiveSubspace(basis=sa.SkinningEigenmodes(n=4, cache=False), subdomains=4, target_error=0.01,
+                                    never_slower=False, time_budget=1.0)),
     "pgs-contact": lambda: sa.Simulation(_falling(), gravity=(0, 0, -9.81), colliders=[sa.Plane(point=(0, 0, -0.02))]),
     "pgs-affinification": lambda: sa.Simulation(_falling(), gravity=(0, 0, -9.81),
                                                 colliders=[sa.Plane(point=(0, 0, -0.02))],

@@ -40,6 +40,11 @@ the modal coordinates are the least-squares fit of the step's displacement on th
 columns, and downdating proceeds as usual, so nodes the subspace captures again are released and
 the reducer returns to reduced steps. ``rec["reduced"]`` says which kind each step was.
 
+Never slower by measured time, and the error and time budgets (not in the paper; the default
+unless thresholds are given): :mod:`~skfem_affine.reducers.subspace.control` says what is
+measured and estimated; the controllers are :mod:`skfem_affine.reducers.budget`'s. Explicit
+thresholds without budgets run exactly the paper's algorithm above.
+
 Choices where the paper is silent, stated here: subdomains are element sets (an element belongs
 to the METIS part of its first vertex), so the subdomain energies sum exactly to Psi and no
 interface averaging is needed in eq. 20; the BFGS update is skipped when y^T s <= 0 (keeping
@@ -60,6 +65,8 @@ from skfem_affine.integrators import newton
 from skfem_affine.integrators.problem import StepResult
 from skfem_affine.integrators.potential import IncrementalPotential
 from skfem_affine.reducers.base import Reducer
+from skfem_affine.reducers import budget as budgets
+from skfem_affine.reducers.subspace import control
 from skfem_affine.reducers.subspace import oracle as so
 from skfem_affine.reducers.subspace.bases import SkinningEigenmodes, _Basis
 from skfem_affine.reducers.subspace.linalg import bfgs_update, masked_sandwich, metis_parts, schur_solve
@@ -104,9 +111,27 @@ class AdaptiveSubspace(Reducer):
     Parameters
     ----------
     basis : a basis spec from :mod:`skfem_affine.reducers.subspace.bases` (default ``SkinningEigenmodes(n=16)``)
-    eps_nodal, eps_modal : float
+    eps_nodal, eps_modal : float, optional
         Error thresholds (dimensionless, eq. 10 and 14); lower enriches more. 0 with
-        ``eps_progress=inf`` enriches every node with an error: the full-space solve.
+        ``eps_progress=inf`` enriches every node with an error: the full-space solve. Giving
+        either switches the controllers off unless asked for (the other is then 0.5); giving
+        neither uses 0.5 and 0.5 (the paper's) with ``never_slower`` on, or the error budget.
+    target_error : float, optional
+        The error budget: the largest vertex distance to the full-space run accepted, relative
+        to the scene size; ``eps_nodal`` (and ``eps_modal`` = 3 ``eps_nodal``) then adapt to it
+        (:mod:`~skfem_affine.reducers.subspace.control`). Not together with the thresholds.
+    time_budget : float, optional
+        Seconds per step; the enrichment is capped so that steps stay under it.
+    never_slower : bool, optional
+        Solve steps by full-space Newton while measured times say reduction does not pay, and
+        probe reduction again later. Default: on unless a threshold is given. The decisions
+        follow measured times, so such runs are not bit-reproducible.
+    shadow_every : int
+        Reduced steps per shadow step (a second, full-space solve of the step, whose solution is
+        returned), under an error budget or ``never_slower``; doubling, up to 4x, while the
+        estimate's calibration holds (or reduction keeps paying).
+    memory : float
+        Memory time T (s) of the error estimate.
     eps_progress : float
         Progress threshold (eq. 11, 15): a candidate activates only if the current subspace
         makes less progress than this there. ``inf`` switches the progress test off.
@@ -144,15 +169,21 @@ class AdaptiveSubspace(Reducer):
     default_max_newton = 50
     # carried across steps: the active blocks of modes and the enriched nodes (the BFGS Hessians
     # restart from hessian_init every step and the inertia cache is a function of the basis)
-    _state_keys = ("active", "enriched")
+    # (and the budgets' controllers, plain numbers)
+    _state_keys = ("active", "enriched", "controllers")
 
-    def __init__(self, basis=None, eps_nodal=0.5, eps_modal=0.5, eps_progress=1e-4, eps_down=0.1,
+    def __init__(self, basis=None, eps_nodal=None, eps_modal=None, eps_progress=1e-4, eps_down=0.1,
                  subdomains=200, newton_tol=None, max_newton=None, pcg_tol=1e-5, pcg_maxiter=10000,
-                 record_residual=False, hessian_init="rest", blas_threads=1, fallback="nnz"):
+                 record_residual=False, hessian_init="rest", blas_threads=1, fallback="nnz",
+                 target_error=None, time_budget=None, never_slower=None, shadow_every=10, memory=0.5):
         basis = SkinningEigenmodes(n=16) if basis is None else basis
         if not isinstance(basis, _Basis):
             raise TypeError(f"basis must be a basis such as sa.SkinningEigenmodes(n=16), got {type(basis).__name__}")
         self.basis_spec = basis
+        eps_nodal, eps_modal, self.target_error, self.never_slower = control.resolve(
+            eps_nodal, eps_modal, target_error, never_slower)
+        self.time_budget, self.shadow_every, self.memory = control.check_settings(time_budget, shadow_every, memory)
+        self.controlled = self.target_error is not None or self.time_budget is not None or self.never_slower
         self.eps_nodal = _threshold(eps_nodal, "eps_nodal")
         self.eps_modal = _threshold(eps_modal, "eps_modal")
         self.eps_progress = _threshold(eps_progress, "eps_progress")
@@ -171,11 +202,33 @@ class AdaptiveSubspace(Reducer):
                 raise ValueError(f"fallback must be 'nnz', a fraction in [0, 1] or None, got {fallback!r}")
             fallback = float(fallback)
         self.fallback = fallback
+        self.control = None
+        self.max_enriched = None  # the time budget's cap on enriched vertices (None: no cap)
+        self.clock = time.perf_counter  # what the fall-back's measured times are read from (tests feed a fake one)
 
     def __repr__(self):
+        budget = "" if self.target_error is None else f", target_error={self.target_error}"
         return (f"AdaptiveSubspace(basis={self.basis_spec!r}, eps_nodal={self.eps_nodal}, eps_modal={self.eps_modal}, "
                 f"eps_progress={self.eps_progress}, eps_down={self.eps_down}, subdomains={self.n_subdomains}, "
-                f"fallback={self.fallback!r})")
+                f"fallback={self.fallback!r}{budget}, never_slower={self.never_slower})")
+
+    @property
+    def controllers(self):
+        """The budgets' state and the thresholds as plain numbers (checkpoints)."""
+        state = {} if self.control is None else self.control.state()
+        state["thresholds"] = {"eps_nodal": float(self.eps_nodal), "eps_modal": float(self.eps_modal)}
+        return state
+
+    @controllers.setter
+    def controllers(self, state):
+        state = dict(state)
+        thresholds = state.pop("thresholds", {})
+        self.eps_nodal = thresholds.get("eps_nodal", self.eps_nodal)
+        self.eps_modal = thresholds.get("eps_modal", self.eps_modal)
+        if state:
+            if self.control is None:
+                raise ValueError(f"this reducer has no controllers {sorted(state)} to restore")
+            self.control.restore(state)
 
     # ------------------------------------------------------------------ set-up
     def attach(self, model):
@@ -192,6 +245,7 @@ class AdaptiveSubspace(Reducer):
         self.sub = Subdomains(sysm, metis_parts(sysm, self.n_subdomains))
         self.active = sorted(set(self.basis.initial))
         self.permanent = set(self.basis.initial)
+        self.permanent_columns = int(sum(len(self.basis.blocks[j]) for j in self.permanent))
         self.enriched = np.zeros(sysm.n, dtype=bool)
         self.free_vertex = np.zeros(sysm.n, dtype=bool)
         self.free_vertex[sysm.free // 3] = True
@@ -205,6 +259,12 @@ class AdaptiveSubspace(Reducer):
         self._inertia_cache = {}
         self.fallback_solver = direct_solver()  # the full-space step's solver (falls_back)
         self.step_enriched = self.enriched.copy()  # the enriched nodes of the last step, before downdating
+        self.control = None
+        if self.controlled:
+            self.control = control.Controllers(self.target_error, self.time_budget, self.never_slower,
+                                               self.shadow_every, self.memory)
+            if self.target_error is not None:
+                self.rest_diagonal = control.rest_stiffness_diagonal(sysm, self.project_hessian)
 
     def columns(self):
         """The active modal columns of U, in the order of the active blocks."""
@@ -222,17 +282,130 @@ class AdaptiveSubspace(Reducer):
             raise ValueError("AdaptiveSubspace runs with integrator='implicit_euler' or 'bdf2' "
                              f"(it minimises the incremental potential), got a {type(problem).__name__}")
         rec = {}
+        if self.control is not None:  # full-space steps run with the BLAS threads of the full-space run
+            return StepResult(x=self._controlled(problem, rec), stats=rec)
         with threads.blas_threads(self.blas_threads):
             x = self._step(problem, rec)
         return StepResult(x=x, stats=rec)
+
+    def end_frame(self, rec):
+        """The time budget takes the frame's wall time; ``rec["time_budget_miss"]`` records a miss."""
+        timer = None if self.control is None else self.control.timer
+        if timer is not None and "wall" in rec:
+            rec["time_budget_miss"] = bool(timer.observe(rec["wall"]))
+            rec["min_fraction_next"] = float(timer.fraction)
+
+    def _full_step(self, ip, rec):
+        """Full-space Newton by the fallback solver; returns (x, seconds)."""
+        t0 = self.clock()
+        x, _ = newton.newton_solve(ip, self.fallback_solver, rec)
+        return x, self.clock() - t0
+
+    def _controlled(self, ip, rec):
+        """Plan the step (full, reduced, or reduced with a shadow), solve it, feed the controllers
+        (:mod:`~skfem_affine.reducers.subspace.control`)."""
+        c, h, size, free = self.control, ip.h, ip.model.size, ip.free
+        eb, pays, n = c.error_budget, c.pays, self.system.n
+        forced = 0.0 if c.timer is None else c.timer.fraction
+        self.max_enriched = None if c.timer is None else int((1.0 - forced) * self.free_vertex.sum())
+        if self.max_enriched is not None and self.enriched.sum() > self.max_enriched:
+            self.enriched[:] = False  # over the cap: the oracle chooses again within it, largest errors first
+        mode = c.plan()
+        if mode == "full":
+            x, seconds = self._full_step(ip, rec)
+            if pays is not None:
+                pays.full_solved(seconds, rec.get("newton_iters", 1))
+            if eb is not None:
+                eb.decay(h)
+            rec.update(reduced=False, shadow=False, dofs=int(free.size), solver=self.fallback_solver.name,
+                       full_solve=seconds)
+            self._record(rec, forced)
+            return x
+        if eb is not None:
+            self.eps_nodal, self.eps_modal = eb.tau, control.MODAL_RATIO * eb.tau
+        shadow = c.shadow_due(mode)
+        t0 = self.clock()
+        with threads.blas_threads(self.blas_threads):
+            x_red, step = self._step(ip, rec, deadline=c.deadline(), keep=True)
+        reduced_seconds = self.clock() - t0
+        went_full = x_red is None or step.full  # the result (if any) is a converged full-space one
+        rec["reduced_dofs"] = rec.get("dofs", int(free.size))
+        measured = None
+        x = x_red
+        if shadow or x_red is None:  # a shadow, or a reduced step out of time: full-space Newton from x_t
+            part = {}
+            x, seconds = self._full_step(ip, part)
+            if pays is not None:
+                iterations = part.get("newton_iters", 1)
+                pays.shadow_solved(seconds, iterations) if shadow else pays.full_solved(seconds, iterations)
+            for key in ("assembly", "line_search", "factorization", "solve"):
+                rec[key] = rec.get(key, 0.0) + part.get(key, 0.0)
+            if x_red is not None:
+                measured = budgets.vertex_max_norm((x_red - x)[free], free, n) / h
+                rec["local_error_measured"] = measured / size
+            rec.update(dofs=int(free.size), solver=self.fallback_solver.name, full_solve=seconds,
+                       full_newton_iters=part.get("newton_iters", 0))
+        rec["shadow"] = bool(shadow)
+        rec["reduced"] = bool(not shadow and not went_full)
+        if eb is not None:
+            if x_red is None and rec.get("over_deadline"):
+                # out of time: nothing measured; eps grows while the estimate is under the goal (a
+                # larger eps enriches less, which is what makes a reduced step cheaper)
+                eb.advance(0.0, h, size, introduced=False)
+                if eb.estimate <= eb.goal:
+                    eb.adapt()
+            else:
+                estimate = 0.0 if went_full else control.proxy(step.last_g, step.diagonal(), free, n, h)
+                if measured is not None and measured > control.NOISE * ip.tol * size:
+                    delta = eb.local(estimate, measured)  # calibrates the proxy
+                    c.shadows.settled(eb.stable and eb.estimate < eb.goal)
+                else:  # no shadow, or a measured error at the Newton tolerance's level: nothing to calibrate by
+                    delta = eb.local(estimate) if measured is None else measured
+                eb.advance(delta, h, size, introduced=rec["reduced"])
+                rec["local_error"] = delta / size
+                # the smallest space (no enrichment, the permanent modes only): a larger eps gains nothing
+                smallest = not went_full and not self.step_enriched.any() and rec["active_modes"] <= self.permanent_columns
+                # a step solved in full space says nothing about eps's error: eps may grow while the
+                # estimate is under the goal (so that steps reduce again), and holds over it
+                if not went_full or eb.estimate <= eb.goal:
+                    eb.adapt(saturated=smallest)
+        if pays is not None:
+            c.reduced_measured(reduced_seconds, shadow)
+            pays.reduced_solved(reduced_seconds, rec["reduced_dofs"] / max(free.size, 1), fresh=mode == "probe",
+                                iterations=max(rec.get("newton_iters", 1), 1))
+            pays.decide(c.shadow_period(), probed=mode == "probe")
+            if shadow and eb is None and c.shadows is not None:
+                c.shadows.settled(not pays.in_full)  # the fall-back's shadows space out while reduction pays
+        self._record(rec, forced)
+        return x
+
+    def _record(self, rec, forced):
+        """The controllers' state in the step's statistics."""
+        c = self.control
+        if c.error_budget is not None:
+            rec["estimated_error"] = float(c.error_budget.estimate)
+        rec["eps_nodal"], rec["eps_modal"] = float(self.eps_nodal), float(self.eps_modal)
+        rec["min_fraction"] = float(forced)
+        if c.pays is not None:
+            rec["reduction_pays"] = not c.pays.in_full
 
     def _too_enriched(self):
         return falls_back(int(self._enriched_dofs().size), int(self.system.free.size), int(self.columns().size),
                           int(self.system.pattern.nnz), self.fallback)
 
-    def _step(self, ip, rec):
+    def _step(self, ip, rec, deadline=None, keep=False):
+        """One adaptive Newton solve. ``deadline`` (s): past it, the step stops and x is None.
+        ``keep``: return (x, iteration)."""
         step = _Iteration(self, ip, full=self._too_enriched())
-        x, _ = newton.newton(ip, step.direction, rec, step.after_step, blocks=step.full)
+        if deadline is not None:
+            step.deadline = self.clock() + deadline
+        try:
+            x, _ = newton.newton(ip, step.direction, rec, step.after_step, blocks=step.full)
+        except _LeaveReduction:
+            self.last_hessians = step.Hl
+            rec["pcg_iters"] = step.pcg_total
+            rec["dofs"] = int(self.columns().size + 3 * self.enriched.sum())
+            return None, step
         rec["reduced"] = not step.full
         if step.full:
             step.q = self._fit(ip, x)
@@ -246,7 +419,7 @@ class AdaptiveSubspace(Reducer):
             rec["full_residual"] = newton.full_space_residual(ip, x)
         self.step_enriched = self.enriched.copy()
         self._downdate(ip, x, step.q, rec)
-        return x
+        return (x, step) if keep else x
 
     # ------------------------------------------------------------------ pieces
     def _fit(self, ip, x):
@@ -336,8 +509,12 @@ class AdaptiveSubspace(Reducer):
         changed = None
         if np.any(cand):
             parts = np.unique(self.sub.parts[cand])
-            self.enriched |= np.isin(self.sub.parts, parts) & self.free_vertex
-            changed = "nodes"
+            add = np.isin(self.sub.parts, parts) & self.free_vertex
+            if self.max_enriched is not None:  # the time budget's cap: the largest errors first
+                add = control.capped_enrichment(add, self.enriched, parts, self.sub.parts, G_nodal, self.max_enriched)
+            if np.any(add & ~self.enriched):
+                self.enriched |= add
+                changed = "nodes"
         inactive = [j for j in range(len(self.basis.blocks)) if j not in self.active]
         grad_full = np.zeros(3 * sysm.n)
         grad_full[ip.free] = g
@@ -368,6 +545,11 @@ class AdaptiveSubspace(Reducer):
         rec["enriched_after_downdate"] = float(self.enriched.sum() / max(self.free_vertex.sum(), 1))
 
 
+class _LeaveReduction(Exception):
+    """Under the controllers, a reduced step stops: it ran past the full step's cost (the deadline),
+    or its enrichment grew past the nnz fallback; the step is solved by full-space Newton from x_t."""
+
+
 class _Iteration:
     """The reducer's Newton direction and after-step update over one time step (Algorithm 1).
 
@@ -395,10 +577,18 @@ class _Iteration:
         self.He = np.empty((sysm.m, 12, 12))
         self.he_valid = np.zeros(sysm.m, dtype=bool)
         self.cols = self.dq = None
+        self.deadline = None  # the never-slower fall-back's: past it the step stops (clock time)
+        self.last_g = None  # the gradient at the latest iterate (the error budget's proxy)
+
+    def diagonal(self):
+        """diag(M + w D + w K(X)) on the free DOFs: the error proxy's Jacobi scaling."""
+        return self.Meff.diagonal() + self.ip.weight * self.red.rest_diagonal
 
     def direction(self, x, g, data, rec, e):
         """d = B_a d_q + S_a d_x at iterate x (steps 1-4 of the module docstring)."""
         red, ip = self.red, self.ip
+        self.last_g = g
+        self._check_deadline(rec)
         if self.full:
             return self._full(x, g, data, rec, e)
         sysm, sub = red.system, red.sub
@@ -435,7 +625,10 @@ class _Iteration:
         changed = red._update(ip, x, g, ge, Ua, Hu, e, self.n_scale, self.m_scale, rec)
         t3 = time.perf_counter()
         rec["prediction"] = rec.get("prediction", 0.0) + t3 - t2
+        self._check_deadline(rec)
         if red._too_enriched():  # enrichment grew past the fallback: full space from here on
+            if red.control is not None:  # (under the controllers from x_t, as after the deadline)
+                raise _LeaveReduction
             self.full = True
             return self._full(x, g, data, rec, e)
         if changed == "modes":
@@ -475,6 +668,14 @@ class _Iteration:
         d[S] += dx
         self.cols, self.dq = cols, dq
         return d
+
+    def _check_deadline(self, rec):
+        """Past the deadline (the never-slower fall-back) the step stops: reduction costs more than a
+        full step here, and the caller solves the step by full-space Newton from x_t (from a reduced
+        iterate near contact, full Newton can need many more iterations)."""
+        if self.deadline is not None and not self.full and self.red.clock() > self.deadline:
+            rec["over_deadline"] = True
+            raise _LeaveReduction
 
     def _full(self, x, g, data, rec, e):
         """The full-space Newton direction (the fallback), with the element blocks at x."""
