@@ -33,7 +33,7 @@ SCENES = {
     "affinification-amg-oracle": lambda: sa.Simulation(_body(), gravity=(0, 0, -9.81),
                                                        reducer=sa.Affinification(1e-4, 2e-4, preconditioner="amg")),
     "affinification-error-budget": lambda: sa.Simulation(_body(), gravity=(0, 0, -9.81),
-                                                         reducer=sa.Affinification(target_error=0.01)),
+                                                         reducer=sa.Affinification(target_error=0.01, never_slower=False)),
     "ipc": lambda: sa.Simulation(_falling(), gravity=(0, 0, -9.81), integrator="implicit_euler",
                                  colliders=[sa.Plane(point=(0, 0, -0.02))], contact=sa.IPC(friction=0.3)),
     "rigidification": lambda: sa.Simulation(_body(), gravity=(0, 0, -9.81),
@@ -176,7 +176,7 @@ from hypothesis import given, settings, strategies as st  # noqa: E402
 MAKERS = {
     "full": lambda body, **kw: sa.Simulation(body, **kw),
     "affinification": lambda body, **kw: sa.Simulation(body, reducer=sa.Affinification(1e-4, 2e-4, min_fraction=0.3), **kw),
-    "rigidification": lambda body, **kw: sa.Simulation(body, reducer=sa.Rigidification(warmup_frames=1), **kw),
+    "rigidification": lambda body, **kw: sa.Simulation(body, reducer=sa.Rigidification(warmup_frames=1, never_slower=False), **kw),
     "bdf2": lambda body, **kw: sa.Simulation(body, integrator="bdf2", **kw),
     "pgs": lambda body, **kw: sa.Simulation(body, colliders=[sa.Plane(point=(0, 0, -0.05))], **kw),
 }
