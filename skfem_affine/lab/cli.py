@@ -390,7 +390,7 @@ def cmd_scaling(args):
     params = inspect.signature(spec.factory()).parameters
     open_kwargs = any(p.kind == p.VAR_KEYWORD for p in params.values())
     key = "mesh" if args.meshes else "resolution"
-    if key not in params and not open_kwargs:
+    if key not in params and (not open_kwargs or (args.meshes and not spec.is_file)):
         raise ValueError(f"scene {args.scene!r} has no {key} parameter to scale"
                          + (" (--meshes needs a scene taking mesh=, e.g. paper_beam)" if args.meshes else ""))
     sizes = args.meshes or args.resolutions
@@ -406,11 +406,13 @@ def cmd_scaling(args):
     frames = args.frames if args.frames else [_frames(None, spec)]
     frames = frames[0] if len(frames) == 1 else frames
     names = [os.path.basename(m) for m in args.meshes] if args.meshes else [str(k) for k in args.resolutions]
-    pairs = "the method's default thresholds" if taus is None else \
-        "tau_a / tau_e " + ", ".join(f"{a:g} / {e:g}" for a, e in taus)
+    if taus is None or len(taus) == 1:
+        what = _method_text(method, *(taus[0] if taus else (None, None)))
+    else:
+        what = f"{method.name} at tau_a / tau_e " + ", ".join(f"{a:g} / {e:g}" for a, e in taus)
     _say(args, f"scaling: {_scene_text(spec)}, {'meshes' if args.meshes else 'resolutions'} {', '.join(names)}, "
                f"{frames if isinstance(frames, int) else ', '.join(map(str, frames))} frames: "
-               f"{method.name} at {pairs} against full space"
+               f"{what} against full space"
                + ("" if args.target_error is None else
                   f"; at each size the fastest pair within {args.target_error:g} of the longest side (*)"))
     rows = runners.scaling(spec, None if args.meshes else args.resolutions, frames, method,
