@@ -84,3 +84,14 @@ def test_scaling_refuses_bad_sizes(tmp_path):
         runners.scaling(spec, meshes=[beam_file(tmp_path)], frames=[2, 2])
     with pytest.raises(ValueError, match="target_error"):
         runners.scaling(spec, [1], 2, target_error=0.0)
+
+
+def test_one_pair_runs_with_its_own_thresholds():
+    spec = runners.SceneSpec.make("paper_beam", resolution=1)
+    for kwargs, pair in (({"taus": [(0.3, 0.6)]}, (0.3, 0.6)), ({"tau_a": 0.05}, (0.05, 0.2)),
+                         ({}, (0.1, 0.2))):
+        seen = []
+        method = runners.Method("spy", lambda a, e: seen.append((a, e)) or sa.Affinification(a, e), (0.1, 0.2))
+        rows = runners.scaling(spec, [1], 3, method=method, **kwargs)
+        assert (rows[0]["tau_a"], rows[0]["tau_e"]) == pair
+        assert set(seen) == {pair}  # the warm-up's reducer and the measured one

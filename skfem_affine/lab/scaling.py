@@ -47,12 +47,13 @@ def _pairs(method, taus):
     base = get_method(method)
     if taus is None:
         return [(base, base.taus)]
-    pairs = [(None if a is None else real(a, "taus", low=0.0), None if e is None else real(e, "taus", low=0.0))
+    # a missing threshold is the method's own
+    pairs = [(base.taus[0] if a is None else real(a, "taus", low=0.0), base.taus[1] if e is None else real(e, "taus", low=0.0))
              for a, e in taus]
     if not pairs:
         raise ValueError("taus must hold at least one (tau_a, tau_e) pair")
     if len(pairs) == 1:
-        return [(base, pairs[0])]
+        return [(Method(base.name, base.factory, pairs[0]), pairs[0])]
     return [(Method(f"{base.name} {a:g},{e:g}", base.factory, (a, e)), (a, e)) for a, e in pairs]
 
 
