@@ -91,6 +91,33 @@ def test_scaling_json(tmp_path, capsys):
     assert os.path.exists(s["figure"]) and os.path.exists(s["table"])
 
 
+def test_scaling_on_mesh_files(tmp_path, capsys):
+    import skfem
+    m = skfem.MeshTet.init_tensor(np.linspace(-1, 1, 2), np.linspace(-1, 1, 2), np.linspace(0, 6, 4))
+    path = str(tmp_path / "little.mesh")
+    meshio.write(path, meshio.Mesh(m.p.T, [("tetra", m.t.T)]))
+    code, s = run_json(capsys, ["scaling", "--meshes", path, "--material", "corotational", "--frames", "3",
+                                "--tau-a", "0.1", "1", "--target-error", "0.5", "--out", str(tmp_path)])
+    assert code == 0 and set(SUMMARY_KEYS) <= set(s) and s["scene"] == "paper_beam"
+    rows = s["rows"]
+    assert [(r["mesh"], r["elements"], r["material"], r["tau_a"], r["tau_e"]) for r in rows] == \
+        [("little.mesh", 18, "corotational", 0.1, 0.2), ("little.mesh", 18, "corotational", 1.0, 2.0)]
+    assert sum(r["chosen"] for r in rows) == 1 and all(r["paper"] is None for r in rows)
+    assert os.path.exists(s["figure"]) and os.path.exists(s["table"])
+
+
+def test_scaling_prints_the_papers_speedup_beside_ours(tmp_path, capsys, shared_meshes):
+    beam = os.path.join(shared_meshes, "beam913.mesh")
+    assert main(["scaling", "--meshes", beam, "--frames", "2", "--tau-a", "0.1", "--target-error", "1",
+                 "--phases", "--out", str(tmp_path)]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    head = lines[1].split()
+    assert head[:2] == ["size", "elements"] and "paper" in head and "err/len" in head
+    row = lines[2].split()
+    assert row[:2] == ["beam913", "3803"] and row[9] == "1.64" and row[-1] == "*"  # size ... speedup paper
+    assert lines[3].strip().startswith("ms per frame, full: wall") and "assembly" in lines[3]
+
+
 def test_user_scene_file(tmp_path, capsys):
     f = tmp_path / "drop.py"
     f.write_text("import skfem_affine as sa\n"
@@ -130,6 +157,12 @@ MISTAKES = [
     (["scaling", "--resolution", "2"], "--resolution is not an option here; use --resolutions"),
     (["scaling", "--resolutions", "1", "2", "--frames", "1", "2", "3"], "one per resolution (2), got 3"),
     (["scaling", "--resolutions", "0"], "argument --resolutions: must be >= 1"),
+    (["scaling", "--meshes", "nope.mesh"], "--meshes: 'nope.mesh' is not a file (give the path of a mesh file"),
+    (["scaling", "cantilever", "--meshes", "nope.mesh"], "scene 'cantilever' has no mesh parameter to scale"),
+    (["scaling", "--tau-a", "0.1", "--tau-e", "0.2", "0.3"], "--tau-e takes one value per --tau-a (1), got 2"),
+    (["scaling", "--tau-e", "0.2"], "--tau-e needs --tau-a"),
+    (["scaling", "--target-error", "0"], "argument --target-error: must be a finite number > 0"),
+    (["scaling", "--material", "rubber"], "argument --material: invalid choice: 'rubber'"),
     (["demo", "extra"], "unrecognized arguments: extra"),
     (["run", "--frame", "-2"], "argument --frame: must be >= 0"),
 ]

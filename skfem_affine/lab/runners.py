@@ -14,12 +14,14 @@ done by :mod:`~skfem_affine.lab.runs` (:func:`run`, :func:`reference_run`, :func
 """
 from skfem_affine.lab.methods import COMPARED, METHODS, Method, get_method, register
 from skfem_affine.lab.runs import TIMING, Reference, Run, compare, interleaved, reference_run, run, warm_up
-from skfem_affine.lab.scaling import scaling
+from skfem_affine.lab.scaling import PAPER_TABLE1_BEAM, PAPER_TABLE2, paper_speedup, scaling
+from skfem_affine.integrators.problem import PHASES
 from skfem_affine.lab.scene_spec import SceneSpec, default_frames, load_scene_file
 from skfem_affine.lab.sweep import cell_key, connect, sweep, sweep_cell, sweep_taus
 from skfem_affine.lab.tables import FileFormatError, merge_rows, read_table, write_table
 
 __all__ = ["COMPARED", "METHODS", "Method", "get_method", "register", "TIMING", "Reference", "Run", "compare",
-           "interleaved", "reference_run", "run", "warm_up", "scaling", "SceneSpec", "default_frames",
+           "interleaved", "reference_run", "run", "warm_up", "scaling", "paper_speedup", "PAPER_TABLE2",
+           "PAPER_TABLE1_BEAM", "PHASES", "SceneSpec", "default_frames",
            "load_scene_file", "cell_key", "connect", "sweep", "sweep_cell", "sweep_taus", "FileFormatError",
            "merge_rows", "read_table", "write_table"]
