@@ -3,8 +3,9 @@ import numpy as np
 import pytest
 
 import skfem_affine as sa
-from skfem_affine.lab import metrics
 from skfem_affine.reducers import budget
+
+import budget_runs
 
 # The error budget is checked with this margin over the target: the estimator models drift
 # with one memory time for every scene (docs/budget.md), and the controller keeps the estimate
@@ -17,14 +18,8 @@ BUDGETS = (0.003, 0.01, 0.03)
 
 def _error_run(scene, frames, reducer, **kwargs):
     """Max distance error of a reduced run against the full-space run of the same scene, and its stats."""
-    full = scene(solver="direct", **kwargs)
-    red = scene(reducer=reducer, solver="direct", **kwargs)
-    err = 0.0
-    for _ in range(frames):
-        full.step()
-        red.step()
-        err = max(err, metrics.distance_error(red.state.x, full.state.x, full.size))
-    return err, red.stats
+    return budget_runs.error_run(scene(solver="direct", **kwargs), scene(reducer=reducer, solver="direct", **kwargs),
+                                 frames)
 
 
 SCENES = {"cantilever": (sa.scenes.cantilever, 90, {"resolution": 3}),

@@ -3,8 +3,9 @@ import numpy as np
 import pytest
 
 import skfem_affine as sa
-from skfem_affine.lab import metrics
 from skfem_affine.reducers.subspace import control
+
+import budget_runs
 
 # As in test_budget.py: the estimate models drift with one memory time for every scene and the
 # controller keeps it at half the target, so 25 % over the target is allowed.
@@ -30,13 +31,7 @@ def ipc_drop(reducer=None):
 
 
 def error_run(scene, frames, reducer):
-    full, red = scene(), scene(reducer)
-    err = 0.0
-    for _ in range(frames):
-        full.step()
-        red.step()
-        err = max(err, metrics.distance_error(red.state.x, full.state.x, full.size))
-    return err, red.stats
+    return budget_runs.error_run(scene(), scene(reducer), frames)
 
 
 @pytest.mark.parametrize("name, scene, frames", [("cantilever", cantilever, 40), ("ipc-drop", ipc_drop, 30)])

@@ -65,6 +65,21 @@ def vertex_max_norm(free_values, free, n):
     return float(np.sqrt(np.max(np.einsum("ij,ij->i", full.reshape(n, 3), full.reshape(n, 3))))) if n else 0.0
 
 
+def controllers_state(owner, names):
+    """{name: {attribute: value}} of the controllers ``owner`` holds under ``names`` (checkpoints)."""
+    return {name: dict(vars(obj)) for name in names if (obj := getattr(owner, name, None)) is not None}
+
+
+def restore_controllers(owner, state, own):
+    """Set what :func:`controllers_state` returned; the entry named ``own`` holds ``owner``'s own attributes."""
+    for name, values in state.items():
+        target = owner if name == own else getattr(owner, name, None)
+        if target is None:
+            raise ValueError(f"this reducer has no controller {name!r} to restore")
+        for key, value in values.items():
+            setattr(target, key, value)
+
+
 class ErrorBudget:
     """Estimator of the distance error and multiplicative controller of one threshold.
 

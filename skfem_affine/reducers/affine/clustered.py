@@ -302,20 +302,14 @@ class ClusteringReducer(Reducer):
 
         With :meth:`restore_controller_state`, what a checkpoint saves to resume a controlled run.
         """
-        state = {name: dict(vars(obj)) for name in self.CONTROLLERS
-                 if (obj := getattr(self, name, None)) is not None}
+        state = budgets.controllers_state(self, self.CONTROLLERS)
         state["thresholds"] = {self.threshold: float(getattr(self, self.threshold)), "tau_e": float(self.tau_e),
                                "min_fraction": float(self.min_fraction)}
         return state
 
     def restore_controller_state(self, state):
         """Set the state :meth:`controller_state` returned (after :meth:`attach`)."""
-        for name, values in state.items():
-            target = self if name == "thresholds" else getattr(self, name, None)
-            if target is None:
-                raise ValueError(f"this reducer has no controller {name!r} to restore")
-            for key, value in values.items():
-                setattr(target, key, value)
+        budgets.restore_controllers(self, state, own="thresholds")
 
     def _set_thresholds(self, tau):
         """The error budget's threshold: ``tau`` to become reduced, 2 tau to stay."""

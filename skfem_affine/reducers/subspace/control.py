@@ -159,18 +159,13 @@ class Controllers:
 
     def state(self):
         """{controller: {attribute: plain number}} (checkpoints)."""
-        out = {name: dict(vars(obj)) for name in self.NAMES if (obj := getattr(self, name)) is not None}
+        out = budgets.controllers_state(self, self.NAMES)
         out["plan"] = {"warmup": self.warmup, "phase_cost": self.phase_cost, "last_reduced": self.last_reduced,
                        "full_before": self.full_before, "full_now": self.full_now}
         return out
 
     def restore(self, state):
-        for name, values in state.items():
-            target = self if name == "plan" else getattr(self, name, None)
-            if target is None:
-                raise ValueError(f"this reducer has no controller {name!r} to restore")
-            for key, value in values.items():
-                setattr(target, key, value)
+        budgets.restore_controllers(self, state, own="plan")
 
 
 class StepCosts(budgets.PaysOff):
