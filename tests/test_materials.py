@@ -149,3 +149,13 @@ def test_lame_parameters_come_in_scikit_fem_order():
     assert (m.lam, m.mu) == (lam, mu)
     with pytest.raises(ValueError, match="Poisson"):
         lame_parameters(1e5, 0.5)
+
+
+def test_signed_singular_values_match_the_rotation_variant_svd_inverted_elements_included():
+    from skfem_affine.materials import rotation_svd, signed_singular_values
+    rng = np.random.default_rng(3)
+    F = np.eye(3) + 0.4 * rng.standard_normal((500, 3, 3))
+    F[:50] = -F[:50]  # inverted (det < 0) elements
+    assert (np.linalg.det(F) < 0).sum() > 50
+    _, s, _ = rotation_svd(F)
+    assert np.allclose(signed_singular_values(F), s, rtol=0, atol=1e-12)
