@@ -155,7 +155,9 @@ def run_interleaved(build, reducer_list, frames):
     sims = [build(None)] + [build(r) for r in reducer_list]
     walls, errs, dofs = np.zeros(len(sims)), np.zeros(len(sims)), np.zeros(len(sims))
     diverged = [None] * len(sims)
-    for _ in range(frames):
+    for frame in range(frames):
+        if frame and frame % 10 == 0:
+            print(f"frame {frame}/{frames}: wall s " + " ".join(f"{w:.1f}" for w in walls), file=sys.stderr, flush=True)
         for i, sim in enumerate(sims):
             if diverged[i] is not None or diverged[0] is not None:
                 continue
