@@ -99,6 +99,7 @@ def test_forced_set_selects_the_k_smallest(beam):
     worst = np.array([max(np.linalg.norm(Fd[e] - Fd[n]) for n in indices[indptr[e]:indptr[e + 1]]) for e in range(m)])
     assert worst[sel].max() <= np.sort(worst)[sel.sum() - 1] + 1e-12
     assert not clustering.forced_set(Fd, adj, 0.0).any()
+    assert clustering.forced_set(Fd, adj, 1.0).all()
     with pytest.raises(ValueError, match="fraction"):
         clustering.forced_set(Fd, adj, 1.5)
 

@@ -139,14 +139,35 @@ def forced_set(Fdot, adjacency, fraction):
     out = np.zeros(m, dtype=bool)
     if k == 0:
         return out
+    if k == m:
+        out[:] = True
+        return out
     indptr, indices = adjacency
-    rows = np.repeat(np.arange(m), np.diff(indptr))
-    diff = np.linalg.norm(F9[rows] - F9[indices], axis=1)
-    worst = np.full(m, np.inf)
-    has = np.diff(indptr) > 0
-    worst[has] = np.maximum.reduceat(diff, indptr[:-1][has])
+    worst = _worst_neighbour_difference(np.asarray(indptr, dtype=np.int64), np.asarray(indices, dtype=np.int64),
+                                        np.ascontiguousarray(F9))
     out[np.argpartition(worst, k - 1)[:k]] = True
     return out
+
+
+@njit(cache=True)
+def _worst_neighbour_difference(indptr, indices, F9):
+    """Per element, the largest Frobenius distance of its rate to a face neighbour's (inf: no neighbour)."""
+    m = F9.shape[0]
+    worst = np.full(m, np.inf)
+    for e in range(m):
+        if indptr[e + 1] == indptr[e]:
+            continue
+        w = 0.0
+        for k in range(indptr[e], indptr[e + 1]):
+            j = indices[k]
+            d = 0.0
+            for c in range(9):
+                t = F9[e, c] - F9[j, c]
+                d += t * t
+            if d > w:
+                w = d
+        worst[e] = np.sqrt(w)
+    return worst
 
 
 # per-element flag bits of the BFS (one byte read per neighbour instead of five arrays)
