@@ -292,13 +292,20 @@ class PaysOff:
         Return to reduction only when a probe costs at most ``1 - margin`` of a full solve.
     smoothing : float
         Weight of the newest measurement in the running costs.
+    window : int, optional
+        When given, a running cost is the median of the latest ``window`` measurements instead
+        (one frame slowed by load from elsewhere does not move it).
     """
 
-    def __init__(self, probe_every=20, probe_max=160, keep_dofs=0.95, patience=5, margin=0.05, smoothing=0.3):
+    def __init__(self, probe_every=20, probe_max=160, keep_dofs=0.95, patience=5, margin=0.05, smoothing=0.3,
+                 window=None):
         self.probe_every, self.probe_max, self.patience = int(probe_every), int(probe_max), int(patience)
         self.keep_dofs, self.margin, self.smoothing = float(keep_dofs), float(margin), float(smoothing)
-        self.full_cost = 0.0   # s per full solve (matrix, factorisation, solve)
-        self.reduced_cost = 0.0  # s per reduced frame (oracle to solve, the error proxy)
+        self.window = None if window is None else int(window)
+        self.full_recent, self.reduced_recent = [], []  # the latest measurements (with ``window``)
+        self.full_cost = 0.0   # s per frame solved in full space (or per full solve: what the reducer measures)
+        self.reduced_cost = 0.0  # s per reduced frame
+        self.shadow_cost = 0.0   # s a shadow frame adds to a reduced frame (0: full_cost)
         self.full_samples = 0
         self.full_seen = 0     # full solves timed; the first (with the solver's symbolic analysis) is not a sample
         self.reduced_samples = 0
@@ -311,27 +318,41 @@ class PaysOff:
     def _mix(self, old, new, n):
         return new if n == 0 else (1 - self.smoothing) * old + self.smoothing * new
 
+    def _running(self, recent, old, new, n, fresh=False):
+        """The running cost after measurement ``new``: a median over the window, else a moving average."""
+        if self.window is None:
+            return new if fresh else self._mix(old, new, n)
+        if fresh:
+            recent.clear()
+        recent.append(float(new))
+        del recent[:-self.window]
+        return float(np.median(recent))
+
     def full_solved(self, seconds):
         self.full_seen += 1
         if self.full_seen == 1:
             return
-        self.full_cost = self._mix(self.full_cost, seconds, self.full_samples)
+        self.full_cost = self._running(self.full_recent, self.full_cost, seconds, self.full_samples)
         self.full_samples += 1
+
+    def shadow_added(self, seconds):
+        """What a shadow frame's full solve added to its reduced frame (s), for the shadows' share."""
+        self.shadow_cost = float(seconds) if not self.shadow_cost else self._mix(self.shadow_cost, seconds, 1)
 
     def reduced_solved(self, seconds, dof_ratio, fresh=False):
         """Record a reduced frame's cost. ``fresh`` (a probe after full-space frames) replaces the
         running cost instead of mixing into it: the frames before the fall-back ran with other
         thresholds (an error budget's start small and grow), and judging a probe by them would
         keep the run in full space."""
-        self.reduced_cost = seconds if fresh else self._mix(self.reduced_cost, seconds, self.reduced_samples)
+        self.reduced_cost = self._running(self.reduced_recent, self.reduced_cost, seconds, self.reduced_samples, fresh)
         self.reduced_samples += 1
         self.dof_ratio = float(dof_ratio)
         kept = self.dof_ratio >= self.keep_dofs
         self.kept_all = int(kept) if fresh else (self.kept_all + 1 if kept else 0)
 
     def overhead(self, shadow_every):
-        """Per reduced frame, the shadow frames' share of a full solve."""
-        return self.full_cost / max(shadow_every, 1)
+        """Per reduced frame, the shadow frames' share of what a shadow adds (a full solve)."""
+        return (self.shadow_cost or self.full_cost) / max(shadow_every, 1)
 
     def pays(self, shadow_every=None, margin=0.0):
         """Whether the measured reduced frames (with their shadows) beat a full solve by ``margin``."""

@@ -278,6 +278,7 @@ class ClusteringReducer(Reducer):
     def _setup_controllers(self):
         """The controllers of :mod:`~skfem_affine.reducers.budget` (plain-number state) and the shadow solver."""
         self.error_budget = self.timer = self.pays = self.shadows = self.full_solver = None
+        self._judged = None  # the frame's costs, for the fall-back once its wall time is known (end_frame)
         self.min_fraction_floor = self.min_fraction
         if not self.controlled:
             return
@@ -288,7 +289,9 @@ class ClusteringReducer(Reducer):
         if self.time_budget is not None:
             self.timer = budgets.TimeBudget(self.time_budget, self.min_fraction)
         if self.never_slower:
-            self.pays = budgets.PaysOff()
+            # judged on whole frames (end_frame): the reduced frame's wall time against a frame solved
+            # in full space, medians of the latest 5 so that load from elsewhere does not decide
+            self.pays = budgets.PaysOff(window=5)
         if self.error_budget is not None or self.pays is not None:
             self.shadows = budgets.ShadowClock(self.shadow_every)
             spec = self.solver_spec if self.solver_spec is None or isinstance(self.solver_spec, str) else "direct"
@@ -325,6 +328,29 @@ class ClusteringReducer(Reducer):
         if self.timer is not None and "wall" in rec:
             rec["time_budget_miss"] = bool(self.timer.observe(rec["wall"], steered=rec.get("reduced", True)))
             rec["min_fraction_next"] = float(self.timer.fraction)
+        judged, self._judged = self._judged, None
+        if self.pays is not None and judged is not None and "wall" in rec:
+            self._judge(judged, float(rec["wall"]))
+            rec["reduction_pays"] = not self.pays.in_full
+
+    def _judge(self, judged, wall):
+        """Feed the fall-back the frame's wall time and let it decide (never slower than full space).
+
+        The costs compared are whole frames, as a full-space run pays them (integrator, contact and
+        checks included): a frame solved in full space is a full frame; a shadow frame or a probe
+        is a reduced frame plus a full solve, so it gives both, the full frame as its wall time
+        minus the reduced part and the reduced frame as its wall time minus the full solve.
+        """
+        pays, kind = self.pays, judged["kind"]
+        if kind == "full":
+            pays.full_solved(wall)
+            return
+        if kind in ("shadow", "probe"):
+            pays.full_solved(wall - judged["reduced"])
+            pays.shadow_added(judged["full"])
+            wall -= judged["full"]
+        pays.reduced_solved(wall, judged["dof_ratio"], fresh=kind == "probe")
+        pays.decide(self.shadows.every, probed=kind == "probe")
 
     # -------------------------------------------------------------- frame
     def solve(self, problem):
@@ -365,7 +391,7 @@ class ClusteringReducer(Reducer):
             stats = {}
             dv, op, seconds = self._full(problem, stats)
             if pays is not None:
-                pays.full_solved(seconds)
+                self._judged = {"kind": "full"}
             if eb is not None:
                 eb.decay(h)
             self.was_reduced = np.zeros(sysm.m, dtype=bool)
@@ -395,10 +421,9 @@ class ClusteringReducer(Reducer):
             shadow = False  # the time budget wins: a full solve on top of the frame would miss it
         stats.update(reduced_dofs=stats["dofs"], shadow=bool(shadow), reduced=not shadow)
         measured = None
+        seconds = 0.0
         if shadow:
             dv, op, seconds = self._full(problem, stats)
-            if pays is not None:
-                pays.full_solved(seconds)
             measured = budgets.vertex_max_norm(result.dv - dv, sysm.free, sysm.n) if stats["n_clusters"] else 0.0
             stats.update(dofs=op.shape[0], solver=self.full_solver.name, local_error_measured=measured / model.size)
             result = StepResult(dv=dv, operator=op, clusters=np.full(sysm.m, -1, dtype=np.int64), stats=stats)
@@ -410,9 +435,10 @@ class ClusteringReducer(Reducer):
             stats["local_error"] = delta / model.size
             reducible = 1.0 - float(np.mean(self.excluded)) if sysm.m else 0.0
             eb.adapt(saturated=stats["reduced_fraction"] >= reducible - 1e-9)
-        if pays is not None:
-            pays.reduced_solved(reduced_seconds, stats["reduced_dofs"] / max(sysm.free.size, 1), fresh=mode == "probe")
-            pays.decide(self.shadows.every, probed=mode == "probe")
+        if pays is not None:  # judged in end_frame, on the frame's wall time
+            self._judged = {"kind": "probe" if mode == "probe" else "shadow" if shadow else "reduced",
+                            "reduced": reduced_seconds, "full": seconds,
+                            "dof_ratio": stats["reduced_dofs"] / max(sysm.free.size, 1)}
         self._record(stats)
         return result
 
