@@ -195,6 +195,87 @@ def test_a_probe_is_judged_by_its_own_cost_not_by_the_frames_before_the_fall_bac
     assert stale.in_full
 
 
+def test_threshold_ramps_fast_until_the_error_shows_then_moves_at_the_usual_rate():
+    eb = budget.ErrorBudget(0.01, tau=1e-3, ramp_grow=4.0)
+    for expected in (4e-3, 1.6e-2):
+        eb.advance(0.0, 0.01, 1.0)
+        assert eb.adapt() == pytest.approx(expected) and eb.ramping
+    eb.advance(0.02, 0.01, 1.0)  # steady state 0.5 * 0.02 = 1e-2: twice the goal, shrink
+    assert eb.adapt() < 1.6e-2 and not eb.ramping
+    tau = eb.tau
+    eb.local_rate = 0.0
+    assert eb.adapt() == pytest.approx(2 * tau)  # no error any more: the usual growth, not the ramp's
+    assert budget.ErrorBudget(0.01, tau=1.0).ramp_grow == 2.0  # the subspace reducer's: no faster ramp
+
+
+def test_running_costs_are_the_least_of_the_window_so_load_does_not_decide():
+    p = budget.PaysOff(window=3)
+    p.full_solved(9.0)  # not a sample: the solver's analysis
+    p.full_solved(1.0)
+    for wall in (0.5, 2.0, 2.0):  # two frames slowed by load from elsewhere
+        p.reduced_solved(wall, 0.3)
+    assert p.reduced_cost == 0.5 and p.pays()
+    for wall in (2.0, 2.0, 2.0):  # the cheap frame left the window: the frames cost more now
+        p.reduced_solved(wall, 0.3)
+    assert p.reduced_cost == 2.0 and not p.pays()
+    p.reduced_solved(0.7, 0.3, fresh=True)
+    assert p.reduced_recent == [0.7]
+
+
+def test_a_fall_back_waits_for_a_probe_measuring_both_under_the_same_load():
+    p = budget.PaysOff(window=5, patience=3, confirm=True)
+    p.full_solved(9.0)
+    p.full_solved(1.0)  # measured while the machine was quiet
+    for _ in range(3):
+        assert p.plan() == "reduced"
+        p.reduced_solved(1.5, 0.3)  # measured under load
+        p.decide(shadow_every=10)
+    assert not p.in_full and p.confirming and p.plan() == "probe"
+    p.full_solved(3.0, fresh=True)  # the probe: the full solve under the same load
+    p.reduced_solved(1.5, 0.3, fresh=True)
+    p.decide(shadow_every=10, probed=True)
+    assert not p.in_full and not p.confirming and p.plan() == "reduced"
+    for _ in range(5):  # the window's cheap frame leaves it
+        p.reduced_solved(4.0, 0.3)  # now dearer than the probe's full solve as well
+        p.decide(shadow_every=10)
+    assert p.plan() == "probe"
+    p.full_solved(3.0, fresh=True)
+    p.reduced_solved(4.0, 0.3, fresh=True)
+    p.decide(shadow_every=10, probed=True)
+    assert p.in_full and p.wait == p.probe_every
+    kept = budget.PaysOff(window=5, patience=3, confirm=True)  # nearly every DOF kept: no probe needed
+    kept.full_solved(9.0)
+    kept.full_solved(1.0)
+    for _ in range(3):
+        kept.reduced_solved(0.5, 0.99)
+        kept.decide(shadow_every=10)
+    assert kept.in_full and not kept.confirming
+
+
+def test_the_fall_back_judges_whole_frame_wall_times():
+    sim = sa.scenes.cantilever(resolution=2, reducer=sa.Affinification(target_error=0.01), solver="direct")
+    sim.step()
+    sim.step()
+    red = sim.reducer
+    red.pays = pays = budget.PaysOff(window=5, patience=3, confirm=True)
+    red._judged = {"kind": "full"}
+    red.end_frame({"wall": 9.0})  # the first full frame is not a sample
+    red._judged = {"kind": "full"}
+    red.end_frame({"wall": 1.0})
+    assert pays.full_cost == 1.0
+    for ramp in (True, False, False, False):
+        red._judged = {"kind": "reduced", "reduced": 0.2, "full": 0.0, "ramp": ramp, "dof_ratio": 0.3}
+        red.end_frame({"wall": 1.4})  # the whole frame counts, not the reducer's 0.2 s of it
+    assert pays.reduced_samples == 3  # the frame at a threshold still ramping up is not judged
+    assert pays.reduced_cost == pytest.approx(1.4) and pays.confirming
+    # a probe: 0.4 s of reduced work and a 1.1 s full solve in a 2.0 s frame
+    red._judged = {"kind": "probe", "reduced": 0.4, "full": 1.1, "ramp": False, "dof_ratio": 0.3}
+    rec = {"wall": 2.0}
+    red.end_frame(rec)
+    assert pays.full_cost == pytest.approx(1.6) and pays.reduced_cost == pytest.approx(0.9)
+    assert rec["reduction_pays"] and not pays.in_full
+
+
 def test_fallback_to_full_space_on_a_scene_where_nothing_reduces():
     # a 1 m cube of 6 tets pinned at x = 0: every element touches a pinned vertex, nothing may reduce
     kwargs = dict(resolution=1, length=1.0, solver="direct")

@@ -41,12 +41,14 @@ full space costs a full solve whatever the fraction, so under a time budget the 
 a shadow frame only when it fits (:meth:`TimeBudget.fits`). The frame's wall time is what
 ``Simulation.step`` measured (:meth:`Reducer.end_frame`), so that tests can feed it any clock.
 
-**Never slower** (:class:`PaysOff`): the reducer times its own reduced frames (oracle,
-clustering, reduced assembly and solve) and the full solves of its shadow frames; when the
-reduced frames, shadows included, cost more than a full solve, or keep nearly every DOF, it
-solves the next frames in full space, and probes reduction again after ``probe_every`` frames
-(doubling while probes keep failing). A probe is a shadow frame: it returns the full solution,
-so a run that never reduces equals the full-space run.
+**Never slower** (:class:`PaysOff`): the reducer hands it the costs of reduced frames and of
+full-space ones (the affine reducers: whole-frame wall times; the subspace reducer: Newton
+steps); when the reduced frames, shadows included, cost more than a full one, or keep nearly
+every DOF, it solves the next frames in full space, and probes reduction again after
+``probe_every`` frames (doubling while probes keep failing). A probe is a shadow frame: it
+returns the full solution, so a run that never reduces equals the full-space run. With
+``confirm``, a probe also decides every fall-back: it measures the reduced and the full solve
+in the same frame, under the same load from elsewhere.
 """
 import math
 
@@ -95,6 +97,14 @@ class ErrorBudget:
         The controller keeps the estimate at ``safety * target``.
     tau_min, tau_max : float
         Bounds of the threshold.
+    shrink, grow : float
+        Bounds of the threshold's factor per frame.
+    shrink_over : float
+        The largest factor while the estimate is over the goal.
+    ramp_grow : float, optional
+        The factor per frame (default ``grow``) while the threshold rises from its small start and
+        the error has not shown yet (:attr:`ramping`): the first frames, which keep most DOFs
+        elastic, cost more than a full solve.
 
     Attributes
     ----------
@@ -105,16 +115,20 @@ class ErrorBudget:
         underestimates the smooth part of the error).
     local_rate : float
         The latest local error ||delta|| / L (1/s).
+    ramping : bool
+        The threshold has only risen, at ``ramp_grow``, since the start.
     """
 
     def __init__(self, target, tau, memory=0.5, safety=0.5, tau_min=1e-8, tau_max=1e3,
-                 shrink=0.5, grow=2.0, shrink_over=0.7):
+                 shrink=0.5, grow=2.0, shrink_over=0.7, ramp_grow=None):
         self.target = real(target, "target_error", low=0.0, high=1.0, include_low=False)
         self.tau = positive(tau, "tau")
         self.memory = positive(memory, "memory")
         self.safety = real(safety, "safety", low=0.0, high=1.0, include_low=False)
         self.tau_min, self.tau_max = float(tau_min), float(tau_max)
         self.shrink, self.grow, self.shrink_over = float(shrink), float(grow), float(shrink_over)
+        self.ramp_grow = self.grow if ramp_grow is None else float(ramp_grow)
+        self.ramping = True  # tau rises by ramp_grow per frame from the small start until the error shows
         self.estimate = 0.0
         self.calibration = 1.0
         self.calibrated = 0  # shadow frames that measured a nonzero proxy
@@ -166,12 +180,14 @@ class ErrorBudget:
         does not grow then.
         """
         steady = self.memory * self.local_rate
-        ratio = self.goal / steady if steady > 0 else self.grow ** 2
-        factor = min(max(math.sqrt(ratio), self.shrink), self.grow)
+        upper = self.ramp_grow if self.ramping else self.grow
+        ratio = self.goal / steady if steady > 0 else upper ** 2
+        factor = min(max(math.sqrt(ratio), self.shrink), upper)
         if saturated:
             factor = min(factor, 1.0)
         if self.estimate > self.goal:
             factor = min(factor, self.shrink_over)
+        self.ramping = self.ramping and factor >= upper
         self.tau = min(max(self.tau * factor, self.tau_min), self.tau_max)
         return self.tau
 
@@ -293,15 +309,23 @@ class PaysOff:
     smoothing : float
         Weight of the newest measurement in the running costs.
     window : int, optional
-        When given, a running cost is the median of the latest ``window`` measurements instead
-        (one frame slowed by load from elsewhere does not move it).
+        When given, a running cost is the least of the latest ``window`` measurements instead: load
+        from elsewhere only adds time, so the least of a few frames is their cost without it.
+    confirm : bool
+        Reduced frames judged too costly do not send the run to full space at once: the next frame
+        is a probe, which measures the reduced frame and the full solve in the same frame (under
+        the same load from elsewhere), and only a probe that does not pay does. Reduced frames are
+        measured every frame and full ones only now and then, so without it a burst of load
+        during reduced frames is compared with full frames measured while the machine was quiet.
     """
 
     def __init__(self, probe_every=20, probe_max=160, keep_dofs=0.95, patience=5, margin=0.05, smoothing=0.3,
-                 window=None):
+                 window=None, confirm=False):
         self.probe_every, self.probe_max, self.patience = int(probe_every), int(probe_max), int(patience)
         self.keep_dofs, self.margin, self.smoothing = float(keep_dofs), float(margin), float(smoothing)
         self.window = None if window is None else int(window)
+        self.confirm = bool(confirm)
+        self.confirming = False  # the next frame is a probe that confirms a fall-back (``confirm``)
         self.full_recent, self.reduced_recent = [], []  # the latest measurements (with ``window``)
         self.full_cost = 0.0   # s per frame solved in full space (or per full solve: what the reducer measures)
         self.reduced_cost = 0.0  # s per reduced frame
@@ -319,20 +343,21 @@ class PaysOff:
         return new if n == 0 else (1 - self.smoothing) * old + self.smoothing * new
 
     def _running(self, recent, old, new, n, fresh=False):
-        """The running cost after measurement ``new``: a median over the window, else a moving average."""
+        """The running cost after measurement ``new``: the least over the window, else a moving average."""
         if self.window is None:
             return new if fresh else self._mix(old, new, n)
         if fresh:
             recent.clear()
         recent.append(float(new))
         del recent[:-self.window]
-        return float(np.median(recent))
+        return float(min(recent))
 
-    def full_solved(self, seconds):
+    def full_solved(self, seconds, fresh=False):
+        """Record a full solve's (or full frame's) cost; ``fresh`` replaces the running cost (a probe)."""
         self.full_seen += 1
         if self.full_seen == 1:
             return
-        self.full_cost = self._running(self.full_recent, self.full_cost, seconds, self.full_samples)
+        self.full_cost = self._running(self.full_recent, self.full_cost, seconds, self.full_samples, fresh)
         self.full_samples += 1
 
     def shadow_added(self, seconds):
@@ -365,6 +390,8 @@ class PaysOff:
 
     def plan(self):
         """"full" (solve this frame in full space), "probe" (a reduced frame with a shadow) or "reduced"."""
+        if self.confirming:
+            return "probe"
         if not self.in_full:
             return "reduced"
         if self.wait > 0:
@@ -375,7 +402,11 @@ class PaysOff:
     def decide(self, shadow_every=None, probed=False):
         """After a reduced frame or a probe: stay reduced, or go to full space until the next probe."""
         warm = self.reduced_samples >= self.patience and self.full_samples >= 1
-        if probed:
+        if probed and self.confirming:  # reduced frames seemed too costly: the paired measurement decides
+            self.confirming = False
+            if not self.pays(shadow_every):
+                self.in_full, self.wait, self.period = True, self.probe_every, self.probe_every
+        elif probed:
             if self.pays(shadow_every, self.margin):
                 self.in_full, self.period = False, self.probe_every
             else:
@@ -383,5 +414,8 @@ class PaysOff:
                 self.period = min(2 * self.period, self.probe_max)
                 self.wait = self.period
         elif (warm or self.kept_all >= self.patience) and not self.pays(shadow_every):
-            self.in_full, self.wait, self.period = True, self.probe_every, self.probe_every
+            if self.confirm and self.kept_all < self.patience:
+                self.confirming = True
+            else:
+                self.in_full, self.wait, self.period = True, self.probe_every, self.probe_every
         return self.in_full

@@ -284,14 +284,15 @@ class ClusteringReducer(Reducer):
             return
         if self.target_error is not None:
             self.error_budget = budgets.ErrorBudget(self.target_error, self.tau_start, memory=self.memory,
-                                                    tau_min=self.tau_min, tau_max=self.tau_max)
+                                                    tau_min=self.tau_min, tau_max=self.tau_max, ramp_grow=4.0)
             self._set_thresholds(self.tau_start)
         if self.time_budget is not None:
             self.timer = budgets.TimeBudget(self.time_budget, self.min_fraction)
         if self.never_slower:
             # judged on whole frames (end_frame): the reduced frame's wall time against a frame solved
-            # in full space, medians of the latest 5 so that load from elsewhere does not decide
-            self.pays = budgets.PaysOff(window=5)
+            # in full space, the least of the latest 5 and a paired probe before a fall-back so that
+            # load from elsewhere does not decide
+            self.pays = budgets.PaysOff(window=5, confirm=True)
         if self.error_budget is not None or self.pays is not None:
             self.shadows = budgets.ShadowClock(self.shadow_every)
             spec = self.solver_spec if self.solver_spec is None or isinstance(self.solver_spec, str) else "direct"
@@ -346,9 +347,11 @@ class ClusteringReducer(Reducer):
             pays.full_solved(wall)
             return
         if kind in ("shadow", "probe"):
-            pays.full_solved(wall - judged["reduced"])
+            pays.full_solved(wall - judged["reduced"], fresh=kind == "probe")
             pays.shadow_added(judged["full"])
             wall -= judged["full"]
+        if judged["ramp"] and kind != "probe":
+            return  # frames at a threshold still rising from its small start say nothing of the settled cost
         pays.reduced_solved(wall, judged["dof_ratio"], fresh=kind == "probe")
         pays.decide(self.shadows.every, probed=kind == "probe")
 
@@ -427,6 +430,7 @@ class ClusteringReducer(Reducer):
             measured = budgets.vertex_max_norm(result.dv - dv, sysm.free, sysm.n) if stats["n_clusters"] else 0.0
             stats.update(dofs=op.shape[0], solver=self.full_solver.name, local_error_measured=measured / model.size)
             result = StepResult(dv=dv, operator=op, clusters=np.full(sysm.m, -1, dtype=np.int64), stats=stats)
+        ramp = eb is not None and eb.ramping  # this frame's threshold is still on its way up
         if eb is not None:
             delta = eb.local(proxy, measured)
             if shadow and self.shadows is not None:
@@ -437,7 +441,7 @@ class ClusteringReducer(Reducer):
             eb.adapt(saturated=stats["reduced_fraction"] >= reducible - 1e-9)
         if pays is not None:  # judged in end_frame, on the frame's wall time
             self._judged = {"kind": "probe" if mode == "probe" else "shadow" if shadow else "reduced",
-                            "reduced": reduced_seconds, "full": seconds,
+                            "reduced": reduced_seconds, "full": seconds, "ramp": ramp,
                             "dof_ratio": stats["reduced_dofs"] / max(sysm.free.size, 1)}
         self._record(stats)
         return result
