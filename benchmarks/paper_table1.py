@@ -27,6 +27,7 @@ import numpy as np
 # measure the checkout this script sits in, not whatever skfem_affine is installed
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 import skfem_affine as sa  # noqa: E402
+from skfem_affine.integrators.problem import PHASES  # noqa: E402
 from skfem_affine.simulation import SimulationDiverged  # noqa: E402
 
 # The paper's Table 1: affinification, rigidification, full wall time (s), frames, h,
@@ -150,11 +151,13 @@ def run_interleaved(build, reducer_list, frames):
     """Step full space and every reducer frame by frame, in turn, in one process.
 
     Returns the full simulation and one dict per method (full first): wall time (s),
-    DOFs, max distance error over the scene size, and the frame it diverged at (or None).
+    DOFs, max distance error over the scene size, the frame it diverged at (or None), and
+    the seconds of each timed phase (contact, assembly, factorization, ...) summed over the run.
     """
     sims = [build(None)] + [build(r) for r in reducer_list]
     walls, errs, dofs = np.zeros(len(sims)), np.zeros(len(sims)), np.zeros(len(sims))
     diverged = [None] * len(sims)
+    phases = [{} for _ in sims]
     for frame in range(frames):
         if frame and frame % 10 == 0:
             print(f"frame {frame}/{frames}: wall s " + " ".join(f"{w:.1f}" for w in walls), file=sys.stderr, flush=True)
@@ -169,10 +172,12 @@ def run_interleaved(build, reducer_list, frames):
                 continue
             walls[i] += time.perf_counter() - t0
             dofs[i] += sim.stats[-1].get("dofs", 0)
+            for key in PHASES:
+                phases[i][key] = phases[i].get(key, 0.0) + float(sim.stats[-1].get(key, 0.0))
             if i:
                 errs[i] = max(errs[i], np.abs(sim.state.x - sims[0].state.x).max())
-    return sims[0], [{"wall": float(w), "dofs": float(d), "err": float(e / sims[0].size), "diverged": dv}
-                     for w, d, e, dv in zip(walls, dofs, errs, diverged)]
+    return sims[0], [{"wall": float(w), "dofs": float(d), "err": float(e / sims[0].size), "diverged": dv, "phases": ph}
+                     for w, d, e, dv, ph in zip(walls, dofs, errs, diverged, phases)]
 
 
 def measure(name, mesh_dir, frames=None):
@@ -190,6 +195,7 @@ def measure(name, mesh_dir, frames=None):
             "max_distance_error_affinification": aff["err"], "max_distance_error_rigidification": rig["err"],
             "dof_ratio_affinification": aff["dofs"] / full["dofs"] if full["dofs"] else None,
             "dof_ratio_rigidification": rig["dofs"] / full["dofs"] if full["dofs"] else None,
+            "phases_s": {k: r["phases"] for k, r in zip(("full", "affinification", "rigidification"), (full, aff, rig))},
             "diverged": {k: r["diverged"] for k, r in zip(("full", "affinification", "rigidification"),
                                                           (full, aff, rig)) if r["diverged"] is not None},
             "paper": {"affinification_s": paper[0], "rigidification_s": paper[1], "full_s": paper[2],
