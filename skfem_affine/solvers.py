@@ -237,6 +237,7 @@ class _PardisoLibrary:
     def call(self, phase, arrays, b):
         """One ``pardiso`` call on the upper triangle ``arrays = (data, indptr, indices, n)``; returns x."""
         import ctypes
+        threads.no_spin_wait()
         ps = self._ps
         data, indptr, indices, n = arrays
         x = np.zeros_like(b)

@@ -20,6 +20,11 @@ Decisions:
   workers spin on the cores those need), :func:`blas_threads` (every BLAS, MKL included),
   :func:`mkl_threads` (MKL alone, for Pardiso; thread-local, so other threads keep theirs).
   Each is a no-op when the library is not loaded.
+* **Intel OpenMP's threads sleep as soon as Pardiso returns** (:func:`no_spin_wait`): by default
+  they spin for 200 ms after each parallel region (``KMP_BLOCKTIME``), and on a machine with
+  few cores they take the cores from the compiled passes that follow the solve (the element
+  evaluation, the checks, a reduced frame after a shadow frame's full solve). A
+  ``KMP_BLOCKTIME`` the user set is kept.
 * Nothing here writes the environment or starts a thread at import.
 
 The measurements behind these choices are in ``docs/threads.md``.
@@ -100,6 +105,28 @@ def run_chunks(kernel, chunks, *args):
     finally:
         for job in jobs:
             job.result()
+
+
+_LOCAL = threading.local()
+
+
+def no_spin_wait():
+    """Intel OpenMP (MKL, Pardiso) threads started from this thread sleep at once after a parallel
+    region instead of spinning (``kmp_set_blocktime(0)``, per calling thread; once per thread).
+
+    A no-op when Intel OpenMP is not loaded or ``KMP_BLOCKTIME`` is set in the environment.
+    """
+    if getattr(_LOCAL, "blocktime", False):
+        return
+    _LOCAL.blocktime = True
+    if "KMP_BLOCKTIME" in os.environ:
+        return
+    import ctypes
+    try:  # RTLD_NOLOAD: only a library already loaded (by MKL), never a new one
+        lib = ctypes.CDLL("libiomp5.so", mode=getattr(os, "RTLD_NOLOAD", 0) | ctypes.RTLD_GLOBAL)
+        lib.kmp_set_blocktime(ctypes.c_int(0))
+    except (OSError, AttributeError):
+        pass
 
 
 def _controller(api):

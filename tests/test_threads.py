@@ -173,3 +173,16 @@ def test_importing_writes_no_environment_and_starts_no_thread():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300,
                          cwd=os.path.dirname(os.path.dirname(skfem_affine.__file__)))
     assert out.returncode == 0, out.stderr[-2000:]
+
+
+@pytest.mark.skipif(not skfem_affine.solvers.has_pardiso(), reason="pypardiso (MKL, Intel OpenMP) not installed")
+def test_pardiso_leaves_intel_openmp_threads_sleeping_unless_the_user_set_blocktime():
+    code = ("import ctypes, skfem_affine as sa\n"
+            "sa.scenes.cantilever(resolution=1, solver='pardiso').step()\n"
+            "print(ctypes.CDLL('libiomp5.so').kmp_get_blocktime())\n")
+    env = {k: v for k, v in os.environ.items() if k != "KMP_BLOCKTIME"}
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
+    assert out.stdout.split()[-1] == "0"  # not the default 200 ms of spinning after each solve
+    env["KMP_BLOCKTIME"] = "50"
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
+    assert out.stdout.split()[-1] == "50"  # the user's setting is kept
