@@ -20,8 +20,10 @@ With an error budget, a time budget or ``never_slower`` (:mod:`skfem_affine.redu
 the frame is first planned: solved in full space (reduction does not pay), or reduced, with
 the thresholds and forced fraction the controllers chose; a reduced frame then estimates its
 error (one preconditioned CG step on the full-space residual) and, every ``shadow_every``
-reduced frames (up to four times that while the estimate's calibration holds), is also solved in full space (a *shadow* frame: the full solution is returned,
-the difference calibrates the estimate and the full solve's time tells whether reduction pays).
+reduced frames (up to four times that while the estimate's calibration holds), is also solved
+in full space (a *shadow* frame: the full solution is returned, and the difference calibrates
+the estimate). Whether reduction pays is judged after the frame, on its wall time
+(:meth:`ClusteringReducer.end_frame`), against the frames solved in full space.
 """
 import time
 
@@ -108,8 +110,8 @@ class ClusteringReducer(Reducer):
     time_budget : float or None
         Seconds per frame; the forced fraction adapts to it.
     never_slower : bool or None
-        Solve frames in full space while reduction does not pay. Default (None): on with an
-        error budget and no time budget.
+        Solve frames in full space while reduction does not pay, judged on measured frame wall
+        times (``docs/budget.md``). Default (None): on with an error budget and no time budget.
     shadow_every : int
         Reduced frames per shadow frame (error budget, never slower); the period doubles, up to
         4 shadow_every, while shadow frames confirm the error estimate's calibration.
