@@ -323,7 +323,7 @@ class PaysOff:
                  window=None, confirm=False):
         self.probe_every, self.probe_max, self.patience = int(probe_every), int(probe_max), int(patience)
         self.keep_dofs, self.margin, self.smoothing = float(keep_dofs), float(margin), float(smoothing)
-        self.window = None if window is None else int(window)
+        self.window = int(window or 0)  # 0: a moving average (plain numbers: checkpoints save them)
         self.confirm = bool(confirm)
         self.confirming = False  # the next frame is a probe that confirms a fall-back (``confirm``)
         self.full_recent, self.reduced_recent = [], []  # the latest measurements (with ``window``)
@@ -344,7 +344,7 @@ class PaysOff:
 
     def _running(self, recent, old, new, n, fresh=False):
         """The running cost after measurement ``new``: the least over the window, else a moving average."""
-        if self.window is None:
+        if not self.window:
             return new if fresh else self._mix(old, new, n)
         if fresh:
             recent.clear()
