@@ -13,12 +13,16 @@ first pays one-time set-up (measured 0.1-0.4 s, as much as a dozen steps at 1.3k
   noise of the measurement);
 * ``--tables budget``: per scene and budget in ``--budgets``, ``AdaptiveSubspace(target_error=b)``
   (with its never-slower fall-back unless ``--no-never-slower``): achieved max distance error,
-  largest estimate, speedup, share of steps reduced, mean eps_nodal.
+  largest estimate, speedup, share of steps reduced, mean eps_nodal; ``--verbose`` adds one line
+  per step (eps_nodal, reduced ``R`` / shadow ``S`` / out of time ``D``, wall time beside full
+  space's, reduced DOFs, Newton iterations reduced + full, whether reduction pays, local and
+  estimated error), also kept in the JSON as ``steps``.
 
 Usage::
 
     python benchmarks/subspace_budget.py --tables never-slower --cells 6 --frames 20
     python benchmarks/subspace_budget.py --tables budget --scenes drop --cells 6 --frames 40 --budgets 0.01 0.03
+    python benchmarks/subspace_budget.py --tables budget --scenes drop --cells 10 --frames 20 --verbose
 """
 import argparse
 import json
@@ -33,6 +37,23 @@ from skfem_affine.lab import metrics, runs  # noqa: E402
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from subspace_paper import SCENES, scene  # noqa: E402
+
+
+#: The per-step record keys ``--verbose`` prints (and the JSON keeps).
+STEP_KEYS = ("wall", "eps_nodal", "reduced", "shadow", "over_deadline", "reduction_pays", "reduced_dofs",
+             "newton_iters", "full_newton_iters", "local_error", "estimated_error")
+
+
+def print_steps(r, full_walls):
+    """One line per step of a reducer's run: the controllers' records beside full space's wall time."""
+    for i, (st, fw) in enumerate(zip(r["steps"], full_walls)):
+        flags = "".join(c for c, k in (("R", "reduced"), ("S", "shadow"), ("D", "over_deadline"))
+                        if st.get(k))
+        print(f"    step {i:3d} {flags:<3} eps_nodal {st.get('eps_nodal', float('nan')):.3g}  "
+              f"wall {st['wall']:.3f} s (full {fw:.3f})  dofs {st.get('reduced_dofs', 0)}  "
+              f"newton {st.get('newton_iters', 0)}+{st.get('full_newton_iters', 0)}  "
+              f"pays {st.get('reduction_pays')}  local {st.get('local_error', 0.0):.1e}  "
+              f"E {st.get('estimated_error', 0.0):.1e}", flush=True)
 
 
 def measured(kind, cells, reducers, frames, solver):
@@ -61,7 +82,8 @@ def measured(kind, cells, reducers, frames, solver):
                      "status": result[name].summary["status"], "frames": len(rec),
                      "reduced_steps": [int(bool(r.get("reduced", False))) for r in rec],
                      "walls": [float(r["wall"]) for r in rec],
-                     "full_walls": [float(r["wall"]) for r in result["full"].records]}
+                     "full_walls": [float(r["wall"]) for r in result["full"].records],
+                     "steps": [{k: r[k] for k in STEP_KEYS if k in r} for r in rec]}
     out["full_wall_s"] = wall_full
     return out
 
@@ -93,6 +115,8 @@ def budget(args):
             print(f"{kind:>7} budget {b:<6}: achieved {r['max_error']:.1e}  estimate {r['estimate']:.1e}  "
                   f"speedup {r['speedup']:.2f}  reduced {r['reduced']:.2f}  mean eps_nodal {r['eps_nodal']:.2g}  "
                   f"steps {''.join(map(str, r['reduced_steps']))}", flush=True)
+            if args.verbose:
+                print_steps(r, r["full_walls"])
     return rows
 
 
@@ -106,6 +130,8 @@ def main(argv=None):
     p.add_argument("--control", action="store_true", help="never-slower table: also a second full-space run")
     p.add_argument("--no-never-slower", dest="never_slower", action="store_false",
                    help="budget table: the error budget without the fall-back (it reduces even where it does not pay)")
+    p.add_argument("--verbose", action="store_true", help="budget table: one line per step (eps_nodal, reduced, "
+                   "shadow, over deadline, reduction pays)")
     p.add_argument("--solver", default="pardiso" if sa.solvers.has_pardiso() else "superlu")
     p.add_argument("--json", default="benchmarks/results/subspace_budget.json")
     args = p.parse_args(argv)
