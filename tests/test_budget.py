@@ -222,7 +222,7 @@ def test_running_costs_are_the_least_of_the_window_so_load_does_not_decide():
     assert p.reduced_recent == [0.7]
 
 
-def test_a_fall_back_waits_for_a_probe_measuring_both_under_the_same_load():
+def test_a_fall_back_waits_for_a_full_frame_measured_beside_the_reduced_ones():
     p = budget.PaysOff(window=5, patience=3, confirm=True)
     p.full_solved(9.0)
     p.full_solved(1.0)  # measured while the machine was quiet
@@ -230,20 +230,18 @@ def test_a_fall_back_waits_for_a_probe_measuring_both_under_the_same_load():
         assert p.plan() == "reduced"
         p.reduced_solved(1.5, 0.3)  # measured under load
         p.decide(shadow_every=10)
-    assert not p.in_full and p.confirming and p.plan() == "probe"
-    p.full_solved(3.0, fresh=True)  # the probe: the full solve under the same load
-    p.reduced_solved(1.5, 0.3, fresh=True)
-    p.decide(shadow_every=10, probed=True)
-    assert not p.in_full and not p.confirming and p.plan() == "reduced"
+    assert not p.in_full and p.confirming and p.plan() == "confirm"
+    p.full_solved(3.0, fresh=True)  # the confirming full frame, under the same load
+    p.decide(shadow_every=10, confirmed=True)
+    assert not p.in_full and not p.confirming and p.plan() == "reduced" and p.full_recent == [3.0]
     for _ in range(5):  # the window's cheap frame leaves it
-        p.reduced_solved(4.0, 0.3)  # now dearer than the probe's full solve as well
+        p.reduced_solved(4.0, 0.3)  # now dearer than the full frame beside them as well
         p.decide(shadow_every=10)
-    assert p.plan() == "probe"
+    assert p.plan() == "confirm"
     p.full_solved(3.0, fresh=True)
-    p.reduced_solved(4.0, 0.3, fresh=True)
-    p.decide(shadow_every=10, probed=True)
+    p.decide(shadow_every=10, confirmed=True)
     assert p.in_full and p.wait == p.probe_every
-    kept = budget.PaysOff(window=5, patience=3, confirm=True)  # nearly every DOF kept: no probe needed
+    kept = budget.PaysOff(window=5, patience=3, confirm=True)  # nearly every DOF kept: no confirmation needed
     kept.full_solved(9.0)
     kept.full_solved(1.0)
     for _ in range(3):
@@ -268,12 +266,14 @@ def test_the_fall_back_judges_whole_frame_wall_times():
         red.end_frame({"wall": 1.4})  # the whole frame counts, not the reducer's 0.2 s of it
     assert pays.reduced_samples == 3  # the frame at a threshold still ramping up is not judged
     assert pays.reduced_cost == pytest.approx(1.4) and pays.confirming
+    red._judged = {"kind": "confirm"}  # the full frame solved beside them, under the same load
+    rec = {"wall": 1.6}
+    red.end_frame(rec)
+    assert pays.full_cost == pytest.approx(1.6) and rec["reduction_pays"] and not pays.confirming
     # a probe: 0.4 s of reduced work and a 1.1 s full solve in a 2.0 s frame
     red._judged = {"kind": "probe", "reduced": 0.4, "full": 1.1, "ramp": False, "dof_ratio": 0.3}
-    rec = {"wall": 2.0}
-    red.end_frame(rec)
+    red.end_frame({"wall": 2.0})
     assert pays.full_cost == pytest.approx(1.6) and pays.reduced_cost == pytest.approx(0.9)
-    assert rec["reduction_pays"] and not pays.in_full
 
 
 def test_fallback_to_full_space_on_a_scene_where_nothing_reduces():

@@ -47,8 +47,8 @@ steps); when the reduced frames, shadows included, cost more than a full one, or
 every DOF, it solves the next frames in full space, and probes reduction again after
 ``probe_every`` frames (doubling while probes keep failing). A probe is a shadow frame: it
 returns the full solution, so a run that never reduces equals the full-space run. With
-``confirm``, a probe also decides every fall-back: it measures the reduced and the full solve
-in the same frame, under the same load from elsewhere.
+``confirm``, a full-space frame solved right after the reduced frames that seemed too costly
+decides every fall-back: the two are measured a frame apart, under the same load from elsewhere.
 """
 import math
 
@@ -313,10 +313,11 @@ class PaysOff:
         from elsewhere only adds time, so the least of a few frames is their cost without it.
     confirm : bool
         Reduced frames judged too costly do not send the run to full space at once: the next frame
-        is a probe, which measures the reduced frame and the full solve in the same frame (under
-        the same load from elsewhere), and only a probe that does not pay does. Reduced frames are
-        measured every frame and full ones only now and then, so without it a burst of load
-        during reduced frames is compared with full frames measured while the machine was quiet.
+        is solved in full space (:meth:`plan` says ``"confirm"``), its cost replaces the running
+        full cost, and only when the reduced frames still cost more does the run fall back.
+        Reduced frames are measured every frame and full ones only now and then, so without it a
+        burst of load during reduced frames is compared with full frames measured while the
+        machine was quiet.
     """
 
     def __init__(self, probe_every=20, probe_max=160, keep_dofs=0.95, patience=5, margin=0.05, smoothing=0.3,
@@ -325,7 +326,7 @@ class PaysOff:
         self.keep_dofs, self.margin, self.smoothing = float(keep_dofs), float(margin), float(smoothing)
         self.window = int(window or 0)  # 0: a moving average (plain numbers: checkpoints save them)
         self.confirm = bool(confirm)
-        self.confirming = False  # the next frame is a probe that confirms a fall-back (``confirm``)
+        self.confirming = False  # the next frame is a full-space frame that confirms a fall-back (``confirm``)
         self.full_recent, self.reduced_recent = [], []  # the latest measurements (with ``window``)
         self.full_cost = 0.0   # s per frame solved in full space (or per full solve: what the reducer measures)
         self.reduced_cost = 0.0  # s per reduced frame
@@ -391,7 +392,7 @@ class PaysOff:
     def plan(self):
         """"full" (solve this frame in full space), "probe" (a reduced frame with a shadow) or "reduced"."""
         if self.confirming:
-            return "probe"
+            return "confirm"
         if not self.in_full:
             return "reduced"
         if self.wait > 0:
@@ -399,10 +400,11 @@ class PaysOff:
             return "full"
         return "probe"
 
-    def decide(self, shadow_every=None, probed=False):
-        """After a reduced frame or a probe: stay reduced, or go to full space until the next probe."""
+    def decide(self, shadow_every=None, probed=False, confirmed=False):
+        """After a reduced frame, a probe or a confirming full frame: stay reduced, or go to full
+        space until the next probe."""
         warm = self.reduced_samples >= self.patience and self.full_samples >= 1
-        if probed and self.confirming:  # reduced frames seemed too costly: the paired measurement decides
+        if confirmed:  # reduced frames seemed too costly: a full frame measured beside them decides
             self.confirming = False
             if not self.pays(shadow_every):
                 self.in_full, self.wait, self.period = True, self.probe_every, self.probe_every

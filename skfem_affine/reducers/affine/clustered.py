@@ -340,13 +340,16 @@ class ClusteringReducer(Reducer):
         """Feed the fall-back the frame's wall time and let it decide (never slower than full space).
 
         The costs compared are whole frames, as a full-space run pays them (integrator, contact and
-        checks included): a frame solved in full space is a full frame; a shadow frame or a probe
+        checks included): a frame solved in full space is a full frame (one that confirms a
+        fall-back replaces the running full cost); a shadow frame or a probe
         is a reduced frame plus a full solve, so it gives both, the full frame as its wall time
         minus the reduced part and the reduced frame as its wall time minus the full solve.
         """
         pays, kind = self.pays, judged["kind"]
-        if kind == "full":
-            pays.full_solved(wall)
+        if kind in ("full", "confirm"):
+            pays.full_solved(wall, fresh=kind == "confirm")
+            if kind == "confirm":
+                pays.decide(self.shadows.every, confirmed=True)
             return
         if kind in ("shadow", "probe"):
             pays.full_solved(wall - judged["reduced"], fresh=kind == "probe")
@@ -390,13 +393,13 @@ class ClusteringReducer(Reducer):
         if self.timer is not None:
             self.min_fraction = self.timer.fraction
         mode = pays.plan() if pays is not None else "reduced"
-        if eb is not None and mode != "full" and self._new_contacts(problem):
+        if eb is not None and mode not in ("full", "confirm") and self._new_contacts(problem):
             mode = "impact"
-        if mode in ("full", "impact"):
+        if mode in ("full", "confirm", "impact"):
             stats = {}
             dv, op, seconds = self._full(problem, stats)
             if pays is not None:
-                self._judged = {"kind": "full"}
+                self._judged = {"kind": "confirm" if mode == "confirm" else "full"}
             if eb is not None:
                 eb.decay(h)
             self.was_reduced = np.zeros(sysm.m, dtype=bool)
