@@ -123,7 +123,16 @@ class _Stepped:
 
     def step(self):
         """One timed ``sim.step()``, then its record (untimed)."""
-        state = self.sim.step().copy()
+        self.advance()
+        self.record()
+
+    def advance(self):
+        """``sim.step()`` alone (its wall time is in the simulation's stats)."""
+        self._state = self.sim.step().copy()
+
+    def record(self):
+        """The record of the frame :meth:`advance` stepped (distances read the reference's positions)."""
+        state = self._state
         rec = _record(self.sim.stats[-1])
         rec["time"] = state.time
         if self.strain:
@@ -143,19 +152,30 @@ class _Stepped:
 def _step_in_turn(stepped, frames, bar=None, on_frame=None):
     """Step each simulation one frame, in turn, ``frames`` times, in this process.
 
-    A simulation that diverges is left out of the following frames (its status says so);
-    if a ``required`` one diverges (a reference), all stop.
+    The order of the steps rotates from frame to frame (the records are made after, in the given
+    order): on frames of a few milliseconds the simulation stepped second measured 2-3 % slower
+    than the same work stepped first (its data are no longer in the caches), so a fixed order
+    biases a ratio. A simulation that diverges is left
+    out of the following frames (its status says so); if a ``required`` one diverges (a
+    reference), all stop.
     """
     alive = list(stepped)
     for frame in range(1, frames + 1):
-        for s in list(alive):
+        k = frame % len(alive)
+        stop = False
+        for s in alive[k:] + alive[:k]:
             try:
-                s.step()
+                s.advance()
             except SimulationDiverged as err:
                 s.status, s.message = "diverged", str(err)
                 alive.remove(s)
-                if s.required:
-                    return
+                stop = stop or s.required
+                if stop:
+                    break
+        if stop:
+            return
+        for s in alive:  # in the given order: a run's distances read the reference's positions of this frame
+            s.record()
         if on_frame is not None:
             on_frame(frame, {s.name: s.sim for s in alive})
         if bar is not None:
