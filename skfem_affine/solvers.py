@@ -237,7 +237,6 @@ class _PardisoLibrary:
     def call(self, phase, arrays, b):
         """One ``pardiso`` call on the upper triangle ``arrays = (data, indptr, indices, n)``; returns x."""
         import ctypes
-        threads.no_spin_wait()
         ps = self._ps
         data, indptr, indices, n = arrays
         x = np.zeros_like(b)
@@ -250,6 +249,7 @@ class _PardisoLibrary:
                         ps.perm.ctypes.data_as(i32), ctypes.byref(ctypes.c_int32(b.shape[1])),
                         ps.iparm.ctypes.data_as(i32), ctypes.byref(ctypes.c_int32(0)),
                         b.ctypes.data_as(f64), x.ctypes.data_as(f64), ctypes.byref(error))
+        threads.no_spin_wait()  # after a call, MKL has loaded its OpenMP runtime if it uses one
         if error.value != 0:
             raise SolverError(f"Pardiso error {error.value}")
         return x

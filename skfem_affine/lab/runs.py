@@ -152,10 +152,9 @@ class _Stepped:
 def _step_in_turn(stepped, frames, bar=None, on_frame=None):
     """Step each simulation one frame, in turn, ``frames`` times, in this process.
 
-    The order of the steps rotates from frame to frame (the records are made after, in the given
-    order): on frames of a few milliseconds the simulation stepped second measured 2-3 % slower
-    than the same work stepped first (its data are no longer in the caches), so a fixed order
-    biases a ratio. A simulation that diverges is left
+    The order of the steps rotates from frame to frame, and the records are made after, in the
+    given order: a simulation stepped right after another finds the caches holding the other's
+    data, so a fixed order biases a ratio (docs/measuring.md). A simulation that diverges is left
     out of the following frames (its status says so); if a ``required`` one diverges (a
     reference), all stop.
     """
@@ -169,8 +168,8 @@ def _step_in_turn(stepped, frames, bar=None, on_frame=None):
             except SimulationDiverged as err:
                 s.status, s.message = "diverged", str(err)
                 alive.remove(s)
-                stop = stop or s.required
-                if stop:
+                if s.required:
+                    stop = True
                     break
         if stop:
             return

@@ -390,7 +390,8 @@ class PaysOff:
         return self.reduced_cost + extra <= (1.0 - margin) * self.full_cost
 
     def plan(self):
-        """"full" (solve this frame in full space), "probe" (a reduced frame with a shadow) or "reduced"."""
+        """"full" (solve this frame in full space), "confirm" (a full-space frame that decides a
+        fall-back, with ``confirm``), "probe" (a reduced frame with a shadow) or "reduced"."""
         if self.confirming:
             return "confirm"
         if not self.in_full:

@@ -291,9 +291,9 @@ class ClusteringReducer(Reducer):
         if self.time_budget is not None:
             self.timer = budgets.TimeBudget(self.time_budget, self.min_fraction)
         if self.never_slower:
-            # judged on whole frames (end_frame): the reduced frame's wall time against a frame solved
-            # in full space, the least of the latest 5 and a paired probe before a fall-back so that
-            # load from elsewhere does not decide
+            # judged on whole frames (end_frame): the least of the latest 5 of each kind, and a full
+            # frame solved beside the reduced ones confirms a fall-back, so that load from elsewhere
+            # does not decide
             self.pays = budgets.PaysOff(window=5, confirm=True)
         if self.error_budget is not None or self.pays is not None:
             self.shadows = budgets.ShadowClock(self.shadow_every)
@@ -341,9 +341,9 @@ class ClusteringReducer(Reducer):
 
         The costs compared are whole frames, as a full-space run pays them (integrator, contact and
         checks included): a frame solved in full space is a full frame (one that confirms a
-        fall-back replaces the running full cost); a shadow frame or a probe
-        is a reduced frame plus a full solve, so it gives both, the full frame as its wall time
-        minus the reduced part and the reduced frame as its wall time minus the full solve.
+        fall-back replaces the running full cost); a shadow frame or a probe is a reduced frame
+        plus a full solve, so it gives both, the full frame as its wall time minus the reduced
+        part and the reduced frame as its wall time minus the full solve.
         """
         pays, kind = self.pays, judged["kind"]
         if kind in ("full", "confirm"):
