@@ -139,6 +139,20 @@ def test_interleaved_steps_every_simulation_frame_by_frame_in_turn():
         runners.interleaved({"x": TINY}, 2)
 
 
+def test_interleaved_rotates_which_simulation_steps_first():
+    sims = {"a": TINY.build(), "b": TINY.build(), "c": TINY.build()}
+    order = []
+    for name, sim in sims.items():
+        def step(sim=sim, name=name, plain=sim.step):
+            order.append(name)
+            return plain()
+        sim.step = step
+    runs = runners.interleaved(sims, 4)
+    assert [order[3 * i] for i in range(4)] == ["b", "c", "a", "b"]  # each frame starts one later
+    assert sorted(order[3:6]) == ["a", "b", "c"]  # every one once per frame
+    assert all(len(r.records) == 4 and r.records[-1]["frame"] == 4 for r in runs.values())
+
+
 def test_compare_times_interleaved_by_default_and_sequential_on_request():
     taus = {"affinification": (0.3, 0.6)}
     ref, inter = runners.compare(TINY, frames=8, methods=("affinification",), taus=taus, residual=False)
