@@ -12,7 +12,7 @@ The package is laid out by idea: the elastic core (:mod:`materials`, :mod:`kinem
 (``affine/`` and ``subspace/``), :mod:`contact`, and the measuring tools in :mod:`lab`.
 """
 from skfem_affine import _compile_notice  # noqa: F401 (one stderr line when the kernels compile)
-from skfem_affine import assembly, kinematics, materials, solvers
+from skfem_affine import assembly, kinematics, materials, solvers, stress
 from skfem_affine.body import ElasticBody
 from skfem_affine.contact import colliders
 from skfem_affine.contact.colliders import Bowl, Box, Capsule, Plane, SDFCollider, Sphere
@@ -34,4 +34,4 @@ __all__ = ["ElasticBody", "Prescribed", "VertexForce", "Simulation", "Simulation
            "Material", "StVK", "Corotational", "NeoHookean", "Affinification", "Rigidification",
            "AdaptiveSubspace", "AffineModes", "LinearModes", "SkinningEigenmodes", "bases",
            "Plane", "Sphere", "Box", "Capsule", "Bowl", "SDFCollider", "PGS", "IPC", "colliders",
-           "assembly", "io", "kinematics", "materials", "metrics", "runners", "scenes", "solvers"]
+           "assembly", "io", "kinematics", "materials", "metrics", "runners", "scenes", "solvers", "stress"]

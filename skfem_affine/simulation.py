@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 import skfem_affine
-from skfem_affine import checkpoint
+from skfem_affine import checkpoint, stress
 
 from skfem_affine.assembly import ElasticSystem
 from skfem_affine.checks import check_bodies, choice, flag, integer, positive, real_array
@@ -396,6 +396,23 @@ class Simulation:
         strain = self.system.strain_energy(s.x)
         grav = -self.f_gravity @ (s.x - self.system.p0).reshape(-1)
         return {"kinetic": kin, "strain": strain, "gravity": grav, "total": kin + strain + grav}
+
+    def stress(self, state=None):
+        """Strains and stresses of a state (default: the current one), per element and at vertices.
+
+        Returns a :class:`~skfem_affine.stress.Stresses`: Green-Lagrange ``strain``, first
+        Piola ``piola`` and ``cauchy`` stress tensors (m, 3, 3), ``von_mises`` (m,), ``principal``
+        (m, 3, largest first), ``energy_density`` (m,), in Pa (J/m^3 for the energy), each from
+        the element's own material; ``.vertex`` holds the volume-weighted averages at the
+        vertices. Definitions in :mod:`skfem_affine.stress`.
+        """
+        s = self.state if state is None else state
+        x = getattr(s, "x", s)
+        x = real_array(x, "state positions")
+        if x.shape != self.state.x.shape:
+            raise ValueError(f"state must be a State of this simulation or positions of shape "
+                             f"{self.state.x.shape}, got shape {x.shape}")
+        return stress.evaluate(self.system, x)
 
     def split(self, x):
         """Per-body views of a stacked per-vertex array (e.g. ``state.x``)."""

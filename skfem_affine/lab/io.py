@@ -5,9 +5,16 @@ from xml.sax.saxutils import quoteattr
 import meshio
 import numpy as np
 
+from skfem_affine.checks import flag
 
-def frame_mesh(sim, state):
-    """A meshio.Mesh of all bodies at ``state`` with point velocity and cell data."""
+
+def frame_mesh(sim, state, stresses=True):
+    """A meshio.Mesh of all bodies at ``state`` with point velocity and cell data.
+
+    With ``stresses`` it also holds the strains and stresses of :meth:`Simulation.stress`
+    (:data:`skfem_affine.stress.FIELDS`) per element (cell data) and averaged at the
+    vertices (point data), under the same names; tensors as 9 components, row-major.
+    """
     sysm = sim.system
     cells = [("tetra", sysm.t.T.astype(np.int64))]
     clusters = state.clusters if state.clusters is not None else np.full(sysm.m, -1)
@@ -17,6 +24,10 @@ def frame_mesh(sim, state):
                  "affine": [(np.asarray(clusters) >= 0).astype(np.int8)]}
     point_data = {"velocity": state.v, "displacement": state.x - sysm.p0,
                   "fixed": sysm.fixed.astype(np.int8)}
+    if stresses:
+        st = sim.stress(state)
+        cell_data.update({k: [v] for k, v in st.fields().items()})
+        point_data.update(st.vertex.fields())
     return meshio.Mesh(state.x, cells, point_data=point_data, cell_data=cell_data)
 
 
@@ -32,7 +43,11 @@ class Series:
     ParaView opens, is rewritten after every state, so an interrupted run still opens. Writing
     the same frame again replaces it. Nothing is simulated here: the series holds exactly the
     states written. Each VTU holds point ``velocity``, ``displacement`` and ``fixed`` and cell
-    ``cluster`` (body id, -1 elastic), ``affine`` (0/1), ``material`` and ``body``.
+    ``cluster`` (body id, -1 elastic), ``affine`` (0/1), ``material`` and ``body``, and, unless
+    ``stresses=False``, the strains and stresses of :meth:`Simulation.stress` per cell and
+    averaged at the points: ``green_lagrange_strain``, ``first_piola_stress``,
+    ``cauchy_stress`` (tensors, 9 components row-major), ``von_mises_stress``,
+    ``principal_stress`` (3, largest first), all in Pa, and ``strain_energy_density`` (J/m^3).
 
     Parameters
     ----------
@@ -40,15 +55,18 @@ class Series:
         ``folder/stem`` (a trailing ``.pvd`` is dropped); the folder is created.
     sim : Simulation
         The simulation the states belong to (its mesh, materials and fixed vertices).
+    stresses : bool
+        Write strains and stresses (default True; :mod:`skfem_affine.stress`).
     """
 
-    def __init__(self, path, sim):
+    def __init__(self, path, sim, stresses=True):
         if not hasattr(sim, "system"):
             raise TypeError(f"sim must be a skfem_affine.Simulation, got {type(sim).__name__}")
         path = os.fspath(path)
         if path.endswith(".pvd"):
             path = path[:-4]
         self.sim = sim
+        self.stresses = flag(stresses, "stresses")
         self.dir, self.stem = os.path.dirname(path) or ".", os.path.basename(path)
         if not self.stem:
             raise ValueError(f"path must end in a file stem (e.g. 'out/beam'), got {path!r}")
@@ -69,7 +87,7 @@ class Series:
             raise ValueError(f"state has positions of shape {np.shape(x)}, but the series' simulation has "
                              f"{self.sim.state.x.shape}: the state is not one of this simulation's")
         name = f"{self.stem}_{state.frame:05d}.vtu"
-        meshio.write(os.path.join(self.dir, name), frame_mesh(self.sim, state), binary=True)
+        meshio.write(os.path.join(self.dir, name), frame_mesh(self.sim, state, self.stresses), binary=True)
         self.entries[state.frame] = (state.time, name)
         with open(self.pvd, "w") as fh:
             fh.write('<?xml version="1.0"?>\n<VTKFile type="Collection" version="0.1">\n<Collection>\n')
@@ -79,7 +97,7 @@ class Series:
         return name
 
 
-def write_series(path, sim, *, states):
+def write_series(path, sim, *, states, stresses=True):
     """Write already computed ``states`` of ``sim`` as a ParaView series.
 
     Nothing is simulated: to record a run as it goes, pass each state to a :class:`Series`.
@@ -93,13 +111,15 @@ def write_series(path, sim, *, states):
         The simulation the states belong to (its mesh and bodies).
     states : iterable of State
         The states to write, e.g. ``runners.Run.states`` or ``list(sim.run(60))``.
+    stresses : bool
+        Write strains and stresses per cell and at the points (default True; see :class:`Series`).
 
     Returns
     -------
     str
         The path of the ``.pvd`` file that ParaView opens as a time series.
     """
-    series = Series(path, sim)
+    series = Series(path, sim, stresses)
     for state in states:
         series.write(state)
     return series.pvd
