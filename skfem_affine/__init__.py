@@ -25,12 +25,13 @@ from skfem_affine.reducers.affine.rigidification import Rigidification
 from skfem_affine.reducers.subspace import bases
 from skfem_affine.reducers.subspace.bases import AffineModes, LinearModes, SkinningEigenmodes
 from skfem_affine.reducers.subspace.reducer import AdaptiveSubspace
+from skfem_affine.vertex_sets import vertices_of
 from skfem_affine.simulation import Rayleigh, Simulation, SimulationDiverged, SimulationWarning, State, Stats
 from skfem_affine.lab import io, metrics, runners, scenes
 
 __version__ = "0.1.0"
 
-__all__ = ["ElasticBody", "Prescribed", "VertexForce", "Simulation", "SimulationDiverged", "SimulationWarning", "State", "Stats", "Rayleigh",
+__all__ = ["ElasticBody", "Prescribed", "VertexForce", "vertices_of", "Simulation", "SimulationDiverged", "SimulationWarning", "State", "Stats", "Rayleigh",
            "Material", "StVK", "Corotational", "NeoHookean", "Affinification", "Rigidification",
            "AdaptiveSubspace", "AffineModes", "LinearModes", "SkinningEigenmodes", "bases",
            "Plane", "Sphere", "Box", "Capsule", "Bowl", "SDFCollider", "PGS", "IPC", "colliders",
