@@ -20,7 +20,7 @@ def test_every_example_is_tested():
     tested = {"cantilever.py", "beam_frequency.py", "affinification.py", "contact_drop.py",
               "contact_stacking.py", "contact_materials.py", "compare.py", "adaptive_subspace.py",
               "custom_reducer.py", "own_mesh.py", "boundaries.py", "threshold_sweep.py", "output.py",
-              "rotating_clamp.py"}
+              "rotating_clamp.py", "skfem_static_to_dynamic.py"}
     assert set(f for f in os.listdir(EXAMPLES) if f.endswith(".py")) <= tested
 
 
@@ -172,3 +172,13 @@ def test_output_example_writes_paraview_and_gif(tmp_path, monkeypatch):
     with Image.open(out / "drop.gif") as gif:
         assert gif.n_frames == len(g["states"]) == 16
     assert (out / "drop_clusters.png").stat().st_size > 0
+
+
+def test_skfem_static_to_dynamic_example_agrees_with_scikit_fem(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    g = run("skfem_static_to_dynamic.py")
+    assert g["deflection_static"] < 0 and g["deflection_error"] < 1e-3    # at rest on the static solution
+    assert g["stress_error"] < 1e-3                                         # the same root stress
+    assert g["stepped_error"] < 1e-3 < g["trajectory_error"] < 0.15        # the modes, damped by backward Euler
+    frame = meshio.read(tmp_path / "out" / "skfem_static_to_dynamic" / "bar_00200.vtu")
+    assert "von_mises_stress" in frame.cell_data and "cauchy_stress" in frame.point_data
