@@ -8,7 +8,9 @@ Two ways to look at a run:
   ParaView opens as a time series. Each frame holds the point fields ``velocity``,
   ``displacement`` and ``fixed`` and the cell fields ``material``, ``body``,
   ``cluster`` (the element's affine body, -1 for elastic) and ``affine`` (0/1):
-  colour by ``cluster`` to watch affinification at work.
+  colour by ``cluster`` to watch affinification at work. Strains and stresses come with them,
+  per cell and averaged at the points (``cauchy_stress``, ``von_mises_stress``, ...,
+  :mod:`skfem_affine.stress`).
   :func:`~skfem_affine.lab.io.write_series` (``sa.io.write_series(path, sim, states=...)``)
   writes states you already have, e.g. those a lab run kept.
 * :mod:`skfem_affine.lab.plots` draws the same states with matplotlib:

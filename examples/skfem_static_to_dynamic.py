@@ -1,5 +1,5 @@
 r"""From a scikit-fem static model to a dynamic one
-==============================================
+===============================================
 
 A scikit-fem user has a linear-elastic static model: a mesh with named boundaries, a
 ``Basis(mesh, ElementVector(ElementTetP1()))``, a clamp from ``basis.get_dofs("left")`` and a
