@@ -13,12 +13,14 @@ After every step the :class:`~skfem_affine.Simulation` hands the new state to a 
   incremental potential whose minimiser dissipates. The step is refused when
 
   .. math:: E_{t+1} - E_t - W_t > c_E \, S_t, \qquad
-            S_t = \max\big(\max_{s \le t} (K_s + \Psi_s),\; |f_g| \ell,\; \epsilon\big),
+            S_t = \max\big(\max_{s \le t} (K_s + \Psi_s),\; |f_g| \ell,\; \epsilon_\Psi\big),
 
   i.e. when one step creates more energy than the largest energy the scene has had in play
   (kinetic plus strain) or than lifting its weight by the scene size :math:`\ell`, times
-  ``energy_growth`` :math:`c_E` (default 1). A blow-up (energy growing by a factor each frame)
-  trips this as soon as a single step gains more than the energy in play; a run that loses or
+  ``energy_growth`` :math:`c_E` (default 1). The floor :math:`\epsilon_\Psi = 100\, \epsilon_{mach}
+  \sum_e V_e (\mu_e + |\lambda_e|)` is the round-off of evaluating the strain energy near rest
+  (a body at rest with nothing acting on it, whose energy is round-off only, is not refused). A
+  blow-up (energy growing by a factor each frame) trips this as soon as a single step gains more than the energy in play; a run that loses or
   keeps its energy never does. The linearized integrator is not an exact minimiser: under a
   fast rotation (:math:`h\omega` not small) its step gains energy, of relative size about
   :math:`(h\omega)^2` per step for a soft body and much more for a stiff one, whose
@@ -93,6 +95,10 @@ class Monitor:
         self.body_size = np.array([np.linalg.norm(np.ptp(p0[self.body_of_vertex == b], axis=0))
                                    for b in range(self.n_bodies)])
         self.weight_scale = float(np.linalg.norm(f_gravity.reshape(-1, 3).sum(axis=0))) * self.size
+        # round-off of the strain energy near rest: psi ~ mu (tr F^T F - 3) ... cancels to ~mu ulp(1)
+        self.roundoff = 100 * np.finfo(float).eps * float(sum(
+            np.sum(system.volumes[idx] * (np.asarray(mat.mu) + np.abs(np.asarray(mat.lam))))
+            for mat, idx in system.groups))
         self.energy = None        # total energy of the current state
         self.in_play = 0.0        # max over accepted frames of kinetic + strain
         self.warned = {"inverted": False, "nonconvergence": False}
@@ -135,7 +141,7 @@ class Monitor:
         if self.check_energy:
             e, play = self.energies(x, v, barrier, F)
             work = float(rec.get("external_work", 0.0))
-            scale = max(self.in_play, self.weight_scale, 1e-300)
+            scale = max(self.in_play, self.weight_scale, self.roundoff, 1e-300)
             gain = e - self.energy - work
             if not np.isfinite(e) or gain > self.energy_growth * scale:
                 factor = e / self.energy if self.energy > 0 else float("inf")

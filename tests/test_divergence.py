@@ -157,3 +157,13 @@ def test_a_state_changed_from_outside_is_not_taken_for_created_energy():
     sim.state.v *= 20.0  # a kick: 400x the kinetic energy, given by the user, not by the integrator
     states, err = _run(sim, 3)
     assert err is None and sim.stats[-1]["energy"] > 100 * sim.stats[1]["energy"]
+
+
+def test_a_body_at_rest_with_nothing_acting_runs():
+    """Its energy is the round-off of the strain energy near rest (~mu ulp(1) per volume): no growth."""
+    mesh = skfem.MeshTet.init_tensor(np.linspace(0, 1, 21), np.linspace(0, 0.1, 3), np.linspace(0, 0.1, 3))
+    body = sa.ElasticBody(mesh, sa.NeoHookean(E=1e7, nu=0.3), fixed=mesh.nodes_satisfying(lambda x: x[0] < 1e-9))
+    sim = sa.Simulation(body, dt=0.005)
+    states, err = _run(sim, 3)
+    assert err is None and len(states) == 3
+    assert np.abs(states[-1].x - mesh.p.T).max() < 1e-12
