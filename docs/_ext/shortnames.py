@@ -78,6 +78,24 @@ def lookup(env, target, kinds=None, context=None):
     return None, bool(matches)
 
 
+def _inherited(env, target, module, cls):
+    """``Base.target`` documented on a base class of ``module.cls`` (a docstring inherited from it)."""
+    if not (module and cls) or "." in target:
+        return None
+    try:
+        obj = importlib.import_module(module)
+        for part in cls.split("."):
+            obj = getattr(obj, part)
+    except (ImportError, AttributeError):
+        return None
+    objects = _objects(env)
+    for base in getattr(obj, "__mro__", ()):
+        name = f"{base.__module__}.{base.__qualname__}.{target}"
+        if name in objects:
+            return name
+    return None
+
+
 def _missing_reference(app, env, node, contnode):
     if node.get("refdomain") != "py":
         return None
@@ -89,7 +107,12 @@ def _missing_reference(app, env, node, contnode):
         return contnode  # numpy.ndarray, skfem.MeshTet, ... when their inventory is not reachable
     kinds = ROLE_KINDS.get(node.get("reftype"))
     context = node.get("py:module")
-    name, ambiguous = lookup(env, target, kinds, context)
+    name = _inherited(env, target, context, node.get("py:class"))
+    ambiguous = False
+    if name is None and node.get("reftype") == "func":
+        name, ambiguous = lookup(env, target, {"function"}, context)
+    if name is None:
+        name, ambiguous = lookup(env, target, kinds, context)
     if name is None and kinds and not ambiguous:
         name, ambiguous = lookup(env, target, None, context)
     if name is not None:
