@@ -83,7 +83,7 @@ def site(tmp_path_factory):
     for folder in ("docs", "examples"):
         shutil.copytree(os.path.join(ROOT, folder), tmp_path / folder,
                         ignore=shutil.ignore_patterns("_build", "auto_examples", "generated", "out", "__pycache__",
-                                                      "*.png", "*.gif", "toplevel.inc", "sg_execution_times.rst"))
+                                                      "*.gif", "toplevel.inc", "sg_execution_times.rst"))
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([ROOT, os.environ.get("PYTHONPATH", "")]).rstrip(os.pathsep),
                MPLBACKEND="Agg")
     html = tmp_path / "html"
