@@ -35,8 +35,8 @@ NOT_FOR_USERS = {
     "session": re.compile(r"\bsessions?\b", re.I),
     "agent": re.compile(r"\bagents?\b", re.I),
     "developers' folders": re.compile(r"\.\./shared|\bshared/(meshes|papers|notes)|\bworktree", re.I),
-    "history": re.compile(r"\b(before|after) the (fix|change)\b|\bearlier defaults?\b|\bthis round\b"
-                          r"|\bthe issue (asks|says|wants)\b", re.I),
+    "history": re.compile(r"\b(before|after) (the|this) (fix|change|rule)\b|\bearlier defaults?\b|\bthis round\b"
+                          r"|\bthe issue(?:'s)? (asks|says|wants|goal|metric|rule)\b|\bwhat was fixed\b", re.I),
 }
 
 
