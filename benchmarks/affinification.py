@@ -2,7 +2,7 @@
 
 Two scenes: our procedural cantilever (``--resolutions``: 24 k^3 tets, rho = 1000,
 no damping) and the paper's own beam meshes (``--meshes``, MEDIT files from
-``../shared/meshes``: long axis z, the z-min end pinned and kept elastic as in the
+``MESH_DIR`` (docs/bodies.md says where to get them): long axis z, the z-min end pinned and kept elastic as in the
 paper's Fig. 17, gravity -9.8 along y, density 100, Rayleigh alpha = 0.03 (mass),
 beta = 0.02 (stiffness), the values of the rigidification code the paper was built
 on). For each scene and material, steps the full solve and every method frame by frame
@@ -15,7 +15,7 @@ Usage::
 
     python benchmarks/affinification.py --resolutions 6 10 --frames 370 \\
         --materials neohookean stvk corotational --taus 1e-4,2e-4 0.1,0.2
-    python benchmarks/affinification.py --resolutions --meshes ../shared/meshes/beam1264.mesh \\
+    python benchmarks/affinification.py --resolutions --meshes MESH_DIR/beam1264.mesh \\
         --taus 1e-4,2e-4
 """
 import argparse

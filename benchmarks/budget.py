@@ -1,4 +1,4 @@
-"""The error budget, the time budget and "never slower" measured (issue 12; docs/budget.md).
+"""The error budget, the time budget and "never slower" measured (docs/budget.md).
 
 Three tables, every ratio measured with the methods stepped frame by frame in turn in one
 process (``runners.interleaved``), errors against the full-space run stepped with them:
@@ -14,9 +14,9 @@ process (``runners.interleaved``), errors against the full-space run stepped wit
 3. ``--never-slower``: default ``sa.Affinification()`` against full space at each scene;
 4. ``--tables estimate``: the largest error estimate against the measured error, per budget.
 
-Usage (the issue's table; run on a quiet machine)::
+Usage (the tables of docs/budget.md; run on a quiet machine)::
 
-    python benchmarks/budget.py --meshes ../shared/meshes/beam1264.mesh ../shared/meshes/beam5232.mesh \\
+    python benchmarks/budget.py --meshes MESH_DIR/beam1264.mesh MESH_DIR/beam5232.mesh \\
         --resolution 6 --frames 200
     python benchmarks/budget.py --tiny     # a seconds-long check that the script runs
     python benchmarks/budget.py --tables estimate --resolution 4 --drop 2 --frames 150   # docs/budget.md

@@ -10,7 +10,7 @@ the full solve assembles), ``tangent`` (:meth:`ElasticSystem.evaluate_tangent`, 
 dP/dF is indefinite. Usage::
 
     python benchmarks/evaluate.py --resolution 10
-    python benchmarks/evaluate.py --mesh ../shared/meshes/beam1264.mesh
+    python benchmarks/evaluate.py --mesh MESH_DIR/beam1264.mesh
 """
 import argparse
 import os

@@ -1,7 +1,7 @@
 """The affinification paper's Table 1, reproduced: each scene three ways, the paper's numbers beside ours.
 
 Runs every scene of the paper's Table 1 that we have a mesh for (the paper's own meshes,
-read from MESH_DIR, e.g. ``../shared/meshes``), plus procedural stand-ins where the
+read from MESH_DIR: docs/bodies.md says where to get them), plus procedural stand-ins where the
 paper's mesh is not public (marked "stand-in"). Each scene is simulated in full space,
 with affinification and with rigidification, stepped frame by frame in turn in one
 process (interleaved, so that load from elsewhere on a shared machine slows every
@@ -13,8 +13,8 @@ the settings of each row.
 
 Usage::
 
-    python benchmarks/paper_table1.py ../shared/meshes                    # the paper's frame counts
-    python benchmarks/paper_table1.py ../shared/meshes --frames 20 --scenes beam_neo wheel
+    python benchmarks/paper_table1.py MESH_DIR                    # the paper's frame counts
+    python benchmarks/paper_table1.py MESH_DIR --frames 20 --scenes beam_neo wheel
 """
 import argparse
 import json
@@ -234,7 +234,7 @@ def markdown(rows):
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("mesh_dir", help="folder of the paper's meshes (e.g. ../shared/meshes)")
+    ap.add_argument("mesh_dir", help="folder of the paper's meshes (see docs/bodies.md)")
     ap.add_argument("--scenes", nargs="+", default=list(SCENES), choices=list(SCENES))
     ap.add_argument("--frames", type=int, default=None, help="frames of every scene (default: the paper's)")
     ap.add_argument("--out", default="benchmarks/results/paper_table1", help="writes OUT.md and OUT.json")

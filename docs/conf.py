@@ -16,6 +16,7 @@ sys.path.insert(0, os.path.join(HERE, "_ext"))
 sys.path.insert(0, os.path.abspath(os.path.join(HERE, "..")))
 
 import skfem_affine  # noqa: E402
+from shortnames import empty_inventory  # noqa: E402
 
 project = "skfem-affine"
 author = "the skfem-affine developers"
@@ -25,12 +26,14 @@ release = version = skfem_affine.__version__
 extensions = [
     "sphinx.ext.autodoc",
     "sphinx.ext.autosummary",
+    "sphinx.ext.intersphinx",
     "sphinx.ext.mathjax",
     "sphinx.ext.viewcode",
     "numpydoc",
     "myst_parser",
     "sphinx_gallery.gen_gallery",
     "toplevel_api",
+    "shortnames",
 ]
 
 source_suffix = {".rst": "restructuredtext", ".md": "markdown"}
@@ -39,8 +42,9 @@ exclude_patterns = ["_build", "**.ipynb_checkpoints", "auto_examples/*.ipynb", "
                     "auto_examples/*.zip", "auto_examples/*.json", "auto_examples/*.md5"]
 templates_path = ["_templates"]
 
-# API reference: one page per module, generated recursively from the package, so that
-# new modules appear without editing these sources.
+# API reference: a page per module and one per public class and function, generated
+# recursively from the package (docs/_templates/autosummary), so that new modules appear
+# without editing these sources.
 autosummary_generate = True
 autosummary_imported_members = False
 autodoc_default_options = {"members": True, "undoc-members": False, "show-inheritance": True}
@@ -49,6 +53,27 @@ autodoc_typehints = "none"
 numpydoc_show_class_members = False
 numpydoc_class_members_toctree = False
 numpydoc_validation_checks = set()
+
+# Names in prose link to their pages: `Simulation` (reST) is a Python reference, resolved
+# among the package's objects by docs/_ext/shortnames.py, as is inline code naming one of them.
+# Every reference to the package's own names must resolve (nitpicky; -W makes it an error).
+default_role = "py:obj"
+nitpicky = True
+
+# Links to Python, NumPy, SciPy, scikit-fem and meshio. Without network access each inventory
+# falls back to an empty local one, so that an offline build passes (with -W too): those
+# names are then shown as code without links.
+EMPTY_INVENTORY = empty_inventory()
+intersphinx_mapping = {
+    name: (url, (None, EMPTY_INVENTORY)) for name, url in {
+        "python": "https://docs.python.org/3",
+        "numpy": "https://numpy.org/doc/stable",
+        "scipy": "https://docs.scipy.org/doc/scipy",
+        "skfem": "https://scikit-fem.readthedocs.io/en/latest",
+        "meshio": "https://meshio.readthedocs.io/en/stable",
+    }.items()
+}
+intersphinx_timeout = 10
 
 # Markdown pages (the user guide)
 myst_enable_extensions = ["dollarmath", "colon_fence", "deflist"]
@@ -82,7 +107,8 @@ html_theme_options = {
     "footer_start": ["copyright"],
     "footer_end": ["sphinx-version"],
 }
-html_static_path = []
+html_static_path = ["_static"]
+html_css_files = ["custom.css"]
 html_show_sourcelink = False
 
 

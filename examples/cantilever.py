@@ -1,8 +1,9 @@
 r"""A first simulation: a cantilever swinging under gravity
 =======================================================
 
-A 4 m x 1 m x 1 m beam of stable Neo-Hookean rubber (E = 100 kPa,
-nu = 0.35, rho = 1000 kg/m^3) is clamped at x = 0 and released from rest.
+A 4 m x 1 m x 1 m beam of stable Neo-Hookean stiff rubber (E = 20 MPa,
+nu = 0.35, rho = 1000 kg/m^3) is clamped at x = 0 and released from rest: its tip
+dips about 0.2 m (5 % of the length) and rings about the static deflection.
 Each frame solves the linearized backward Euler system (paper eq. 1-2)
 
 .. math:: (M - hD - h^2 K)\,\Delta v = h (f + D v + h K v), \qquad
@@ -35,7 +36,7 @@ def simulate(resolution=3, frames=100, dt=0.01, out=None):
     k = resolution
     mesh = skfem.MeshTet.init_tensor(np.linspace(0, 4, 4 * k + 1), np.linspace(0, 1, k + 1),
                                      np.linspace(0, 1, k + 1))
-    body = sa.ElasticBody(mesh, material=sa.NeoHookean(E=1e5, nu=0.35), density=1000.0,
+    body = sa.ElasticBody(mesh, material=sa.NeoHookean(E=2e7, nu=0.35), density=1000.0,
                           fixed=mesh.nodes_satisfying(lambda p: p[0] < 1e-9))
     sim = sa.Simulation(body, dt=dt, gravity=(0.0, 0.0, -9.81),
                         damping=sa.Rayleigh(alpha=0.0, beta=0.01))
@@ -58,7 +59,7 @@ parser.add_argument("--out", default=os.path.join("out", "cantilever"), help="ou
 args = parser.parse_args(None if __name__ == "__main__" else [])  # imported (e.g. by the tests): the defaults
 
 sim, tip_height = simulate(args.resolution, args.frames, out=args.out)
-lowest = tip_height.min()  # this soft beam sags and stretches: the tip falls about 5 m in 1 s
+lowest = tip_height.min()  # about -0.22 m: Euler-Bernoulli's static deflection is 0.19 m, the swing overshoots it
 
 if __name__ == "__main__":
     import matplotlib.pyplot as plt

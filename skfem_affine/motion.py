@@ -57,6 +57,8 @@ class Prescribed:
         returns their positions (k, 3) at t. At t = 0 it gives the initial positions (the
         simulation starts there); for a smooth start let ``path(0, X) == X``.
 
+    Notes
+    -----
     The path's positions are followed exactly (to round-off: they are copied, not integrated);
     the vertices' velocities are the path's finite differences over each step.
 
@@ -122,6 +124,8 @@ class VertexForce:
     body : ElasticBody, optional
         The body whose vertices ``vertices`` index.
 
+    Notes
+    -----
     The force is evaluated once per step at the start of the step (t, x_t, v_t): explicit
     in time, like gravity.
     """
@@ -172,6 +176,8 @@ class Motion:
         Its bodies' :class:`Prescribed` (``body.prescribed``) are gathered with the bodies' vertex offsets.
     forces : list of VertexForce
 
+    Notes
+    -----
     Attributes (plain, for checkpoints): ``paths`` a list of (vertices (k,), rest X (k, 3), path),
     ``forces`` a list of (vertices (k,), force callable).
     """

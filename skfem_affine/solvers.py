@@ -137,7 +137,7 @@ class Pardiso:
         """Cholesky of A (full symmetric CSR, or its upper triangle with ``upper=True``).
 
         ``order``: the unknowns in elimination order (a fill-reducing permutation the caller
-        already knows, e.g. :meth:`reduction.Mapping.elimination_order`); Pardiso then skips
+        already knows, e.g. :meth:`~skfem_affine.reducers.affine.mapping.Mapping.elimination_order`); Pardiso then skips
         its own ordering. Used for a new pattern, ignored when the pattern is the last one.
         """
         indptr, indices, data = self._upper(A, upper or getattr(A, "_upper", False))

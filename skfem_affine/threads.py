@@ -88,7 +88,7 @@ if hasattr(os, "register_at_fork"):
 
 
 def run_chunks(kernel, chunks, *args):
-    """``kernel(c0, c1, *args)`` over the work units ``0 .. chunks - 1``, split across threads.
+    """``kernel(c0, c1, *args)`` over the work units ``range(chunks)``, split across threads.
 
     The units are divided into contiguous shares, one per thread; the calling thread runs the
     first share and waits for the others. ``kernel`` should release the GIL (numba ``nogil``).

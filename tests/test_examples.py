@@ -37,8 +37,8 @@ def test_cantilever_example(tmp_path, monkeypatch):
     g = run("cantilever.py")
     assert g["sim"].state.frame == 100
     assert np.all(np.isfinite(g["tip_height"]))
-    # soft beam: the tip falls, at first like a hinged rod (3g/2), then slower than free fall would allow
-    assert -6.0 < g["lowest"] < -4.0
+    # a stiff-rubber beam: the tip dips and rings about its static deflection (0.19 m by beam theory)
+    assert -0.3 < g["lowest"] < -0.15                     # a few % of the 4 m length
     # the ParaView series holds the run itself, frames 0 to 100, in out/cantilever/
     out = tmp_path / "out" / "cantilever"
     pvd = (out / "cantilever.pvd").read_text()

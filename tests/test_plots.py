@@ -61,3 +61,48 @@ def test_trade_plot_of_several_scenes_is_written_and_checks_its_points(tmp_path)
     assert out.endswith("picture.png") and (tmp_path / "trade" / "picture.png").stat().st_size > 1000
     with pytest.raises(ValueError, match=r"points\[1\] must be a dict with 'error' and 'speedup'"):
         plots.trade_plot([pts[0], {"scene": "a", "method": "b", "speedup": 1.0}], str(tmp_path / "x.png"))
+
+
+def _overlap(a, b):
+    return not (a.x1 <= b.x0 or b.x1 <= a.x0 or a.y1 <= b.y0 or b.y1 <= a.y0)
+
+
+def test_trade_figure_draws_the_front_through_measured_non_dominated_points_and_keeps_labels_apart():
+    # crowded points: several within a factor 1.1 in error and 0.05 in speedup, two dominated
+    pts = [{"error": e, "speedup": v, "label": f"affinification {e:g}", "method": "affinification"}
+           for e, v in [(2e-4, 0.9), (1.1e-3, 1.3), (3.0e-3, 1.6), (3.3e-3, 1.55), (3.1e-3, 1.5),
+                        (8e-3, 2.1), (2.5e-2, 2.0), (2.7e-2, 2.9)]]
+    fig = plots.trade_figure(pts, budgets=[0.01])
+    ax = fig.axes[0]
+    (front,) = [line for line in ax.lines if line.get_gid() == "pareto front"]
+    measured = {(p["error"], p["speedup"]) for p in pts}
+    drawn = list(zip(*front.get_data()))
+    assert set(drawn) <= measured                                   # the front only joins measured points
+    assert [pts[i]["error"] for i in plots.pareto_front([(p["error"], p["speedup"]) for p in pts])] == \
+        [e for e, _ in drawn] == [2e-4, 1.1e-3, 3.0e-3, 8e-3, 2.7e-2]  # and exactly the non-dominated ones
+    renderer = fig.canvas.get_renderer()
+    from matplotlib.text import Text
+    labels = [Text.get_window_extent(t, renderer) for t in ax.texts]   # the text, not its leader line
+    assert len(labels) == len(pts)
+    assert not any(_overlap(a, b) for i, a in enumerate(labels) for b in labels[i + 1:])
+    ticks = [t.get_window_extent(renderer) for t in ax.get_xticklabels() if t.get_text()]
+    assert len(ticks) >= 3 and not any(_overlap(a, b) for i, a in enumerate(ticks) for b in ticks[i + 1:])
+    assert all(t.get_text().endswith("%") for t in ax.get_xticklabels() if t.get_text())
+
+
+def test_trade_figure_of_one_point_claims_no_front():
+    fig = plots.trade_figure([{"error": 1e-3, "speedup": 1.2, "label": "budget 1 %"}], budgets=[0.01])
+    ax = fig.axes[0]
+    assert not [line for line in ax.lines if line.get_gid() == "pareto front"]
+    assert not any("Pareto" in t.get_text() for t in ax.get_legend().get_texts())
+
+
+def test_clusters_picture_has_no_empty_band(tmp_path):
+    from PIL import Image
+    sim = sa.scenes.cantilever(resolution=1)
+    png = plots.clusters_picture([("full", sim, sim.state)], str(tmp_path / "c.png"))
+    image = np.asarray(Image.open(png).convert("L"))
+    rows = np.flatnonzero((image < 250).any(axis=1))              # rows with anything drawn
+    gaps = np.diff(rows)
+    assert image.shape[1] > 2 * image.shape[0]                     # a 4 x 1 m beam: a wide picture
+    assert gaps.max() < 0.15 * image.shape[0]                      # no blank band across it

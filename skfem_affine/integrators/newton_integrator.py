@@ -34,6 +34,8 @@ class NewtonIntegrator:
     tol, max_iters : float, int
         The Newton settings (the Simulation's ``newton_tol``, ``newton_iters``).
 
+    Notes
+    -----
     BDF2 needs the state before the current one: the integrator keeps (x_{t-1}, v_{t-1}) of the
     state it last stepped from, and a state that does not follow it (the first one, or one
     changed from outside) starts with an implicit Euler step.

@@ -71,6 +71,8 @@ class IncrementalPotential:
     f_ext : (3n,) array, optional
         Vertex forces of the step (:class:`skfem_affine.motion.VertexForce`), added to gravity in f_ext.
 
+    Notes
+    -----
     Positions ``x`` are flat (3n,) arrays over all DOFs; fixed DOFs stay at ``x_t``, prescribed
     ones at their targets.
     """

@@ -17,6 +17,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.colors import LogNorm, to_rgb
 from matplotlib.figure import Figure
 from matplotlib.patches import Patch
+from matplotlib.text import Text
 
 from skfem_affine.simulation import Stats
 
@@ -220,17 +221,25 @@ def clusters_picture(panels, path, title=None):
     """One PNG, a 3D panel per ``(name, sim, state)``: elastic elements grey, each body its own colour."""
     faces, owner = boundary_faces(panels[0][1].system.t)
     limits = _limits([state.x for _, _, state in panels])
-    fig = _figure(max(_panel_width(limits, 3.6) * len(panels), 6.5), 4.6)
+    width = max(_panel_width(limits, 3.6) * len(panels), 6.5)
+    # the figure as tall as the bodies drawn at that width (no empty bands): the panels' axes, their
+    # two-line titles and the title above, the x label and the legend below
+    extent = limits[1] - limits[0]
+    u, w = [i for i in range(3) if i != int(np.argmin(extent))]
+    axes_height = float(np.clip((width / len(panels) - 0.9) * extent[w] / max(extent[u], 1e-300), 1.0, 5.0))
+    top, bottom = 0.55 + (0.3 if title else 0.0), 0.85
+    height = axes_height + top + bottom
+    fig = _figure(width, height)
     for i, (name, sim, state) in enumerate(panels):
         ax = fig.add_subplot(1, len(panels), i + 1)
         _draw_bodies(ax, sim, state.x, state.clusters, faces, owner, limits)
         ax.set_title(_caption(name, sim, state), fontsize=9)
     fig.legend(handles=[Patch(color=ELASTIC, label="elastic element"),
                         Patch(color="tab:blue", label="one colour per reduced body")],
-               loc="upper right", ncol=2, fontsize=8)
+               loc="lower center", ncol=2, fontsize=8, frameon=False)
     if title:
         fig.suptitle(title, fontsize=10, x=0.02, ha="left")
-    fig.tight_layout(rect=(0, 0, 1, 0.9))
+    fig.tight_layout(rect=(0, 0.3 / height, 1, 1.0 - (0.05 if title else 0.0) / height))
     return _save(fig, path)
 
 
@@ -401,6 +410,76 @@ def pareto_front(points):
 
 TRADE_MARKERS = "osD^v<>ph*"
 TRADE_COLORS = {"adaptive subspace": "#7570b3"}
+#: Where a point's label may go, tried in turn: offset (points) and alignment.
+LABEL_SPOTS = [(6, 4, "left", "bottom"), (6, -4, "left", "top"), (-6, 4, "right", "bottom"),
+               (-6, -4, "right", "top"), (0, 8, "center", "bottom"), (0, -8, "center", "top"),
+               (10, 16, "left", "bottom"), (10, -16, "left", "top"), (-10, 16, "right", "bottom"),
+               (-10, -16, "right", "top"), (0, 26, "center", "bottom"), (0, -26, "center", "top"),
+               (24, 30, "left", "bottom"), (24, -30, "left", "top"), (-24, 30, "right", "bottom"),
+               (-24, -30, "right", "top"), (0, 44, "center", "bottom"), (0, -44, "center", "top")]
+
+
+def log_ticks(axis, fmt):
+    """Readable ticks on a log ``axis``: 1-2-5 (or fewer) per decade, labelled by ``fmt``, bare minors."""
+    from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
+    lo, hi = sorted(axis.get_view_interval())
+    decades = np.log10(max(hi, 1e-300) / max(lo, 1e-300))
+    subs = (1.0,) if decades > 3.5 else (1.0, 3.0) if decades > 1.8 else (1.0, 2.0, 5.0) if decades > 0.8 \
+        else (1.0, 1.5, 2.0, 3.0, 5.0, 7.0)
+    axis.set_major_locator(LogLocator(base=10.0, subs=subs))
+    axis.set_major_formatter(FuncFormatter(lambda v, _: fmt(v)))
+    axis.set_minor_locator(LogLocator(base=10.0, subs=np.arange(2.0, 10.0)))
+    axis.set_minor_formatter(NullFormatter())
+
+
+def _percent(v):
+    return f"{100 * v:.3g} %"
+
+
+def _place_labels(fig, ax, items):
+    """Annotate ``(x, y, text)`` items without overlaps: each label takes the first free spot.
+
+    Free means inside the axes and clear of the labels already placed and of every point; a label
+    that finds no free spot goes to the least crowded one, with a leader line.
+    """
+    renderer = fig.canvas.get_renderer()
+    frame = ax.get_window_extent(renderer)
+    marks = [ax.transData.transform((x, y)) for x, y, _ in items]
+    taken = [(m[0] - 5, m[1] - 5, m[0] + 5, m[1] + 5) for m in marks]
+
+    def clash(b):
+        return sum(not (b.x1 < t[0] or b.x0 > t[2] or b.y1 < t[1] or b.y0 > t[3]) for t in taken)
+
+    for x, y, text in sorted(items, key=lambda it: (it[0], it[1])):
+        if not text:
+            continue
+        best = None
+        for dx, dy, ha, va in LABEL_SPOTS:
+            far = abs(dy) > 10
+            t = ax.annotate(text, (x, y), textcoords="offset points", xytext=(dx, dy), ha=ha, va=va, fontsize=7,
+                            zorder=5, arrowprops=dict(arrowstyle="-", color="0.5", lw=0.5) if far else None,
+                            bbox=dict(boxstyle="round,pad=0.1", fc="white", ec="none", alpha=0.75))
+            t.update_positions(renderer)
+            b = Text.get_window_extent(t, renderer).padded(1.5)  # the text alone, not its leader line
+            outside = b.x0 < frame.x0 or b.x1 > frame.x1 or b.y0 < frame.y0 or b.y1 > frame.y1
+            score = clash(b) + (10 if outside else 0)
+            if best is None or score < best[0]:
+                if best is not None:
+                    best[1].remove()
+                best = (score, t, b)
+            else:
+                t.remove()
+            if score == 0:
+                break
+        taken.append((best[2].x0, best[2].y0, best[2].x1, best[2].y1))
+
+
+def _short_label(point):
+    """A point's label without its method's name (the colour and the legend say it)."""
+    label, method = point.get("label", "") or "", point.get("method", "") or ""
+    if method and label.startswith(method) and label[len(method):].strip(" ,:"):
+        return label[len(method):].strip(" ,:")
+    return label
 
 
 def trade_plot(points, path, budgets=(), title=None):
@@ -409,25 +488,37 @@ def trade_plot(points, path, budgets=(), title=None):
     Parameters
     ----------
     points : list of dict
-        One per setting: ``error`` (max distance error / size), ``speedup``, and optionally
-        ``label`` (its settings, written beside the point), ``method`` (the colour), ``scene``
-        (the marker; the points of one method on one scene are joined in order of error) and
-        ``budget`` (an error budget: drawn as a short vertical tick at the budget, joined to the
-        point). Points without a finite error and speedup (failed runs) are left out.
+        One per measured setting: ``error`` (max distance error / size), ``speedup``, and
+        optionally ``label`` (its settings, written beside the point), ``method`` (the colour),
+        ``scene`` (the marker; the points of one method on one scene are joined in order of
+        error) and ``budget`` (an error budget: drawn as a short vertical tick at the budget,
+        joined to the point). Points without a finite error and speedup (failed runs) are left
+        out.
     path : str
         The PNG to write.
     budgets : sequence of float
         Error budgets to mark as vertical dashed lines.
     title : str, optional
+        The title (default: what the axes mean).
 
     Returns
     -------
     str
         ``path``.
 
-    On one scene the Pareto front (:func:`pareto_front`) is drawn as a step line (a front across
-    scenes would compare runs of different problems); 1x (no gain) as a dotted line.
+    Notes
+    -----
+    Every point drawn is a measured run. On one scene, the points that no other point beats on
+    both speed and error (:func:`pareto_front`) are ringed and, when there are two or more,
+    joined: the Pareto front, through measured points only (a front across scenes would compare
+    runs of different problems). 1x (no gain) is a dotted line. The error axis is logarithmic,
+    in percent of the scene size; labels are placed clear of each other and of the points.
     """
+    return _save(trade_figure(points, budgets, title), path)
+
+
+def trade_figure(points, budgets=(), title=None):
+    """The :func:`trade_plot` figure itself (a matplotlib ``Figure``, drawn, not saved)."""
     points = list(points)
     for i, p in enumerate(points):
         if not isinstance(p, dict) or not {"error", "speedup"} <= set(p):
@@ -453,31 +544,41 @@ def trade_plot(points, path, budgets=(), title=None):
             else:
                 ax.scatter(e, v, s=28, marker=marker, zorder=3, color=color, label=label)
     for p in pts:
-        ax.annotate(p.get("label", ""), (max(p["error"], 1e-12), p["speedup"]), fontsize=7,
-                    textcoords="offset points", xytext=(5, 4))
         if p.get("budget") is not None:
             ax.plot([p["budget"], max(p["error"], 1e-12)], [p["speedup"]] * 2, color="0.6", lw=0.8, zorder=1)
             ax.plot([p["budget"]], [p["speedup"]], marker="|", ms=10, color="0.3", zorder=2)
-    front = [pts[i] for i in pareto_front([(p["error"], p["speedup"]) for p in pts])] if len(scenes) == 1 else []
+    front = [pts[i] for i in pareto_front([(p["error"], p["speedup"]) for p in pts])] \
+        if len(scenes) == 1 and len(pts) > 1 else []
     if front:
         xs = [max(p["error"], 1e-12) for p in front]
         ys = [p["speedup"] for p in front]
-        ax.step(xs, ys, where="post", color="k", lw=1.0, alpha=0.6, zorder=2)
-        ax.scatter(xs, ys, s=90, facecolors="none", edgecolors="k", lw=0.9, zorder=4, label="Pareto front")
+        if len(front) > 1:
+            ax.plot(xs, ys, "-", color="k", lw=1.0, alpha=0.6, zorder=2, gid="pareto front")
+        ax.scatter(xs, ys, s=90, facecolors="none", edgecolors="k", lw=0.9, zorder=4,
+                   label="Pareto front (none faster and more accurate)" if len(front) > 1
+                   else "best: faster and more accurate than the rest")
     ax.axhline(1.0, color="k", lw=0.8, ls=":", label="1x (full space)")
     for j, b in enumerate(budgets):
         ax.axvline(b, color="C3", lw=0.9, ls="--", label="error budget" if j == 0 else None)
     ax.set_xscale("log")
     xs = [max(p["error"], 1e-12) for p in pts] + [float(b) for b in budgets]
-    if xs:  # room for the labels right of the points
-        ax.set_xlim(min(xs) / 2, max(xs) * 4)
-    ax.set_xlabel("max vertex distance to the full-space run / scene size")
+    if xs:  # room for the labels around the points
+        ax.set_xlim(min(xs) / 3, max(xs) * 5)
+    ax.set_xlabel("max vertex distance to the full-space run (% of the scene size)")
     ax.set_ylabel("speedup over full space (x)")
     ax.set_title(title or "Speed against accuracy (up and left is better)", fontsize=10)
     if len(scenes) > 1:
         ax.set_yscale("log")
         ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0)
     else:
-        ax.legend(fontsize=8, loc="best")
+        ys = [p["speedup"] for p in pts] + [1.0]
+        lo, hi = min(ys), max(ys)
+        pad = 0.12 * max(hi - lo, 0.2)
+        ax.set_ylim(max(lo - pad, 0.0), hi + 2 * pad)
+        ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.16), ncol=3, frameon=False)
+    log_ticks(ax.xaxis, _percent)
+    if len(scenes) > 1:
+        log_ticks(ax.yaxis, lambda v: f"{v:g}x")
     fig.tight_layout()
-    return _save(fig, path)
+    _place_labels(fig, ax, [(max(p["error"], 1e-12), p["speedup"], _short_label(p)) for p in pts])
+    return fig

@@ -235,6 +235,8 @@ def run(spec, method="full", frames=None, tau_a=None, tau_e=None, reference=None
     on_state : callable(sim, state), optional
         Called with the initial state and after every frame (e.g. a ParaView writer).
 
+    Notes
+    -----
     A :class:`~skfem_affine.SimulationDiverged` ends the run early: the summary
     then has ``status="diverged"`` and the frames done so far are kept.
     """
@@ -388,6 +390,8 @@ def compare(spec, frames=None, methods=COMPARED, taus=None, step_error=True, res
     warm : bool
         First run each method a couple of frames (:func:`warm_up`).
 
+    Notes
+    -----
     Returns ``(reference, {name: Run})``; the "full" Run is the reference.
     """
     if timing not in ("interleaved", "sequential"):

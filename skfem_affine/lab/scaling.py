@@ -89,6 +89,8 @@ def scaling(spec, resolutions=None, frames=100, method="affinification", tau_a=N
         Mark ``chosen`` at each size the fastest pair whose ``length_error`` (largest vertex
         distance to the full solve over the run / the scene's longest side) is at most this.
 
+    Notes
+    -----
     Every method at a size is timed as in :func:`compare` (``timing``: interleaved frame by
     frame by default). Rows carry ``paper`` and ``paper_table`` (:func:`paper_speedup`),
     ``max_distance_error`` (over the bounding box diagonal, the package's scene size) and

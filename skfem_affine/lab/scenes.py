@@ -73,8 +73,8 @@ def cantilever(resolution=6, length=4.0, width=1.0, frames=370, E=2e7, nu=0.35, 
     ``material`` (a Material, or a name built with ``E`` and ``nu``: ``"neohookean"``,
     ``"stvk"``, ``"corotational"``) overrides the Neo-Hookean default; ``damping`` is a Rayleigh, an
     ``(alpha, beta)`` pair (so that the command line's ``--set "damping=(0, 0)"``
-    reaches it) or None (undamped). The earlier, rope-like defaults (the tip sinks
-    metres below the clamp) remain reachable as ``cantilever(E=1e5, damping=None)``.
+    reaches it) or None (undamped). ``cantilever(E=1e5, damping=None)`` is a soft,
+    rope-like variant (the tip sinks metres below the clamp: large deformation on purpose).
     """
     sim_kw, body_kw = _split(dict(kwargs))
     sim_kw.setdefault("dt", 0.01)
@@ -672,6 +672,7 @@ def twisting_beam(resolution=2, length=4.0, width=1.0, rate=np.pi / 4, frames=13
     return _scene(sim, "twisting_beam", frames)
 
 
+#: The ready-made scenes by name (what ``skfem-affine scenes`` lists): name -> factory.
 SCENES = {"cantilever": cantilever, "paper_beam": paper_beam, "free_body": free_body, "drop": drop, "stacked_beams": stacked_beams,
           "pills": pills, "bowling": bowling, "toothbrush": toothbrush, "wheel": wheel, "octopus": octopus,
           "armadillo": armadillo, "twisting_beam": twisting_beam}

@@ -145,6 +145,8 @@ def sweep(spec, frames=None, method="affinification", grid=9, tau_range=(1e-3, 1
         Run each cell in a child process of its worker (default), so that a crash or a
         timeout is recorded rather than fatal; False runs cells in the workers themselves.
 
+    Notes
+    -----
     Returns the rows of this sweep's cells.
     """
     method = get_method(method)

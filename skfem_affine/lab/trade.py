@@ -38,7 +38,7 @@ def points_from_runs(runs):
             label = f"{name} {_label(float(s['tau_a']), float(s['tau_e']))}"
         else:
             target = getattr(run.sim.reducer, "target_error", None)
-            label = f"{name}, budget {target:g}" if target is not None else name
+            label = f"{name}, budget {100 * target:g} %" if target is not None else name
         out.append({"error": s.get("max_distance_error"), "speedup": s.get("speedup"), "method": name,
                     "label": label.strip()})
     return out
@@ -101,4 +101,4 @@ def budget_runs(spec, budgets, frames=None, method="affinification", warm=True, 
 def budget_points(rows):
     """Trade points of :func:`budget_runs` rows, each with its budget marked beside it."""
     return [{"error": r["error"], "speedup": r["speedup"], "method": r["method"], "budget": r["budget"],
-             "label": f"budget {r['budget']:g} -> {r['error']:.1e}"} for r in rows if r["status"] == "ok"]
+             "label": f"budget {100 * r['budget']:g} %"} for r in rows if r["status"] == "ok"]

@@ -79,6 +79,8 @@ class Reducer(abc.ABC):
         model : Model
             The system, time step, damping, gravity and scene size of the run.
 
+        Notes
+        -----
         Subclasses extend :meth:`_setup` (timed into :attr:`setup_time`) rather than this method.
         """
         t0 = time.perf_counter()

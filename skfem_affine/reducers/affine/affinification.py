@@ -52,6 +52,8 @@ class Affinification(ClusteringReducer):
         prescribe the body entirely). Default False: as the paper, elements touching such
         vertices stay elastic.
 
+    Notes
+    -----
     The thresholds come first and positionally; the arguments shared with
     :class:`~skfem_affine.Rigidification` follow, keyword-only, in the same order. With a
     budget, ``sim.stats`` records per frame ``estimated_error``, ``tau_a``, ``tau_e``,

@@ -314,7 +314,7 @@ class ClusteringReducer(Reducer):
         return state
 
     def restore_controller_state(self, state):
-        """Set the state :meth:`controller_state` returned (after :meth:`attach`)."""
+        """Set the state :meth:`controller_state` returned (after :meth:`~skfem_affine.reducers.base.Reducer.attach`)."""
         budgets.restore_controllers(self, state, own="thresholds")
 
     def _set_thresholds(self, tau):

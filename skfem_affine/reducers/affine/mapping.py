@@ -601,6 +601,8 @@ def reduced_matrix(model, data, gmap, upper=False):
     upper : bool
         Return only the upper triangle, rows sorted (what a Cholesky solver reads).
 
+    Notes
+    -----
     The pattern (:func:`_reduced_layout`) is the vertex graph contracted by the bodies; the
     values (:func:`_reduced_upper_data`) come vertex by vertex from the 3 x 3 blocks of A,
     weighted by (1, r_v) in dense per-node-pair buffers and expanded once per pair of nodes:

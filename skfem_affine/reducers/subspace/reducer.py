@@ -110,7 +110,8 @@ class AdaptiveSubspace(Reducer):
 
     Parameters
     ----------
-    basis : a basis spec from :mod:`skfem_affine.reducers.subspace.bases` (default ``SkinningEigenmodes(n=16)``)
+    basis : AffineModes, LinearModes or SkinningEigenmodes, optional
+        A basis spec from :mod:`skfem_affine.reducers.subspace.bases` (default ``SkinningEigenmodes(n=16)``).
     eps_nodal, eps_modal : float, optional
         Error thresholds (dimensionless, eq. 10 and 14); lower enriches more. 0 with
         ``eps_progress=inf`` enriches every node with an error: the full-space solve. Giving
@@ -160,6 +161,8 @@ class AdaptiveSubspace(Reducer):
         Also record the full-space Newton decrement of each step's result (a full solve; for
         measuring accuracy only).
 
+    Notes
+    -----
     Runs under the Newton integrators, ``Simulation(..., integrator="implicit_euler" | "bdf2")``.
     """
 
