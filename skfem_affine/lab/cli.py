@@ -7,6 +7,9 @@ else); progress bars appear on a terminal only. Files go into ``OUT/COMMAND/SCEN
 for the demo). A mistake in the command (a bad option or number, an unknown scene, a scene file
 that raises, a scheduler nobody answers at) is one line on stderr and exit code 2, with no
 traceback; a traceback means a bug of the package.
+
+Only the standard library is imported before the arguments are parsed (the simulation modules,
+numba, SciPy and matplotlib are imported by the command that runs), so ``--help`` answers at once.
 """
 import argparse
 import ast
@@ -19,10 +22,7 @@ import sys
 import time
 import traceback
 
-import numpy as np
-
-from skfem_affine.lab import io, plots, runners, scenes, trade
-from skfem_affine.simulation import SimulationDiverged
+from skfem_affine.lab.methods import COMPARED, METHODS
 
 SUMMARY_KEYS = ("scene", "method", "frames", "elements", "vertices", "wall_s", "speedup", "dof_ratio",
                 "mean_clusters", "max_distance_error")
@@ -30,6 +30,7 @@ SUMMARY_KEYS = ("scene", "method", "frames", "elements", "vertices", "wall_s", "
 
 # ---------------------------------------------------------------- helpers
 def _jsonable(value):
+    import numpy as np
     if isinstance(value, dict):
         return {str(k): _jsonable(v) for k, v in value.items()}
     if isinstance(value, (list, tuple)):
@@ -70,6 +71,7 @@ def _parse_set(items):
 
 
 def _spec(args):
+    from skfem_affine.lab import runners
     kwargs = _parse_set(getattr(args, "set", None))
     if getattr(args, "resolution", None) is not None:
         kwargs["resolution"] = args.resolution
@@ -105,6 +107,7 @@ def _scene_text(spec):
 
 def _frames(frames, spec):
     """The frames to run: ``frames`` (``--frames``), else ``--set frames=``, else the scene's own default."""
+    from skfem_affine.lab import runners
     if frames is not None:
         return frames
     kwargs = dict(spec.kwargs)
@@ -187,6 +190,7 @@ def _summary_json(summary, extra=None):
 # ---------------------------------------------------------------- commands
 def cmd_scenes(args):
     """List the built-in scenes, their parameters and defaults."""
+    from skfem_affine.lab import scenes
     listing = {}
     for name, factory in scenes.SCENES.items():
         params = {p.name: (None if p.default is p.empty else repr(p.default))
@@ -202,6 +206,7 @@ def cmd_scenes(args):
 
 def cmd_run(args):
     """One method on one scene, optionally against the full-space reference."""
+    from skfem_affine.lab import io, plots, runners
     spec = _spec(args)
     method = runners.get_method(args.method)
     frames = _frames(args.frames, spec)
@@ -255,6 +260,7 @@ def cmd_run(args):
 
 def compare_outputs(args, spec, runs, out):
     """Tables, plots, the clusters picture, ParaView series (and GIFs) of a compare run."""
+    from skfem_affine.lab import io, plots, runners, trade
     summaries = [r.summary for r in runs.values()]
     runners.write_table(_frames_table(runs), os.path.join(out, "frames.csv"))
     runners.write_table(summaries, os.path.join(out, "summary.csv"))
@@ -280,6 +286,7 @@ def compare_outputs(args, spec, runs, out):
 
 
 def _compare_taus(args):
+    from skfem_affine.lab import runners
     taus = {}
     for item in args.taus or ():
         name, sep, values = item.partition("=")
@@ -300,6 +307,7 @@ def _compare_taus(args):
 
 def cmd_compare(args):
     """Full space, affinification and rigidification on one scene: table, plots, picture, ParaView."""
+    from skfem_affine.lab import runners
     spec = _spec(args)
     methods = tuple(dict.fromkeys(["full"] + [runners.get_method(m).name for m in args.methods]))
     args.methods = list(methods)
@@ -333,6 +341,7 @@ def cmd_compare(args):
 
 def cmd_sweep(args):
     """A tau_a x tau_e grid on Dask (embedded LocalCluster or --scheduler), heatmaps of every metric."""
+    from skfem_affine.lab import plots, runners, trade
     spec = _spec(args)
     method = runners.get_method(args.method)
     lo, hi = args.tau_range
@@ -381,6 +390,7 @@ def cmd_sweep(args):
 
 def cmd_scaling(args):
     """The scene at increasing size: full and reduced time, speedup, error, the paper's speedup beside (Table 2)."""
+    from skfem_affine.lab import plots, runners
     if args.scene is None:
         args.scene = "paper_beam" if args.meshes else "cantilever"
     if args.material is not None:
@@ -455,6 +465,7 @@ def cmd_scaling(args):
 
 def _phase_text(row, prefix):
     """``wall 12.3 = assembly 3.7 + ... + solve 0.5`` from a scaling row's ``{prefix}{phase}_ms`` entries."""
+    from skfem_affine.lab import runners
     parts = [f"{p} {row[f'{prefix}{p}_ms']:.1f}" for p in runners.PHASES if row.get(f"{prefix}{p}_ms", 0.0) >= 0.05]
     return f"wall {row[f'{prefix}wall_ms']:.1f} = " + " + ".join(parts) + " + rest"
 
@@ -484,6 +495,7 @@ def _best_per_size(rows):
 
 def cmd_budget(args):
     """The error-budget reducer at several budgets, interleaved with full space: achieved error, speedup, trade.png."""
+    from skfem_affine.lab import plots, runners, trade
     spec = _spec(args)
     frames = _frames(args.frames, spec)
     out = _folder(args, spec)
@@ -510,6 +522,10 @@ def cmd_budget(args):
     _emit(args, {"scene": spec.label, "method": args.method, "rows": rows, "table": table, "trade": picture})
     return 0 if all(r["status"] == "ok" for r in rows) else 1
 
+
+#: The reducers ``budget`` runs (those of :data:`skfem_affine.lab.trade.REDUCERS`; listed here so that
+#: ``--help`` imports no reducer).
+BUDGET_METHODS = ("affinification", "rigidification")
 
 #: The demo's scene size: where affinification pays on two cores (docs/affinification.md, docs/budget.md).
 DEMO_RESOLUTION = 10
@@ -630,7 +646,7 @@ def _pictures(p, every=10):
 
 def parser():
     methods = ", ".join(f"{m.name} (default taus {m.taus[0]}, {m.taus[1]})" if m.taus[0] is not None else m.name
-                        for m in runners.METHODS.values())
+                        for m in METHODS.values())
     top = _Parser(prog="skfem-affine", description="Fast adaptive elastodynamics for scikit-fem: "
                   "simulate scenes and measure the speed/accuracy trade of affinification.",
                   epilog="Run `skfem-affine COMMAND --help` for each command's options.")
@@ -651,7 +667,7 @@ def parser():
     p = sub.add_parser("run", help="one method on one scene", description=cmd_run.__doc__ +
                        f" Methods: {methods}.")
     _common(p)
-    p.add_argument("--method", default="affinification", help=f"one of: {', '.join(runners.METHODS)}")
+    p.add_argument("--method", default="affinification", help=f"one of: {', '.join(METHODS)}")
     _taus(p)
     p.add_argument("--reference", action="store_true",
                    help="also run the full-space reference, for speedup and errors")
@@ -663,7 +679,7 @@ def parser():
     p = sub.add_parser("compare", help="full vs affinification vs rigidification: table, plots, picture, ParaView",
                        description=cmd_compare.__doc__ + f" Methods: {methods}.")
     _common(p)
-    p.add_argument("--methods", nargs="+", default=list(runners.COMPARED[1:]),
+    p.add_argument("--methods", nargs="+", default=list(COMPARED[1:]),
                    help="methods besides full space (default: affinification rigidification)")
     _taus(p, "for the first method; affinification's")
     p.add_argument("--taus", action="append", metavar="METHOD=A,E", default=[],
@@ -676,7 +692,7 @@ def parser():
     p = sub.add_parser("sweep", help="tau_a x tau_e grid on Dask, heatmaps of every metric (paper Fig. 6)",
                        description=cmd_sweep.__doc__ + " Finished cells in the table are not recomputed.")
     _common(p)
-    p.add_argument("--method", default="affinification", help=f"one of: {', '.join(runners.METHODS)}")
+    p.add_argument("--method", default="affinification", help=f"one of: {', '.join(METHODS)}")
     p.add_argument("--grid", type=_whole(1), default=9, help="N for an N x N grid (default 9; the paper uses 41)")
     p.add_argument("--tau-range", type=_real(0.0, strict=True), nargs=2, default=(1e-3, 1.0), metavar=("LO", "HI"),
                    help="log-spaced thresholds from LO to HI, 1/s (default 1e-3 1)")
@@ -701,7 +717,7 @@ def parser():
     _common(p)
     p.add_argument("--errors", type=_real(0.0, strict=True), nargs="+", default=[0.001, 0.01, 0.05],
                    help="error budgets (max vertex distance / scene size), default 0.001 0.01 0.05")
-    p.add_argument("--method", choices=sorted(trade.REDUCERS), default="affinification")
+    p.add_argument("--method", choices=BUDGET_METHODS, default="affinification")
     p.add_argument("--never-slower", choices=("on", "off"), default=None,
                    help="the fall-back to full space when reduction does not pay (default: on)")
     p.set_defaults(func=cmd_budget)
@@ -721,7 +737,7 @@ def parser():
                    help="the scene's material (paper_beam, cantilever), built with its E and nu")
     p.add_argument("--frames", type=_whole(1), nargs="+", default=None,
                    help="frames: one number, or one per size (default: the scene's own)")
-    p.add_argument("--method", default="affinification", help=f"one of: {', '.join(runners.METHODS)}")
+    p.add_argument("--method", default="affinification", help=f"one of: {', '.join(METHODS)}")
     p.add_argument("--tau-a", type=_real(), nargs="+", default=None,
                    help="threshold(s) to become reduced, 1/s; several run in one process (default: the method's)")
     p.add_argument("--tau-e", type=_real(), nargs="+", default=None,
@@ -782,10 +798,11 @@ def main(argv=None):
     except KeyboardInterrupt:
         print(f"{name}: interrupted", file=sys.stderr)
         return 130
-    except SimulationDiverged as err:
-        print(f"{name}: {_one_line(err)}", file=sys.stderr)
-        return 1
     except Exception as err:  # noqa: BLE001 (a mistake of the user's gets one line; a bug its traceback)
+        from skfem_affine.simulation import SimulationDiverged
+        if isinstance(err, SimulationDiverged):
+            print(f"{name}: {_one_line(err)}", file=sys.stderr)
+            return 1
         message = _scene_file_error(err, args)
         if message is None and isinstance(err, (ValueError, TypeError, ImportError, OSError)):
             message = _one_line(err)
