@@ -48,3 +48,15 @@ def test_the_budget_methods_listed_for_help_are_the_budget_reducers():
     from skfem_affine.lab import cli, methods, runners, trade
     assert cli.BUDGET_METHODS == tuple(sorted(trade.REDUCERS))
     assert runners.METHODS is methods.METHODS
+
+
+def test_scaling_on_files_that_are_no_mesh_is_one_line(tmp_path):
+    (tmp_path / "junk.mesh").write_text("garbage\nnot a mesh\n")
+    (tmp_path / "notes.md").write_text("# notes\n")
+    for name in ("junk.mesh", "notes.md"):
+        out = cli("scaling", "--meshes", name, "--frames", "1", "--out", str(tmp_path / "out"), cwd=tmp_path)
+        lines = out.stderr.splitlines()
+        assert out.returncode == 2 and "Traceback" not in out.stderr, out.stderr
+        assert len(lines) == 1 and lines[0].startswith(f"skfem-affine scaling: error: mesh file '{name}' cannot be "
+                                                       "read"), out.stderr
+        assert out.stdout == ""  # refused before the header: no run started

@@ -390,7 +390,7 @@ def cmd_sweep(args):
 
 def cmd_scaling(args):
     """The scene at increasing size: full and reduced time, speedup, error, the paper's speedup beside (Table 2)."""
-    from skfem_affine.lab import plots, runners
+    from skfem_affine.lab import io, plots, runners
     if args.scene is None:
         args.scene = "paper_beam" if args.meshes else "cantilever"
     if args.material is not None:
@@ -408,6 +408,7 @@ def cmd_scaling(args):
         if not os.path.isfile(m):
             raise ValueError(f"--meshes: {m!r} is not a file (give the path of a mesh file, e.g. "
                              f"path/to/beam1264.mesh)")
+        io.load_mesh(m)  # a file that is no tetrahedral mesh is refused before any run
     if args.frames and len(args.frames) not in (1, len(sizes)):
         raise ValueError(f"--frames takes one number or one per {'mesh' if args.meshes else 'resolution'} "
                          f"({len(sizes)}), got {len(args.frames)}")

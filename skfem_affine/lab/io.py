@@ -1,5 +1,7 @@
 """Output through meshio: a ParaView time series (VTU per frame + a .pvd index)."""
+import contextlib
 import os
+from io import StringIO
 from xml.sax.saxutils import quoteattr
 
 import meshio
@@ -128,10 +130,12 @@ def load_mesh(path):
     Raises
     ------
     ValueError
-        If the file holds no tetrahedra.
+        If meshio cannot read the file, or it holds no tetrahedra.
+    FileNotFoundError
+        If there is no such file.
     """
     import skfem
-    m = meshio.read(path)
+    m = _read(path)
     tets = [(i, c.data) for i, c in enumerate(m.cells) if c.type == "tetra"]
     if not tets:
         raise ValueError(f"{path} holds no tetrahedra (cell types: {[c.type for c in m.cells]})")
@@ -149,3 +153,21 @@ def load_mesh(path):
         subdomains = {f"ref{int(v)}": np.flatnonzero(labels == v) for v in np.unique(labels)}
     return skfem.MeshTet(np.ascontiguousarray(m.points[used, :3].T), np.ascontiguousarray(remap[t].T),
                          _subdomains=subdomains)
+
+
+def _read(path):
+    """``meshio.read(path)``; a file meshio cannot read is a ValueError naming it, with meshio's reason.
+
+    meshio prints its reasons and calls ``sys.exit(1)`` on a file of a known format it cannot
+    parse, and raises its own ReadError on an unknown extension: both become one ValueError.
+    """
+    if not os.path.isfile(path):
+        raise FileNotFoundError(f"mesh file {os.fspath(path)!r} does not exist")
+    said = StringIO()
+    try:
+        with contextlib.redirect_stdout(said), contextlib.redirect_stderr(said):
+            return meshio.read(path)
+    except (Exception, SystemExit) as err:  # noqa: BLE001 (whatever a reader raises on a damaged file)
+        reason = " ".join(said.getvalue().split()) or f"{type(err).__name__}: {err}"
+        raise ValueError(f"mesh file {os.fspath(path)!r} cannot be read: {reason} (a tetrahedral mesh in a format "
+                         f"meshio reads: .msh, .mesh, .vtu, .vtk, .xdmf, ...)") from None
