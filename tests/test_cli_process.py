@@ -60,3 +60,70 @@ def test_scaling_on_files_that_are_no_mesh_is_one_line(tmp_path):
         assert len(lines) == 1 and lines[0].startswith(f"skfem-affine scaling: error: mesh file '{name}' cannot be "
                                                        "read"), out.stderr
         assert out.stdout == ""  # refused before the header: no run started
+
+
+def test_a_scene_that_calls_sys_exit_is_an_error_not_a_success(tmp_path):
+    (tmp_path / "exits.py").write_text("import sys\n\ndef scene(reducer=None, **kwargs):\n    sys.exit(0)\n")
+    (tmp_path / "leaves.py").write_text("import sys\nsys.exit(0)\n")
+    for name, line in (("exits.py", 4), ("leaves.py", 2)):
+        for command in (["run", "--frames", "1"], ["sweep", "--frames", "1", "--grid", "1", "--workers", "1"]):
+            out = cli(command[0], name, *command[1:], "--out", str(tmp_path / "out"), cwd=tmp_path)
+            assert out.returncode == 2, (command, out.stderr)
+            assert out.stderr.splitlines()[-1] == f"skfem-affine {command[0]}: error: scene file {name}, line {line}: " \
+                                                  "called sys.exit(0) instead of returning a Simulation (scene(**kwargs) " \
+                                                  "must return one)", out.stderr
+            assert "Traceback" not in out.stderr
+
+
+def test_out_of_memory_is_one_line_naming_the_size(tmp_path):
+    out = cli("run", "--resolution", "5000", "--frames", "1", "--out", str(tmp_path))
+    assert out.returncode == 1 and "Traceback" not in out.stderr, out.stderr
+    line = out.stderr.splitlines()[-1]
+    assert line.startswith("skfem-affine run: error: out of memory (Unable to allocate ") and "iB for an array" in line
+    assert "--resolution 5000" in line
+
+
+def test_progress_reaches_a_log_file(tmp_path):
+    out = cli("run", "free_body", "--resolution", "1", "--frames", "3", "--method", "full", "--no-paraview",
+              "--out", str(tmp_path))
+    assert out.returncode == 0, out.stderr
+    lines = [line for line in out.stderr.splitlines() if "frame" in line and "compiling" not in line]
+    assert lines and lines[-1].startswith("free_body full: frame 3/3"), out.stderr
+
+
+# a scene whose sweep cells sleep (with SLOW set) once the sweep's reference is cached: Ctrl-C then
+# comes while the cells run on the cluster's worker processes
+SLEEPY = """import glob, os, time
+import skfem_affine as sa
+
+def scene(reducer=None, **kwargs):
+    if reducer is not None and os.environ.get("SLOW") and glob.glob({out!r} + "/sweep/*/reference_*.npz"):
+        time.sleep(120)
+    return sa.scenes.free_body(resolution=1, reducer=reducer, **kwargs)
+"""
+
+
+def test_ctrl_c_on_a_sweep_prints_one_line_and_the_sweep_resumes(tmp_path):
+    import signal
+    import time
+    out = tmp_path / "out"
+    (tmp_path / "sleepy.py").write_text(SLEEPY.format(out=str(out)))
+    argv = [sys.executable, "-m", "skfem_affine", "sweep", "sleepy.py", "--frames", "3", "--grid", "1", "--workers",
+            "1", "--no-step-error", "--no-residual", "--out", str(out)]
+    env = dict(os.environ, PYTHONPATH=ROOT, SLOW="1")
+    proc = subprocess.Popen(argv, cwd=tmp_path, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True)
+    deadline = time.time() + 240
+    while not list(out.glob("sweep/*/reference_*.npz")) and proc.poll() is None and time.time() < deadline:
+        time.sleep(0.2)
+    time.sleep(2.0)  # the cell has started (and sleeps)
+    os.killpg(proc.pid, signal.SIGINT)  # what Ctrl-C in a terminal does: the whole foreground group
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 130 and "Traceback" not in err, err
+    assert [line for line in err.splitlines() if "compiling" not in line] == ["skfem-affine sweep: interrupted"]
+    env.pop("SLOW")
+    done = subprocess.run(argv + ["--json"], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    import json
+    summary = json.loads(done.stdout)
+    assert summary["cells"] == 1 and summary["failed"] == 0 and summary["rows"][0]["status"] == "ok"
