@@ -127,3 +127,25 @@ def test_ctrl_c_on_a_sweep_prints_one_line_and_the_sweep_resumes(tmp_path):
     import json
     summary = json.loads(done.stdout)
     assert summary["cells"] == 1 and summary["failed"] == 0 and summary["rows"][0]["status"] == "ok"
+
+
+def test_log_progress_says_the_start_every_interval_and_the_end():
+    import io
+
+    from skfem_affine.lab.progress import LogProgress, NoProgress, bar
+    stream = io.StringIO()
+    log = LogProgress(4, "beam full", seconds=3600, stream=stream)
+    for _ in range(4):
+        log.update(1)
+    log.close()
+    lines = stream.getvalue().splitlines()
+    assert [line.split(",")[0] for line in lines] == ["beam full: frame 1/4", "beam full: frame 4/4"]
+    assert "about" in lines[0] and "left" not in lines[1]
+    stream = io.StringIO()
+    log = LogProgress(3, "sweep cells", unit="cell", seconds=0, stream=stream)  # a line per update
+    log.update(1)
+    log.update(1)
+    log.close()  # stopped early: the last count is said once
+    assert [line.split(",")[0] for line in stream.getvalue().splitlines()] == ["sweep cells: cell 1/3",
+                                                                             "sweep cells: cell 2/3"]
+    assert isinstance(bar(3, "x", False), NoProgress)
