@@ -502,8 +502,10 @@ def cmd_scaling(args):
             if missed:
                 print(f"no pair within {args.target_error:g} of the longest side at {', '.join(map(str, missed))} "
                       f"elements")
-        print("paper: the paper's speedup at that size (Table 1 'Beam' by material at 5516 tets, else Table 2); "
-              "dist err: max vertex distance to the full solve / bounding-box diagonal; err/len: / longest side")
+        print("full s, reduced s: wall time of the full-space and the reduced run; speedup = full s / reduced s; "
+              "DOF ratio = DOFs solved\n/ full-space DOFs; paper: the paper's speedup at that size (Table 1 'Beam' by "
+              "material at 5516 tets, else Table 2);\ndist err: max vertex distance to the full solve / bounding-box "
+              "diagonal; err/len: / longest side; -: not measured or not known")
         print(f"timing: {runners.TIMING[rows[-1]['timing']]}")
         print(f"wrote {table} and {figure}")
     last = best[-1] if best else rows[-1]
