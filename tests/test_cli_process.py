@@ -3,6 +3,8 @@ import os
 import subprocess
 import sys
 
+import pytest
+
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 HEAVY = ("numpy", "scipy", "numba", "skfem", "matplotlib", "meshio", "dask", "distributed", "tqdm", "pyamg")
 
@@ -65,8 +67,10 @@ def test_scaling_on_files_that_are_no_mesh_is_one_line(tmp_path):
 def test_a_scene_that_calls_sys_exit_is_an_error_not_a_success(tmp_path):
     (tmp_path / "exits.py").write_text("import sys\n\ndef scene(reducer=None, **kwargs):\n    sys.exit(0)\n")
     (tmp_path / "leaves.py").write_text("import sys\nsys.exit(0)\n")
-    for name, line in (("exits.py", 4), ("leaves.py", 2)):
-        for command in (["run", "--frames", "1"], ["sweep", "--frames", "1", "--grid", "1", "--workers", "1"]):
+    sweep = ["sweep", "--frames", "1", "--grid", "1", "--workers", "1"]
+    for name, line, commands in (("exits.py", 4, (["run", "--frames", "1"], sweep)),
+                                 ("leaves.py", 2, (["run", "--frames", "1"],))):
+        for command in commands:
             out = cli(command[0], name, *command[1:], "--out", str(tmp_path / "out"), cwd=tmp_path)
             assert out.returncode == 2, (command, out.stderr)
             assert out.stderr.splitlines()[-1] == f"skfem-affine {command[0]}: error: scene file {name}, line {line}: " \
@@ -103,6 +107,7 @@ def scene(reducer=None, **kwargs):
 """
 
 
+@pytest.mark.slow
 def test_ctrl_c_on_a_sweep_prints_one_line_and_the_sweep_resumes(tmp_path):
     import signal
     import time
