@@ -11,23 +11,49 @@ The package is laid out by idea: the elastic core (:mod:`materials`, :mod:`kinem
 :mod:`body`, :mod:`assembly`, :mod:`solvers`), :mod:`integrators`, :mod:`reducers`
 (``affine/`` and ``subspace/``), :mod:`contact`, and the measuring tools in :mod:`lab`.
 """
-from skfem_affine import _compile_notice  # noqa: F401 (one stderr line when the kernels compile)
-from skfem_affine import assembly, kinematics, materials, solvers, stress
-from skfem_affine.body import ElasticBody
-from skfem_affine.contact import colliders
-from skfem_affine.contact.colliders import Bowl, Box, Capsule, Plane, SDFCollider, Sphere
-from skfem_affine.contact.ipc import IPC
-from skfem_affine.contact.pgs import PGS
-from skfem_affine.materials import Corotational, Material, NeoHookean, StVK
-from skfem_affine.motion import Prescribed, VertexForce
-from skfem_affine.reducers.affine.affinification import Affinification
-from skfem_affine.reducers.affine.rigidification import Rigidification
-from skfem_affine.reducers.subspace import bases
-from skfem_affine.reducers.subspace.bases import AffineModes, LinearModes, SkinningEigenmodes
-from skfem_affine.reducers.subspace.reducer import AdaptiveSubspace
-from skfem_affine.vertex_sets import vertices_of
-from skfem_affine.simulation import Rayleigh, Simulation, SimulationDiverged, SimulationWarning, State, Stats
-from skfem_affine.lab import io, metrics, runners, scenes
+import importlib
+
+#: Where each public name lives: imported on first use (``sa.Simulation``, ``from skfem_affine import
+#: Affinification``), so that ``import skfem_affine`` and the command line's ``--help`` stay fast.
+_LAZY = {
+    "skfem_affine.body": ("ElasticBody",),
+    "skfem_affine.contact.colliders": ("Bowl", "Box", "Capsule", "Plane", "SDFCollider", "Sphere"),
+    "skfem_affine.contact.ipc": ("IPC",),
+    "skfem_affine.contact.pgs": ("PGS",),
+    "skfem_affine.materials": ("Corotational", "Material", "NeoHookean", "StVK"),
+    "skfem_affine.motion": ("Prescribed", "VertexForce"),
+    "skfem_affine.reducers.affine.affinification": ("Affinification",),
+    "skfem_affine.reducers.affine.rigidification": ("Rigidification",),
+    "skfem_affine.reducers.subspace.bases": ("AffineModes", "LinearModes", "SkinningEigenmodes"),
+    "skfem_affine.reducers.subspace.reducer": ("AdaptiveSubspace",),
+    "skfem_affine.vertex_sets": ("vertices_of",),
+    "skfem_affine.simulation": ("Rayleigh", "Simulation", "SimulationDiverged", "SimulationWarning", "State",
+                                "Stats"),
+}
+_WHERE = {name: module for module, names in _LAZY.items() for name in names}
+#: Public submodules, by the name they are reached under.
+_MODULES = {"assembly": "skfem_affine.assembly", "kinematics": "skfem_affine.kinematics",
+            "materials": "skfem_affine.materials", "solvers": "skfem_affine.solvers",
+            "stress": "skfem_affine.stress",
+            "colliders": "skfem_affine.contact.colliders", "bases": "skfem_affine.reducers.subspace.bases",
+            "io": "skfem_affine.lab.io", "metrics": "skfem_affine.lab.metrics",
+            "runners": "skfem_affine.lab.runners", "scenes": "skfem_affine.lab.scenes"}
+
+
+def __getattr__(name):
+    if name in _WHERE:
+        value = getattr(importlib.import_module(_WHERE[name]), name)
+    elif name in _MODULES:
+        value = importlib.import_module(_MODULES[name])
+    else:
+        raise AttributeError(f"module 'skfem_affine' has no attribute {name!r}")
+    globals()[name] = value  # later look-ups skip this function
+    return value
+
+
+def __dir__():
+    return sorted(set(globals()) | set(__all__))
+
 
 __version__ = "0.1.0"
 

@@ -18,6 +18,7 @@ keep the Rayleigh-quotient projection of :func:`_kernels._project_modes`.
 import numpy as np
 from numba import njit
 
+from skfem_affine import _compile_notice  # noqa: F401 (one stderr line when the cached kernels compile)
 from skfem_affine._kernels import _CHUNKS, _LANES, _mode, _symmetric_projected, _sym_eig3, element_block, svd3_lanes
 from skfem_affine.threads import run_chunks
 

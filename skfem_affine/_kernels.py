@@ -8,6 +8,7 @@ same work in registers (timings: the user guide's Materials page). The element l
 import numpy as np
 from numba import njit
 
+from skfem_affine import _compile_notice  # noqa: F401 (one stderr line when the cached kernels compile)
 from skfem_affine.threads import run_chunks
 
 

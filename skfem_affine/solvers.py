@@ -8,11 +8,11 @@ aggregation preconditioned CG, hierarchy reused across frames), or ``"auto"``.
 
 Pardiso's Cholesky is much faster than SuperLU from a few thousand unknowns on; AMG-CG with
 a reused hierarchy beats both on soft materials but needs many iterations on stiff or nearly
-incompressible ones. ``auto`` therefore starts with AMG-CG above :data:`AMG_MIN_DOFS` unknowns
-and a direct solver (Pardiso if installed, else SuperLU) below, and falls back to the direct
-solver for good when a freshly built hierarchy still needs more than
-:data:`AMG_MAX_ITERATIONS` CG iterations. Reduced systems always use a direct solver (their
-affine blocks do not suit AMG). Measurements: ``docs/solvers.md``.
+incompressible ones. ``auto`` therefore uses a direct solver (Pardiso if installed, else
+SuperLU) below :data:`AMG_MIN_DOFS` unknowns, and above it times both on the first systems and
+keeps the faster (:class:`AutoSolver`); a hierarchy that needs more than
+:data:`AMG_MAX_ITERATIONS` CG iterations is given up at once. Reduced systems always use a
+direct solver (their affine blocks do not suit AMG). Measurements: ``docs/solvers.md``.
 """
 import contextlib
 import time
@@ -25,6 +25,7 @@ from skfem_affine import threads
 from skfem_affine.checks import integer, positive
 
 AMG_MIN_DOFS = 5000
+AMG_MIN_DOFS_PARDISO = 30000
 PARDISO_THREADED_MIN = 10000
 PARDISO_METIS_MIN = 5000
 AMG_MAX_ITERATIONS = 30
@@ -334,11 +335,16 @@ class AMGCG:
         self.fresh_iterations = state["fresh_iterations"]
         self.rebuilds = int(state["rebuilds"])
 
-    def solve(self, b):
+    def solve(self, b, time_limit=None):
+        """CG on the last system; ``time_limit`` (seconds, optional) raises ``_TooSlow`` once passed."""
         count = [0]
+        t0 = time.perf_counter()
 
         def cb(_):
             count[0] += 1
+            if time_limit is not None and time.perf_counter() - t0 > time_limit:
+                self.last_iterations = count[0]
+                raise _TooSlow()
 
         x, info = spla.cg(self._A, b, rtol=self.tol, atol=0.0, maxiter=self.maxiter, M=self._M, callback=cb)
         self.last_iterations = count[0]
@@ -363,21 +369,48 @@ def direct_solver():
     return Pardiso() if has_pardiso() else SuperLU()
 
 
-class AutoSolver:
-    """AMG-CG for systems above ``amg_min_dofs`` unknowns while it converges fast, else direct.
+class _TooSlow(Exception):
+    """AMG-CG on trial took longer than the direct solver would have."""
 
-    Once a freshly built AMG hierarchy needs more than ``amg_max_iterations``
-    CG iterations (stiff or nearly incompressible materials, large steps), the
-    direct solver takes over for the rest of the simulation.
+
+class AutoSolver:
+    """The direct solver or AMG-CG, whichever measures faster on this simulation's systems.
+
+    Systems below ``amg_min_dofs`` unknowns always go to the direct solver (Pardiso if
+    installed, else SuperLU). By default that is :data:`AMG_MIN_DOFS_PARDISO` unknowns with
+    Pardiso (below it, a hierarchy alone costs more than ten Pardiso solves, and AMG-CG needed
+    28-38 iterations on the cantilever at 1.5k and 15k tets) and :data:`AMG_MIN_DOFS` with
+    SuperLU. On larger systems the first ones are a trial, in order:
+
+    1. two systems with the direct solver: the second's factorisation and solve time is its
+       cost per system (a Pardiso analysis is paid once, in the first);
+    2. two with AMG-CG: the first builds the hierarchy, the second reuses it and gives its
+       cost per system. A CG run that takes longer than the direct solver's cost, or a fresh
+       hierarchy that needs more than ``amg_max_iterations`` iterations, ends the trial at
+       once: that system is solved directly.
+
+    From then on the faster of the two solves every system (AMG-CG for good only while a
+    rebuilt hierarchy converges within ``amg_max_iterations``; the direct solver after). So on
+    the first frames ``auto`` pays one hierarchy and at most a few systems of the slower
+    solver, and is never the slowest choice for long. The choice, once made, is saved in a
+    checkpoint (:meth:`state_dict`) so that a resumed run continues with it. Measurements:
+    ``docs/solvers.md``.
     """
 
     def __init__(self, amg_min_dofs=None, amg_max_iterations=None):
-        self.amg_min_dofs = AMG_MIN_DOFS if amg_min_dofs is None else integer(amg_min_dofs, "amg_min_dofs", low=0)
         self.amg_max_iterations = (AMG_MAX_ITERATIONS if amg_max_iterations is None
                                    else integer(amg_max_iterations, "amg_max_iterations", low=1))
+        if amg_min_dofs is None:
+            amg_min_dofs = AMG_MIN_DOFS_PARDISO if has_pardiso() else AMG_MIN_DOFS
+        self.amg_min_dofs = integer(amg_min_dofs, "amg_min_dofs", low=0)
         self._direct = self._amg = None
         self._current = None
         self.amg_abandoned = False
+        self.choice = None        # "direct" or "amg" once the trial is over
+        self.trial = []           # seconds per system on trial: (solver, seconds) in order
+        self._A = None
+        self._t0 = 0.0
+        self._timing = False      # whether the next solve is a system on trial
 
     @property
     def name(self):
@@ -392,11 +425,33 @@ class AutoSolver:
         """Whether the solver that factorised the last system is iterative (AMG-CG)."""
         return bool(self._current.iterative) if self._current else False
 
+    def _on_trial(self):
+        """The solver the next large system goes to while the trial lasts (None: the trial is over)."""
+        if self.choice is not None:
+            return None
+        return ("direct", "direct", "amg", "amg")[len(self.trial)] if len(self.trial) < 4 else None
+
+    def _choose(self):
+        """End the trial: the faster solver per system, direct unless AMG-CG measured faster."""
+        cost = {"direct": self.trial[1][1] if len(self.trial) > 1 else None,
+                "amg": self.trial[3][1] if len(self.trial) > 3 else None}
+        amg_ok = cost["amg"] is not None and not self.amg_abandoned
+        self.choice = "amg" if amg_ok and cost["amg"] < cost["direct"] else "direct"
+        if self.choice == "direct":
+            self.amg_abandoned = True
+
     def factorize(self, A):
+        self._t0 = time.perf_counter()
+        self._A = A
         amg = self._amg
         if amg is not None and amg.fresh_iterations is not None and amg.fresh_iterations > self.amg_max_iterations:
             self.amg_abandoned = True
-        if A.shape[0] >= self.amg_min_dofs and not self.amg_abandoned:
+            if self.choice is None:
+                self._choose()
+        large = A.shape[0] >= self.amg_min_dofs
+        use = (self._on_trial() or self.choice) if large else "direct"
+        self._timing = large and self.choice is None
+        if use == "amg" and not self.amg_abandoned:
             self._amg = self._amg or AMGCG()
             self._current = self._amg
         else:
@@ -405,12 +460,41 @@ class AutoSolver:
         self._current.factorize(A)
 
     def solve(self, b):
-        return self._current.solve(b)
+        timing, self._timing = self._timing, False  # a system's first solve is timed, later ones not
+        if not timing:
+            return self._current.solve(b)
+        if self._current is not self._amg:
+            x = self._current.solve(b)
+            self._record("direct")
+            return x
+        # AMG-CG on trial: stopped once CG alone has cost more than a direct factorisation and solve
+        direct = self.trial[1][1] if len(self.trial) > 1 else None
+        try:
+            x = self._amg.solve(b, time_limit=direct)
+        except _TooSlow:
+            self.amg_abandoned = True
+            self._choose()
+            self._direct = self._direct or direct_solver()
+            self._current = self._direct
+            self._direct.factorize(self._A)
+            return self._direct.solve(b)
+        self._record("amg")
+        if self._amg.fresh_iterations is not None and self._amg.fresh_iterations > self.amg_max_iterations:
+            self.amg_abandoned = True
+            self._choose()
+        return x
+
+    def _record(self, solver):
+        self.trial.append((solver, time.perf_counter() - self._t0))
+        if len(self.trial) >= 4 and self.choice is None:
+            self._choose()
 
     def state_dict(self):
-        """The AMG/direct choice and the AMG solver's state (:meth:`AMGCG.state_dict`)."""
+        """The AMG/direct choice, the trial so far and each solver's state (:meth:`AMGCG.state_dict`)."""
         out = {"amg_abandoned": bool(self.amg_abandoned),
-               "current": None if self._current is None else ("amg" if self._current is self._amg else "direct")}
+               "current": None if self._current is None else ("amg" if self._current is self._amg else "direct"),
+               "choice": self.choice, "trial_solvers": ",".join(s for s, _ in self.trial),
+               "trial_seconds": np.array([w for _, w in self.trial], dtype=float)}
         if self._amg is not None:
             out.update({f"amg.{k}": v for k, v in self._amg.state_dict().items()})
         if self._direct is not None and hasattr(self._direct, "state_dict"):
@@ -420,6 +504,9 @@ class AutoSolver:
 
     def load_state_dict(self, state):
         self.amg_abandoned = bool(state["amg_abandoned"])
+        self.choice = state.get("choice")
+        names = [s for s in str(state.get("trial_solvers", "")).split(",") if s]
+        self.trial = list(zip(names, np.asarray(state.get("trial_seconds", np.zeros(0)), dtype=float).tolist()))
         amg = {k[4:]: v for k, v in state.items() if k.startswith("amg.")}
         self._amg = None
         if amg:

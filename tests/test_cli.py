@@ -150,6 +150,8 @@ MISTAKES = [
     (["compare", "--taus", "rigidification=1"], "METHOD=TAU_A,TAU_E"),
     (["sweep", "--grid", "0"], "argument --grid: must be >= 1"),
     (["sweep", "--workers", "-1"], "argument --workers: must be >= 1, got -1"),
+    (["sweep", "--workers", "100000"], "--workers 100000 is more than this machine's"),
+    (["run", "--set", "frames=abc"], "--set frames=abc: frames must be a whole number >= 1"),
     (["sweep", "--tau-range", "0.1", "inf"], "argument --tau-range: must be a finite number > 0, got inf"),
     (["sweep", "--tau-range", "0", "1"], "argument --tau-range: must be a finite number > 0"),
     (["sweep", "--tau-range", "1", "0.1"], "LO <= HI"),
@@ -265,3 +267,38 @@ def test_scaling_needs_a_resolution_parameter(tmp_path, capsys):
     assert main(["scaling", str(f), "--resolutions", "1", "2", "--out", str(tmp_path / "out")]) == 2
     assert "has no resolution parameter to scale" in error_line(capsys)
     assert not os.path.exists(tmp_path / "out")
+
+
+def test_a_status_is_never_ok_beside_an_error_over_the_budget(tmp_path, capsys):
+    from types import SimpleNamespace
+
+    from skfem_affine.lab.cli import _hold_to_budget
+    for error, budget, status in ((0.02, 0.01, "over-budget"), (0.005, 0.01, "ok"), (0.02, None, "ok"),
+                                  (None, 0.01, "ok")):
+        run = SimpleNamespace(summary={"status": "ok", "max_distance_error": error},
+                              sim=SimpleNamespace(reducer=SimpleNamespace(target_error=budget)))
+        _hold_to_budget(run)
+        assert run.summary["status"] == status
+    # the budget command: every row's status agrees with its achieved error and its budget
+    code, s = run_json(capsys, ["budget", "--resolution", "1", "--frames", "6", "--errors", "1e-7", "0.05",
+                                "--never-slower", "off", "--out", str(tmp_path)])
+    for r in s["rows"]:
+        assert r["status"] == ("over-budget" if r["error"] > r["budget"] else "ok"), r
+    assert code == (0 if all(r["status"] == "ok" for r in s["rows"]) else 1)
+
+
+def test_run_uses_the_error_budget_by_default_and_says_so(tmp_path, capsys):
+    assert main(["run", "--resolution", "1", "--frames", "2", "--no-paraview", "--out", str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    assert out.splitlines()[0] == "run: cantilever (resolution=1), 2 frames: affinification-budget (error budget " \
+                                  "0.01, thresholds chosen per frame)"
+    assert "errors: not measured (--reference" in out
+    assert main(["run", "--resolution", "1", "--frames", "2", "--no-paraview", "--reference", "--no-step-error",
+                 "--out", str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    for column in ("status:", "speedup =", "DOF ratio =", "bodies =", "dist err =", "step err =", "residual =",
+                   "energy err ="):
+        assert column in out, column
+    assert "-: not measured (step err: --no-step-error;" in out
+    help_text = parser()._subparsers._group_actions[0].choices["run"].format_help()
+    assert "default: affinification-budget" in " ".join(help_text.split())

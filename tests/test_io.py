@@ -60,3 +60,16 @@ def test_load_mesh_roundtrip(tmp_path):
     meshio.write(tmp_path / "b.mesh", meshio.Mesh(mesh.p.T, [("tetra", mesh.t.T)]))
     back = sa.io.load_mesh(tmp_path / "b.mesh")
     assert back.t.shape == mesh.t.shape and np.allclose(back.p, mesh.p)
+
+
+@pytest.mark.parametrize("name, text", [("junk.mesh", "garbage\nnot a mesh\n"), ("empty.vtu", ""),
+                                        ("notes.md", "# notes\n"), ("bad.msh", "$MeshFormat\n2.2 0 8\n")])
+def test_load_mesh_on_a_file_meshio_cannot_read_is_a_value_error_naming_it(tmp_path, capfd, name, text):
+    path = tmp_path / name
+    path.write_text(text)
+    with pytest.raises(ValueError, match=f"{name}'? (cannot be read|holds no tetrahedra)"):
+        sa.io.load_mesh(path)
+    out, err = capfd.readouterr()
+    assert out == "" and err == ""  # meshio's own prints are folded into the message
+    with pytest.raises(FileNotFoundError, match="nope.mesh"):
+        sa.io.load_mesh(tmp_path / "nope.mesh")

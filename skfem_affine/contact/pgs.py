@@ -54,6 +54,7 @@ import numpy as np
 import scipy.sparse as sp
 from numba import njit
 
+from skfem_affine import _compile_notice  # noqa: F401 (one stderr line when the cached kernels compile)
 from skfem_affine.checks import flag, integer, nonnegative, positive, real
 from skfem_affine.contact.colliders import check_colliders
 from skfem_affine.contact.delassus import Resolvent, block_solver, jacobian

@@ -185,6 +185,9 @@ def serve(fd, parent):
         os._exit(3)
 
     threading.Thread(target=watchdog, daemon=True).start()
+    # Ctrl-C (sent to the whole process group) is the sweep's to handle: it ends this child
+    # by closing the socket, or the watchdog does once the parent is gone
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     conn = Connection(fd)
     conn.send_bytes(b"ready")
     while True:

@@ -3,10 +3,14 @@
 Subcommands: ``demo``, ``run``, ``compare``, ``sweep``, ``budget``, ``scaling``, ``scenes``. A scene is a name
 from :data:`skfem_affine.scenes.SCENES` or the path of a Python file defining ``scene(**kwargs)``
 that returns a Simulation. With ``--json`` exactly one JSON object is printed on stdout (nothing
-else); progress bars appear on a terminal only. Files go into ``OUT/COMMAND/SCENE/`` (``OUT/demo/``
-for the demo). A mistake in the command (a bad option or number, an unknown scene, a scene file
-that raises, a scheduler nobody answers at) is one line on stderr and exit code 2, with no
-traceback; a traceback means a bug of the package.
+else); otherwise progress goes to stderr, a bar on a terminal and a line every 30 s in a log. Files
+go into ``OUT/COMMAND/SCENE/`` (``OUT/demo/`` for the demo). A mistake in the command (a bad option
+or number, an unknown scene, a scene file that raises or exits, a scheduler nobody answers at) is
+one line on stderr and exit code 2, with no traceback; running out of memory is one line and exit
+code 1; a traceback means a bug of the package.
+
+Only the standard library is imported before the arguments are parsed (the simulation modules,
+numba, SciPy and matplotlib are imported by the command that runs), so ``--help`` answers at once.
 """
 import argparse
 import ast
@@ -19,10 +23,7 @@ import sys
 import time
 import traceback
 
-import numpy as np
-
-from skfem_affine.lab import io, plots, runners, scenes, trade
-from skfem_affine.simulation import SimulationDiverged
+from skfem_affine.lab.methods import COMPARED, METHODS
 
 SUMMARY_KEYS = ("scene", "method", "frames", "elements", "vertices", "wall_s", "speedup", "dof_ratio",
                 "mean_clusters", "max_distance_error")
@@ -30,6 +31,7 @@ SUMMARY_KEYS = ("scene", "method", "frames", "elements", "vertices", "wall_s", "
 
 # ---------------------------------------------------------------- helpers
 def _jsonable(value):
+    import numpy as np
     if isinstance(value, dict):
         return {str(k): _jsonable(v) for k, v in value.items()}
     if isinstance(value, (list, tuple)):
@@ -53,7 +55,8 @@ def _say(args, *text):
 
 
 def _progress(args):
-    return sys.stderr.isatty() and not args.json
+    """Progress on stderr (a bar on a terminal, lines in a log), except with ``--json``."""
+    return not args.json
 
 
 def _parse_set(items):
@@ -70,6 +73,7 @@ def _parse_set(items):
 
 
 def _spec(args):
+    from skfem_affine.lab import runners
     kwargs = _parse_set(getattr(args, "set", None))
     if getattr(args, "resolution", None) is not None:
         kwargs["resolution"] = args.resolution
@@ -105,11 +109,15 @@ def _scene_text(spec):
 
 def _frames(frames, spec):
     """The frames to run: ``frames`` (``--frames``), else ``--set frames=``, else the scene's own default."""
+    from skfem_affine.lab import runners
     if frames is not None:
         return frames
     kwargs = dict(spec.kwargs)
     if "frames" in kwargs:
-        return int(kwargs["frames"])
+        value = kwargs["frames"]
+        if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+            raise ValueError(f"--set frames={value}: frames must be a whole number >= 1 (or use --frames N)")
+        return value
     default = inspect.signature(spec.factory()).parameters.get("frames")
     if default is not None and isinstance(default.default, int) and not isinstance(default.default, bool):
         return default.default
@@ -117,9 +125,10 @@ def _frames(frames, spec):
 
 
 def _method_text(method, tau_a=None, tau_e=None):
-    """``affinification (tau_a=0.3, tau_e=0.6)``: a method and the thresholds it runs with."""
+    """``affinification (tau_a=0.3, tau_e=0.6)``: a method and the thresholds (or error budget) it runs with."""
     if method.taus[0] is None:
-        return method.name
+        budget = getattr(method.reducer(), "target_error", None)
+        return method.name if budget is None else f"{method.name} (error budget {budget:g}, thresholds chosen per frame)"
     a = tau_a if tau_a is not None else method.taus[0]
     e = tau_e if tau_e is not None else method.taus[1]
     return f"{method.name} (tau_a={a:g}, tau_e={e:g})"
@@ -166,6 +175,35 @@ def _table(summaries):
     return "\n".join(lines)
 
 
+def _legend(summaries):
+    """What each column of :func:`_table` means, and which columns were not measured ("-")."""
+    lines = ["status: ok; diverged (the run stopped: see its message); over-budget (dist err above the error budget)",
+             "wall s: the run's wall time; speedup = full-space wall time / the method's (same frames, this machine)",
+             "DOF ratio = DOFs solved / full-space DOFs, summed over frames; bodies = mean reduced bodies per frame",
+             "errors, each the largest over frames:",
+             "  dist err = vertex distance to the full-space run / scene size (bounding-box diagonal), as budgeted",
+             "  step err = the same after one step from the full-space state (the reference re-started each frame)",
+             "  residual = ||A dv - b|| / ||b|| of the full-space system",
+             "  energy err = |strain energy difference| / largest strain energy of the full-space run"]
+    skipped = [(name, flag) for key, name, flag in (("max_step_error", "step err", "--no-step-error"),
+                                                    ("max_residual", "residual", "--no-residual"))
+               if all(s.get(key) is None for s in summaries)]
+    if skipped:
+        lines.append(f"-: not measured ({'; '.join(f'{n}: {f}' for n, f in skipped)}; the demo skips both: each "
+                     f"costs a full-space\n   solve or assembly per frame)")
+    return "\n".join(lines)
+
+
+def _hold_to_budget(run):
+    """A run whose largest distance error is over its reducer's error budget gets ``status="over-budget"``."""
+    s = run.summary
+    budget = getattr(getattr(run.sim, "reducer", None), "target_error", None)
+    error = s.get("max_distance_error")
+    if budget is not None and error is not None and s.get("status") == "ok" and error > budget:
+        s["status"] = "over-budget"
+        s["message"] = f"largest distance error {error:.2e} over the error budget {budget:g}"
+
+
 def _frames_table(runs):
     rows = []
     for name, run in runs.items():
@@ -187,6 +225,7 @@ def _summary_json(summary, extra=None):
 # ---------------------------------------------------------------- commands
 def cmd_scenes(args):
     """List the built-in scenes, their parameters and defaults."""
+    from skfem_affine.lab import scenes
     listing = {}
     for name, factory in scenes.SCENES.items():
         params = {p.name: (None if p.default is p.empty else repr(p.default))
@@ -202,7 +241,10 @@ def cmd_scenes(args):
 
 def cmd_run(args):
     """One method on one scene, optionally against the full-space reference."""
+    from skfem_affine.lab import io, plots, runners
     spec = _spec(args)
+    if args.method is None:  # the error budget, unless thresholds are given
+        args.method = "affinification" if (args.tau_a, args.tau_e) != (None, None) else RUN_METHOD
     method = runners.get_method(args.method)
     frames = _frames(args.frames, spec)
     out = _folder(args, spec)
@@ -232,6 +274,7 @@ def cmd_run(args):
         result = runs[method.name]
     else:
         result = runners.run(spec, method, frames, args.tau_a, args.tau_e, on_state=write, **measure)
+    _hold_to_budget(result)
     s = result.summary
     if result.records and (len(result.records) % every):
         write(result.sim, result.sim.state, last=True)
@@ -244,7 +287,10 @@ def cmd_run(args):
                f"in {s['wall_s']:.2f} s ({s['frames'] / max(s['wall_s'], 1e-300):.1f} frames/s), status {s['status']}")
     if reference is not None:
         _say(args, _table([s]))
+        _say(args, _legend([s]))
         _say(args, f"timing: {runners.TIMING[s['timing']]}")
+    elif method.name != "full":
+        _say(args, "errors: not measured (--reference runs the full-space reference beside it)")
     _say(args, f"wrote {out}/: {method.name}_frames.csv, {os.path.basename(picture)}"
                + (f", {os.path.basename(gif)}" if gif else "")
                + (f", {os.path.relpath(series.pvd, out)} (ParaView)" if series else ""))
@@ -255,6 +301,7 @@ def cmd_run(args):
 
 def compare_outputs(args, spec, runs, out):
     """Tables, plots, the clusters picture, ParaView series (and GIFs) of a compare run."""
+    from skfem_affine.lab import io, plots, runners, trade
     summaries = [r.summary for r in runs.values()]
     runners.write_table(_frames_table(runs), os.path.join(out, "frames.csv"))
     runners.write_table(summaries, os.path.join(out, "summary.csv"))
@@ -280,6 +327,7 @@ def compare_outputs(args, spec, runs, out):
 
 
 def _compare_taus(args):
+    from skfem_affine.lab import runners
     taus = {}
     for item in args.taus or ():
         name, sep, values = item.partition("=")
@@ -300,6 +348,7 @@ def _compare_taus(args):
 
 def cmd_compare(args):
     """Full space, affinification and rigidification on one scene: table, plots, picture, ParaView."""
+    from skfem_affine.lab import runners
     spec = _spec(args)
     methods = tuple(dict.fromkeys(["full"] + [runners.get_method(m).name for m in args.methods]))
     args.methods = list(methods)
@@ -314,6 +363,8 @@ def cmd_compare(args):
                               residual=not args.no_residual, keep_every=max(1, args.every),
                               keep_frames=[args.frame] if args.frame is not None else (), progress=_progress(args),
                               timing=_timing(args))
+    for run in runs.values():
+        _hold_to_budget(run)
     written = compare_outputs(args, spec, runs, out)
     summaries = [r.summary for r in runs.values()]
     first = runs["full"].summary
@@ -321,9 +372,7 @@ def cmd_compare(args):
                f"dt = {runs['full'].sim.dt} s")
     _say(args, _table(summaries))
     _say(args, f"timing: {runners.TIMING[first['timing']]}")
-    _say(args, "speedup = full wall time / method wall time (same frames, this machine); errors are the largest\n"
-               "over frames: vertex distance / scene size, step = reference re-started each frame, residual =\n"
-               "||A dv - b|| / ||b|| in full space, energy = |strain energy difference| / max reference energy.")
+    _say(args, _legend(summaries))
     _say(args, f"wrote {out}/: {', '.join(written)}  ({time.perf_counter() - t0:.1f} s in all)")
     main = runs[methods[1]] if len(methods) > 1 else runs["full"]
     _emit(args, _summary_json(main.summary, {"timing": first["timing"], "out": out,
@@ -333,6 +382,7 @@ def cmd_compare(args):
 
 def cmd_sweep(args):
     """A tau_a x tau_e grid on Dask (embedded LocalCluster or --scheduler), heatmaps of every metric."""
+    from skfem_affine.lab import plots, runners, trade
     spec = _spec(args)
     method = runners.get_method(args.method)
     lo, hi = args.tau_range
@@ -340,6 +390,13 @@ def cmd_sweep(args):
         raise ValueError(f"--tau-range takes LO HI with LO <= HI, got {lo:g} {hi:g}")
     if args.scheduler:
         _check_scheduler(args.scheduler)
+    else:
+        from skfem_affine.lab.sweep import local_workers
+        try:
+            local_workers(args.workers)
+        except ValueError as err:
+            raise ValueError(str(err).replace(f"workers={args.workers}", f"--workers {args.workers}")) from None
+    spec.build()  # here, so that a scene that cannot be built is one line, not a failure inside the cluster
     frames = _frames(args.frames, spec)
     out = _folder(args, spec)
     table = args.table or os.path.join(out, f"{method.name}.{args.format}")
@@ -367,6 +424,9 @@ def cmd_sweep(args):
             if r.get("status") in ("crashed", "timeout", "error"):
                 print(f"cell tau_a={r['tau_a']:.3g} tau_e={r['tau_e']:.3g} {r['status']}: {r.get('message')}")
         failed = len(rows) - len(ok)
+        print("speedup = the reference's wall time / the cell's (timed alone, or against a full-space twin with "
+              "--paired-timing);\nDOF ratio = DOFs solved / full-space DOFs; bodies = mean reduced bodies per frame; "
+              "dist err = largest vertex\ndistance to the reference / scene size (bounding-box diagonal)")
         print(f"{len(rows)} cells, {failed} failed; wrote {table}, {heatmaps}"
               + (f" and {trade_png}" if trade_png else "") + f" ({time.perf_counter() - t0:.1f} s)")
     summary = {"scene": spec.label, "method": method.name, "frames": best.get("frames"),
@@ -381,6 +441,7 @@ def cmd_sweep(args):
 
 def cmd_scaling(args):
     """The scene at increasing size: full and reduced time, speedup, error, the paper's speedup beside (Table 2)."""
+    from skfem_affine.lab import io, plots, runners
     if args.scene is None:
         args.scene = "paper_beam" if args.meshes else "cantilever"
     if args.material is not None:
@@ -398,6 +459,7 @@ def cmd_scaling(args):
         if not os.path.isfile(m):
             raise ValueError(f"--meshes: {m!r} is not a file (give the path of a mesh file, e.g. "
                              f"path/to/beam1264.mesh)")
+        io.load_mesh(m)  # a file that is no tetrahedral mesh is refused before any run
     if args.frames and len(args.frames) not in (1, len(sizes)):
         raise ValueError(f"--frames takes one number or one per {'mesh' if args.meshes else 'resolution'} "
                          f"({len(sizes)}), got {len(args.frames)}")
@@ -440,8 +502,10 @@ def cmd_scaling(args):
             if missed:
                 print(f"no pair within {args.target_error:g} of the longest side at {', '.join(map(str, missed))} "
                       f"elements")
-        print("paper: the paper's speedup at that size (Table 1 'Beam' by material at 5516 tets, else Table 2); "
-              "dist err: max vertex distance to the full solve / bounding-box diagonal; err/len: / longest side")
+        print("full s, reduced s: wall time of the full-space and the reduced run; speedup = full s / reduced s; "
+              "DOF ratio = DOFs solved\n/ full-space DOFs; paper: the paper's speedup at that size (Table 1 'Beam' by "
+              "material at 5516 tets, else Table 2);\ndist err: max vertex distance to the full solve / bounding-box "
+              "diagonal; err/len: / longest side; -: not measured or not known")
         print(f"timing: {runners.TIMING[rows[-1]['timing']]}")
         print(f"wrote {table} and {figure}")
     last = best[-1] if best else rows[-1]
@@ -455,6 +519,7 @@ def cmd_scaling(args):
 
 def _phase_text(row, prefix):
     """``wall 12.3 = assembly 3.7 + ... + solve 0.5`` from a scaling row's ``{prefix}{phase}_ms`` entries."""
+    from skfem_affine.lab import runners
     parts = [f"{p} {row[f'{prefix}{p}_ms']:.1f}" for p in runners.PHASES if row.get(f"{prefix}{p}_ms", 0.0) >= 0.05]
     return f"wall {row[f'{prefix}wall_ms']:.1f} = " + " + ".join(parts) + " + rest"
 
@@ -484,6 +549,7 @@ def _best_per_size(rows):
 
 def cmd_budget(args):
     """The error-budget reducer at several budgets, interleaved with full space: achieved error, speedup, trade.png."""
+    from skfem_affine.lab import plots, runners, trade
     spec = _spec(args)
     frames = _frames(args.frames, spec)
     out = _folder(args, spec)
@@ -504,12 +570,20 @@ def cmd_budget(args):
                   f"{_fmt(r['dof_ratio'], '9.3f')} {100 * r['reduced_frames']:7.0f}% {_fmt(r['mean_tau_a'], '9.3g')} "
                   f"{r['status']:>8}")
         print(f"timing: {runners.TIMING['interleaved']}; achieved = max vertex distance to the full-space run / size;"
-              f"\nreduced = frames that returned the reduced solution (the others: shadow, impact or fall-back "
-              f"frames in full space)")
+              f"\nestimated = the largest error the reducer itself estimated; mean tau = the mean tau_a it chose; "
+              f"reduced = frames\nthat returned the reduced solution (the others: shadow, impact or fall-back "
+              f"frames in full space);\nstatus: ok, diverged, or over-budget (achieved above the budget)")
         print(f"wrote {table} and {picture} ({time.perf_counter() - t0:.1f} s)")
     _emit(args, {"scene": spec.label, "method": args.method, "rows": rows, "table": table, "trade": picture})
     return 0 if all(r["status"] == "ok" for r in rows) else 1
 
+
+#: The reducers ``budget`` runs (those of :data:`skfem_affine.lab.trade.REDUCERS`; listed here so that
+#: ``--help`` imports no reducer).
+BUDGET_METHODS = ("affinification", "rigidification")
+
+#: The method ``run`` runs without --method or thresholds: affinification at its default error budget.
+RUN_METHOD = "affinification-budget"
 
 #: The demo's scene size: where affinification pays on two cores (docs/affinification.md, docs/budget.md).
 DEMO_RESOLUTION = 10
@@ -630,14 +704,14 @@ def _pictures(p, every=10):
 
 def parser():
     methods = ", ".join(f"{m.name} (default taus {m.taus[0]}, {m.taus[1]})" if m.taus[0] is not None else m.name
-                        for m in runners.METHODS.values())
+                        for m in METHODS.values())
     top = _Parser(prog="skfem-affine", description="Fast adaptive elastodynamics for scikit-fem: "
                   "simulate scenes and measure the speed/accuracy trade of affinification.",
                   epilog="Run `skfem-affine COMMAND --help` for each command's options.")
     sub = top.add_subparsers(dest="command", metavar="COMMAND")
 
-    p = sub.add_parser("demo", help="the cantilever in full space, affinification and rigidification: "
-                                    "speedup, error, plots, a picture and ParaView output",
+    p = sub.add_parser("demo", help="a 24k-tet cantilever in full space and with affinification at its error "
+                                    "budget: speedup, error, plots, trade.png, a picture of the clusters",
                        description=cmd_demo.__doc__)
     p.add_argument("--resolution", type=_whole(1), default=DEMO_RESOLUTION,
                    help=f"cells across the beam, 24 k^3 tets (default {DEMO_RESOLUTION}: 24000 tets)")
@@ -648,10 +722,12 @@ def parser():
     p.add_argument("--frame", type=_whole(0), default=None, help="frame of the clusters picture")
     p.set_defaults(func=cmd_demo)
 
-    p = sub.add_parser("run", help="one method on one scene", description=cmd_run.__doc__ +
-                       f" Methods: {methods}.")
+    p = sub.add_parser("run", help="one method on one scene (default: affinification at its error budget)",
+                       description=cmd_run.__doc__ + f" Methods: {methods}.")
     _common(p)
-    p.add_argument("--method", default="affinification", help=f"one of: {', '.join(runners.METHODS)}")
+    p.add_argument("--method", default=None, help=f"one of: {', '.join(METHODS)} (default: {RUN_METHOD}, affinification "
+                   "with thresholds chosen per frame to hold its default error budget, 1 %% of the scene size; "
+                   "with --tau-a / --tau-e: affinification at those thresholds)")
     _taus(p)
     p.add_argument("--reference", action="store_true",
                    help="also run the full-space reference, for speedup and errors")
@@ -663,7 +739,7 @@ def parser():
     p = sub.add_parser("compare", help="full vs affinification vs rigidification: table, plots, picture, ParaView",
                        description=cmd_compare.__doc__ + f" Methods: {methods}.")
     _common(p)
-    p.add_argument("--methods", nargs="+", default=list(runners.COMPARED[1:]),
+    p.add_argument("--methods", nargs="+", default=list(COMPARED[1:]),
                    help="methods besides full space (default: affinification rigidification)")
     _taus(p, "for the first method; affinification's")
     p.add_argument("--taus", action="append", metavar="METHOD=A,E", default=[],
@@ -676,13 +752,14 @@ def parser():
     p = sub.add_parser("sweep", help="tau_a x tau_e grid on Dask, heatmaps of every metric (paper Fig. 6)",
                        description=cmd_sweep.__doc__ + " Finished cells in the table are not recomputed.")
     _common(p)
-    p.add_argument("--method", default="affinification", help=f"one of: {', '.join(runners.METHODS)}")
+    p.add_argument("--method", default="affinification", help=f"one of: {', '.join(METHODS)}")
     p.add_argument("--grid", type=_whole(1), default=9, help="N for an N x N grid (default 9; the paper uses 41)")
     p.add_argument("--tau-range", type=_real(0.0, strict=True), nargs=2, default=(1e-3, 1.0), metavar=("LO", "HI"),
                    help="log-spaced thresholds from LO to HI, 1/s (default 1e-3 1)")
     p.add_argument("--scheduler", default=None, help="address of a running dask scheduler, e.g. tcp://host:8786 "
                    "(default: an embedded LocalCluster)")
-    p.add_argument("--workers", type=_whole(1), default=None, help="LocalCluster worker processes (default: CPU count)")
+    p.add_argument("--workers", type=_whole(1), default=None,
+                   help="LocalCluster worker processes, at most the CPU count (default: the CPU count)")
     p.add_argument("--threads", action="store_true", help="LocalCluster workers as threads of this process")
     p.add_argument("--table", default=None, help="results table (.csv or .parquet; default OUT/sweep/SCENE/METHOD.csv)")
     p.add_argument("--format", choices=("csv", "parquet"), default="csv", help="default table format (csv)")
@@ -701,7 +778,7 @@ def parser():
     _common(p)
     p.add_argument("--errors", type=_real(0.0, strict=True), nargs="+", default=[0.001, 0.01, 0.05],
                    help="error budgets (max vertex distance / scene size), default 0.001 0.01 0.05")
-    p.add_argument("--method", choices=sorted(trade.REDUCERS), default="affinification")
+    p.add_argument("--method", choices=BUDGET_METHODS, default="affinification")
     p.add_argument("--never-slower", choices=("on", "off"), default=None,
                    help="the fall-back to full space when reduction does not pay (default: on)")
     p.set_defaults(func=cmd_budget)
@@ -721,7 +798,7 @@ def parser():
                    help="the scene's material (paper_beam, cantilever), built with its E and nu")
     p.add_argument("--frames", type=_whole(1), nargs="+", default=None,
                    help="frames: one number, or one per size (default: the scene's own)")
-    p.add_argument("--method", default="affinification", help=f"one of: {', '.join(runners.METHODS)}")
+    p.add_argument("--method", default="affinification", help=f"one of: {', '.join(METHODS)}")
     p.add_argument("--tau-a", type=_real(), nargs="+", default=None,
                    help="threshold(s) to become reduced, 1/s; several run in one process (default: the method's)")
     p.add_argument("--tau-e", type=_real(), nargs="+", default=None,
@@ -756,6 +833,9 @@ def _scene_file_error(err, args):
         if not lines:
             return None
         line = lines[-1]
+    if isinstance(err, SystemExit):
+        return (f"scene file {scene}, line {line}: called sys.exit({err.code!r}) instead of returning a Simulation "
+                f"(scene(**kwargs) must return one)")
     text = err.msg if isinstance(err, SyntaxError) else err
     return f"scene file {scene}, line {line}: {type(err).__name__}: {_one_line(text)}"
 
@@ -782,10 +862,22 @@ def main(argv=None):
     except KeyboardInterrupt:
         print(f"{name}: interrupted", file=sys.stderr)
         return 130
-    except SimulationDiverged as err:
-        print(f"{name}: {_one_line(err)}", file=sys.stderr)
+    except SystemExit as err:  # sys.exit inside a command (a scene file's, or a library's): never a success
+        message = _scene_file_error(err, args)
+        if message is None:
+            traceback.print_exc()
+            return 1
+        print(f"{name}: error: {message}", file=sys.stderr)
+        return 2
+    except MemoryError as err:
+        print(f"{name}: error: out of memory ({_one_line(err)}) running `skfem-affine {' '.join(argv)}`: "
+              f"try a smaller scene (--resolution, --set, --meshes)", file=sys.stderr)
         return 1
     except Exception as err:  # noqa: BLE001 (a mistake of the user's gets one line; a bug its traceback)
+        from skfem_affine.simulation import SimulationDiverged
+        if isinstance(err, SimulationDiverged):
+            print(f"{name}: {_one_line(err)}", file=sys.stderr)
+            return 1
         message = _scene_file_error(err, args)
         if message is None and isinstance(err, (ValueError, TypeError, ImportError, OSError)):
             message = _one_line(err)

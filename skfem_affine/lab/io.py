@@ -1,5 +1,7 @@
 """Output through meshio: a ParaView time series (VTU per frame + a .pvd index)."""
+import contextlib
 import os
+from io import StringIO
 from xml.sax.saxutils import quoteattr
 
 import meshio
@@ -161,15 +163,15 @@ def load_mesh(path, regions=None):
     Raises
     ------
     ValueError
-        If the file holds no tetrahedra, or ``regions`` names no integer cell data.
+        If meshio cannot read the file, it holds no tetrahedra, or ``regions`` names no integer
+        cell data.
+    FileNotFoundError
+        If there is no such file.
     ImportError
         If meshio needs an optional package for the format (``h5py`` for XDMF).
     """
     import skfem
-    try:
-        m = meshio.read(path)
-    except ModuleNotFoundError as err:  # meshio reads XDMF through h5py, an optional dependency
-        raise ImportError(f"reading {path} needs the package {err.name} (pip install {err.name})") from err
+    m = _read(path)
     tets = [(i, c.data) for i, c in enumerate(m.cells) if c.type == "tetra"]
     if not tets:
         raise ValueError(f"{path} holds no tetrahedra (cell types: {[c.type for c in m.cells]})")
@@ -235,3 +237,23 @@ def _labelled_facets(mesh, m, key):
     found = (pos < keys.size) & (keys[np.minimum(pos, keys.size - 1)] == code(faces))
     index = order[pos[found]]
     return {name: index[sel] for name, sel in _label_sets(labels[found], f"{key} of the triangles").items()}
+
+
+def _read(path):
+    """``meshio.read(path)``; a file meshio cannot read is a ValueError naming it, with meshio's reason.
+
+    meshio prints its reasons and calls ``sys.exit(1)`` on a file of a known format it cannot
+    parse, and raises its own ReadError on an unknown extension: both become one ValueError.
+    """
+    if not os.path.isfile(path):
+        raise FileNotFoundError(f"mesh file {os.fspath(path)!r} does not exist")
+    said = StringIO()
+    try:
+        with contextlib.redirect_stdout(said), contextlib.redirect_stderr(said):
+            return meshio.read(path)
+    except ModuleNotFoundError as err:  # meshio reads XDMF through h5py, an optional dependency
+        raise ImportError(f"reading {path} needs the package {err.name} (pip install {err.name})") from err
+    except (Exception, SystemExit) as err:  # noqa: BLE001 (whatever a reader raises on a damaged file)
+        reason = " ".join(said.getvalue().split()) or f"{type(err).__name__}: {err}"
+        raise ValueError(f"mesh file {os.fspath(path)!r} cannot be read: {reason} (a tetrahedral mesh in a format "
+                         f"meshio reads: .msh, .mesh, .vtu, .vtk, .xdmf, ...)") from None

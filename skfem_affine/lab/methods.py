@@ -6,10 +6,6 @@ runner and the command line know it by name.
 """
 from dataclasses import dataclass
 
-from skfem_affine.reducers.affine.affinification import Affinification
-from skfem_affine.reducers.affine.rigidification import Rigidification
-from skfem_affine.reducers.subspace.reducer import AdaptiveSubspace
-
 
 @dataclass(frozen=True)
 class Method:
@@ -26,15 +22,32 @@ class Method:
         return self.factory(self.taus[0] if tau_a is None else tau_a, self.taus[1] if tau_e is None else tau_e)
 
 
+def _affinification(**kwargs):
+    from skfem_affine.reducers.affine.affinification import Affinification
+    return Affinification(**kwargs)
+
+
+def _rigidification(**kwargs):
+    from skfem_affine.reducers.affine.rigidification import Rigidification
+    return Rigidification(**kwargs)
+
+
+def _subspace(**kwargs):
+    from skfem_affine.reducers.subspace.reducer import AdaptiveSubspace
+    return AdaptiveSubspace(**kwargs)
+
+
+# the reducers are imported when a method first builds one, so that listing the methods (the command
+# line's --help) imports none of them
 METHODS = {m.name: m for m in [
     Method("full", lambda tau_a, tau_e: None),
-    Method("affinification", lambda tau_a, tau_e: Affinification(tau_a=tau_a, tau_e=tau_e), (0.1, 0.2)),
-    Method("rigidification", lambda tau_a, tau_e: Rigidification(tau_r=tau_a, tau_e=tau_e), (1e-2, 2e-2)),
+    Method("affinification", lambda tau_a, tau_e: _affinification(tau_a=tau_a, tau_e=tau_e), (0.1, 0.2)),
+    Method("rigidification", lambda tau_a, tau_e: _rigidification(tau_r=tau_a, tau_e=tau_e), (1e-2, 2e-2)),
     # the default reducer: thresholds chosen by its 1 % error budget (tau_a, tau_e unused)
-    Method("affinification-budget", lambda tau_a, tau_e: Affinification()),
+    Method("affinification-budget", lambda tau_a, tau_e: _affinification()),
     # needs a Newton integrator: run the scene with integrator="implicit_euler" (--set integrator=implicit_euler),
     # so that "full" is the full-space Newton reference it converges to; tau_a, tau_e = eps_nodal, eps_modal
-    Method("subspace", lambda tau_a, tau_e: AdaptiveSubspace(eps_nodal=tau_a, eps_modal=tau_e), (1e-3, 3e-3)),
+    Method("subspace", lambda tau_a, tau_e: _subspace(eps_nodal=tau_a, eps_modal=tau_e), (1e-3, 3e-3)),
 ]}
 
 #: The methods ``compare`` runs by default (the first is the reference).

@@ -19,6 +19,7 @@ import numpy as np
 from skfem_affine.checks import integer
 from skfem_affine.lab import metrics
 from skfem_affine.lab.methods import COMPARED, get_method
+from skfem_affine.lab.progress import bar as progress_bar
 from skfem_affine.lab.scene_spec import default_frames
 from skfem_affine.lab.tables import FileFormatError
 from skfem_affine.simulation import SimulationDiverged
@@ -231,7 +232,8 @@ def run(spec, method="full", frames=None, tau_a=None, tau_e=None, reference=None
     keep_every : int
         Keep every k-th state (and frame 0) in ``Run.states`` (0: none), plus ``keep_frames``.
     progress : bool
-        A tqdm bar over frames (on stderr).
+        Progress on stderr: a tqdm bar on a terminal, else a line every 30 s
+        (:mod:`~skfem_affine.lab.progress`).
     on_state : callable(sim, state), optional
         Called with the initial state and after every frame (e.g. a ParaView writer).
 
@@ -447,16 +449,5 @@ def _compare_sequential(spec, frames, names, methods, taus, step_error, residual
 
 
 def _bar(total, desc, enabled):
-    """A tqdm progress bar on stderr when ``enabled``, else an object that ignores updates."""
-    if enabled:
-        from tqdm import tqdm
-        return tqdm(total=total, desc=desc, unit="frame" if "cell" not in desc else "cell", leave=False)
-    return _NoBar()
-
-
-class _NoBar:
-    def update(self, n=1):
-        pass
-
-    def close(self):
-        pass
+    """Progress on stderr when ``enabled`` (:func:`skfem_affine.lab.progress.bar`), in frames or cells."""
+    return progress_bar(total, desc, enabled, unit="cell" if "cell" in desc else "frame")

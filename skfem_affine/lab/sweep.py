@@ -10,7 +10,10 @@ reason, one that gives no result within the cell timeout with ``status="timeout"
 goes on. Rows are merged into the table under a lock as cells finish (:func:`tables.merge_rows`),
 so that two sweeps writing one table lose no cell.
 """
+import contextlib
 import os
+import signal
+import threading
 import time
 
 import numpy as np
@@ -109,19 +112,57 @@ def default_cell_timeout(reference):
     return max(MIN_CELL_TIMEOUT, CELL_TIMEOUT_FACTOR * float(np.sum(reference.wall)))
 
 
+def local_workers(workers=None):
+    """The worker count of an embedded LocalCluster: ``workers``, at most the machine's cores (default: all).
+
+    More workers than cores only share the cores (each cell then runs slower than alone, and
+    hundreds of worker processes take minutes to start), so a larger count is refused.
+    """
+    cores = os.cpu_count() or 1
+    if workers is None:
+        return cores
+    workers = integer(workers, "workers", low=1)
+    if workers > cores:
+        raise ValueError(f"workers={workers} is more than this machine's {cores} cores: give at most {cores} "
+                         f"(or a --scheduler for a cluster of machines)")
+    return workers
+
+
 def connect(scheduler=None, workers=None, processes=True):
     """A dask Client on ``scheduler`` (an address), or on an embedded LocalCluster.
 
     Returns ``(client, cluster)``; ``cluster`` is None for an external scheduler.
+    ``workers`` (LocalCluster only) is checked by :func:`local_workers`.
     """
     import logging
 
     from dask.distributed import Client, LocalCluster
     if scheduler:
         return Client(scheduler), None
-    cluster = LocalCluster(n_workers=int(workers or os.cpu_count() or 1), threads_per_worker=1,
-                           processes=processes, dashboard_address=":0", silence_logs=logging.ERROR)
+    with _interrupts_ignored_by_children():
+        cluster = LocalCluster(n_workers=local_workers(workers), threads_per_worker=1,
+                               processes=processes, dashboard_address=":0", silence_logs=logging.ERROR)
     return Client(cluster), cluster
+
+
+@contextlib.contextmanager
+def _interrupts_ignored_by_children():
+    """SIGINT ignored while the worker processes start, so that they ignore it for good.
+
+    An ignored signal stays ignored in a child, across ``exec`` too, and Python then installs
+    no KeyboardInterrupt handler. So Ctrl-C, which a terminal sends to every process of the
+    foreground group, reaches only this process: the sweep stops and closes its workers,
+    instead of each worker printing its own traceback. (A Ctrl-C during these seconds of
+    start-up is lost.)
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 def sweep(spec, frames=None, method="affinification", grid=9, tau_range=(1e-3, 1.0), table="out/sweep.csv",

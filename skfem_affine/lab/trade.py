@@ -60,7 +60,8 @@ def budget_runs(spec, budgets, frames=None, method="affinification", warm=True, 
     list of dict
         Per budget: ``budget``, ``error`` (measured max distance error), ``speedup`` (interleaved
         wall-time ratio), ``dof_ratio``, ``reduced_frames`` (fraction of frames that returned the
-        reduced solution), ``max_estimated_error``, ``mean_tau_a``, ``status``.
+        reduced solution), ``max_estimated_error``, ``mean_tau_a``, ``status`` ("ok", "diverged", or
+        "over-budget" when ``error`` is over ``budget``).
     """
     if method not in REDUCERS:
         raise ValueError(f"method must be one of {sorted(REDUCERS)}, got {method!r}")
@@ -88,12 +89,15 @@ def budget_runs(spec, budgets, frames=None, method="affinification", warm=True, 
     for b in budgets:
         run = runs[f"budget {b:g}"]
         recs = run.records
+        status = run.summary["status"]
+        if status == "ok" and errors[f"budget {b:g}"] > b:
+            status = "over-budget"
         rows.append({"scene": spec.label, "method": method, "budget": b, "error": errors[f"budget {b:g}"],
                      "speedup": run.summary.get("speedup"), "dof_ratio": run.summary.get("dof_ratio"),
                      "reduced_frames": float(np.mean([bool(r.get("reduced")) for r in recs])) if recs else 0.0,
                      "max_estimated_error": float(max((r.get("estimated_error", 0.0) for r in recs), default=0.0)),
                      "mean_tau_a": float(np.mean([r.get("tau_a", np.nan) for r in recs])) if recs else None,
-                     "frames": len(recs), "elements": int(full.system.m), "status": run.summary["status"],
+                     "frames": len(recs), "elements": int(full.system.m), "status": status,
                      "timing": "interleaved"})
     return rows
 
@@ -101,4 +105,4 @@ def budget_runs(spec, budgets, frames=None, method="affinification", warm=True, 
 def budget_points(rows):
     """Trade points of :func:`budget_runs` rows, each with its budget marked beside it."""
     return [{"error": r["error"], "speedup": r["speedup"], "method": r["method"], "budget": r["budget"],
-             "label": f"budget {100 * r['budget']:g} %"} for r in rows if r["status"] == "ok"]
+             "label": f"budget {100 * r['budget']:g} %"} for r in rows if r["status"] in ("ok", "over-budget")]

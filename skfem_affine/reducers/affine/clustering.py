@@ -26,6 +26,8 @@ fixed vertices (``excluded``) never join or seed a cluster.
 import numpy as np
 from numba import njit
 
+from skfem_affine import _compile_notice  # noqa: F401 (one stderr line when the cached kernels compile)
+
 
 def element_adjacency(t):
     """CSR ``(indptr, indices)`` of face-adjacent elements (sharing 3 vertices)."""

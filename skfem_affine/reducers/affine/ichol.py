@@ -24,6 +24,8 @@ import numpy as np
 import scipy.sparse as sp
 from numba import njit
 
+from skfem_affine import _compile_notice  # noqa: F401 (one stderr line when the cached kernels compile)
+
 SHIFTS = (0.0, 1e-3, 1e-2, 1e-1, 1.0)
 
 

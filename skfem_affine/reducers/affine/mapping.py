@@ -22,6 +22,8 @@ import numpy as np
 import scipy.sparse as sp
 from numba import njit
 
+from skfem_affine import _compile_notice  # noqa: F401 (one stderr line when the cached kernels compile)
+
 
 def group_sum(groups, values, n_groups):
     """Sum rows of ``values`` (k, ...) by group id (k,) into (n_groups, ...); a fast np.add.at."""
