@@ -34,7 +34,7 @@ from skfem_affine.integrators.newton_integrator import NewtonIntegrator
 from skfem_affine.integrators.problem import PHASES, Model, Rayleigh, StepProblem, StepResult
 from skfem_affine.motion import Motion
 from skfem_affine.motion import work as motion_work
-from skfem_affine.monitor import Diverged, Monitor, SimulationWarning
+from skfem_affine.monitor import Diverged, Monitor, SimulationWarning, warn_stiff_elements
 from skfem_affine.reducers.base import Reducer
 from skfem_affine.reducers.full import FullSpace
 from skfem_affine.solvers import SolverError, make_solver
@@ -242,6 +242,8 @@ class Simulation:
         if self.system.free.size:  # a scene whose vertices all follow paths has nothing to reduce
             active.attach(self.model)
         self.monitor = Monitor(self.system, self.f_gravity, self.size, on_inverted, on_nonconvergence, check_energy)
+        if linearized:  # slivers: the linearized step's round-off on them (a Newton step iterates it away)
+            self.monitor.stiffness_ratio = warn_stiff_elements(self.system, self.dt)
 
     # ------------------------------------------------------------------ public
     @property

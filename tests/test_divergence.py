@@ -200,3 +200,32 @@ def test_a_blow_up_from_rest_is_still_refused_above_the_floor(monkeypatch):
     monitor_floor = sim.monitor.energy_floor
     states, err = _run(sim, 30)
     assert err is not None and "energy grew" in str(err) and monitor_floor < 1e-3
+
+
+def _sliver(quality):
+    """One tetrahedron whose volume is ``quality`` times that of a regular one with its longest edge."""
+    p = np.array([[0, 0, 0], [1, 0, 0], [0.5, np.sqrt(3) / 2, 0], [0.5, np.sqrt(3) / 6, 0.0]]).T
+    p[2, 3] = quality / (6 * np.sqrt(2)) * 3 / (np.sqrt(3) / 4)
+    return skfem.MeshTet(p, np.array([[0, 1, 2, 3]]).T)
+
+
+def test_a_sliver_the_linearized_step_gets_wrong_is_warned_naming_it():
+    # relative volume 5e-9 passes validation (1e-9) but falls 53 % short in 0.5 s under the linearized step
+    body = sa.ElasticBody(_sliver(5e-9), sa.NeoHookean(E=1e5, nu=0.3))
+    with pytest.warns(sa.SimulationWarning, match=r"element\(s\) \[0\] .* h\^2 k/m = 5.5e\+15"):
+        sim = sa.Simulation(body, gravity=(0, 0, -9.81))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        exact = sa.Simulation(body, gravity=(0, 0, -9.81), integrator="implicit_euler")  # exact: no warning
+        fine = sa.Simulation(sa.ElasticBody(_sliver(1e-5), sa.NeoHookean(E=1e5, nu=0.3)), gravity=(0, 0, -9.81))
+    assert fine.monitor.stiffness_ratio < 1e-2 * sa.monitor.STIFF_RATIO
+    # what the warning is about: backward Euler drops h^2 g n (n + 1) / 2
+    drops = []
+    for s in (sim, exact, fine):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            x0 = s.state.x[:, 2].mean()
+            for state in s.run(20):
+                pass
+        drops.append((x0 - state.x[:, 2].mean()) / (1e-4 * 9.81 * 20 * 21 / 2))
+    assert abs(drops[0] - 1) > 0.05 and abs(drops[1] - 1) < 1e-6 and abs(drops[2] - 1) < 1e-5
