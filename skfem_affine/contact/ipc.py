@@ -316,10 +316,10 @@ class IPCContact:
         return total + float(sum(lam.sum() for _, lam, _ in self.lagged[3]))
 
     def relag(self, x):
-        """Freeze the step's friction again, at its solution x (flat (3n,)) instead of x_t.
+        r"""Freeze the step's friction again, at its solution x (flat (3n,)) instead of x_t.
 
-        Returns the relative change of the total normal force, |lambda(x) - lambda(x_t)| / max of
-        the two (0 without friction). The normal force at x_t is not the step's when it starts away
+        Returns the relative change of the total normal force,
+        :math:`|\lambda(x) - \lambda(x_t)| / \max(\lambda(x), \lambda(x_t))` (0 without friction). The normal force at x_t is not the step's when it starts away
         from equilibrium (inside dhat, or at an impact): a body started 2e-4 m above a plane is
         pushed by many times its weight there, and friction lagged at that force stops it far too
         soon. :class:`~skfem_affine.integrators.newton_integrator.NewtonIntegrator` re-solves the
