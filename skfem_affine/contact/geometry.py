@@ -266,8 +266,9 @@ class Detector:
         if not found:
             return None
         ea, eb, s, t, normal, d = (np.concatenate(parts) for parts in zip(*found))
-        _, first = np.unique(ea * len(ep.edges) + eb, return_index=True)  # a pair found by both once
-        ea, eb, s, t, normal, d = (a[first] for a in (ea, eb, s, t, normal, d))
+        if len(found) > 1:  # a pair found with both velocities counts once
+            _, first = np.unique(ea * len(ep.edges) + eb, return_index=True)
+            ea, eb, s, t, normal, d = (a[first] for a in (ea, eb, s, t, normal, d))
         a0, a1 = ep.edges[ea, 0], ep.edges[ea, 1]
         others = np.column_stack([a1, ep.edges[eb]])
         weights = np.column_stack([-s, 1.0 - t, t])
