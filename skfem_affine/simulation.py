@@ -211,7 +211,8 @@ class Simulation:
         else:  # Newton integrators: contact enters the incremental potential (barrier.py or ipc.py)
             if contact is not None and contact is not False and not isinstance(contact, IPC):
                 raise ValueError("contact=sa.PGS(...) runs with integrator='linearized'; the Newton integrators "
-                                 "take contact=sa.IPC(...) (or None: the frictionless barrier against the colliders)")
+                                 "take contact=sa.IPC(...) (or None: the frictionless barrier against the colliders, and IPC "
+                                 "between several bodies)")
             self.contact = None
             # several bodies touch each other by default: IPC between them (the barrier sees only colliders)
             self._ipc_default = contact is None and len(bodies) > 1
