@@ -26,6 +26,7 @@ from skfem_affine.checks import check_bodies, choice, flag, integer, positive, r
 from skfem_affine.vertex_sets import vector_p1_dofs
 from skfem_affine.contact import pgs
 from skfem_affine.contact.colliders import check_colliders
+from skfem_affine.contact.geometry import Detector
 from skfem_affine.contact.ipc import IPC, IPCContact
 from skfem_affine.contact.barrier import barrier_of
 from skfem_affine.integrators import newton
@@ -34,7 +35,7 @@ from skfem_affine.integrators.newton_integrator import NewtonIntegrator
 from skfem_affine.integrators.problem import PHASES, Model, Rayleigh, StepProblem, StepResult
 from skfem_affine.motion import Motion
 from skfem_affine.motion import work as motion_work
-from skfem_affine.monitor import Diverged, Monitor, SimulationWarning
+from skfem_affine.monitor import Diverged, Monitor, SimulationWarning, warn_stiff_elements
 from skfem_affine.reducers.base import Reducer
 from skfem_affine.reducers.full import FullSpace
 from skfem_affine.solvers import SolverError, make_solver
@@ -202,9 +203,11 @@ class Simulation:
       colliders or several bodies; ``contact=False`` turns it off. With contact, the
       ``"auto"`` solver means the direct solver (the Delassus operator needs A^-1 on many
       columns).
-    * ``"ipc-barrier"`` (Newton integrators, ``contact=None``): a frictionless IPC log-barrier
-      against the colliders only, added to the incremental potential
-      (:mod:`skfem_affine.contact.barrier`); ``contact=PGS(...)`` is refused.
+    * ``"ipc-barrier"`` (Newton integrators, one body and ``contact=None``, or ``contact=False``):
+      a frictionless IPC log-barrier against the colliders only, added to the incremental
+      potential (:mod:`skfem_affine.contact.barrier`); ``contact=PGS(...)`` is refused. Bodies do
+      not touch each other under it: several bodies with ``contact=None`` get ``"ipc"`` below
+      (``sa.IPC()``), and ``contact=False`` is how to say that they may pass through each other.
     * ``"ipc"`` (Newton integrators, ``contact=sa.IPC(friction=...)``): IPC contact from ipctk
       (:mod:`skfem_affine.contact.ipc`): barrier, lagged smoothed friction and continuous
       collision detection in the line search, against the colliders, between bodies and within
@@ -251,9 +254,15 @@ class Simulation:
         else:  # Newton integrators: contact enters the incremental potential (barrier.py or ipc.py)
             if contact is not None and contact is not False and not isinstance(contact, IPC):
                 raise ValueError("contact=sa.PGS(...) runs with integrator='linearized'; the Newton integrators "
-                                 "take contact=sa.IPC(...) (or None: the frictionless barrier against the colliders)")
+                                 "take contact=sa.IPC(...) (or None: the frictionless barrier against the colliders, and IPC "
+                                 "between several bodies)")
             self.contact = None
-            self._ipc = contact if isinstance(contact, IPC) else None
+            # several bodies touch each other by default: IPC between them (the barrier sees only colliders)
+            self._ipc_default = contact is None and len(bodies) > 1
+            self._ipc = IPC() if self._ipc_default else contact if isinstance(contact, IPC) else None
+        # the other bodies' surfaces, for max_penetration when no contact model measures them
+        self._bodies_detector = (Detector(self.system, [], edge_contact=False)
+                                 if self.contact is None and len(bodies) > 1 else None)
         if self.contact is not None and isinstance(solver, str) and solver == "auto":
             solver = "direct"
         self.solver = make_solver(solver)
@@ -277,6 +286,8 @@ class Simulation:
         if self.system.free.size:  # a scene whose vertices all follow paths has nothing to reduce
             active.attach(self.model)
         self.monitor = Monitor(self.system, self.f_gravity, self.size, on_inverted, on_nonconvergence, check_energy)
+        if linearized:  # slivers: the linearized step's round-off on them (a Newton step iterates it away)
+            self.monitor.stiffness_ratio = warn_stiff_elements(self.system, self.dt)
 
     # ------------------------------------------------------------------ public
     @property
@@ -293,7 +304,15 @@ class Simulation:
         colliders = check_colliders(colliders)
         if isinstance(getattr(self, "integrator", None), NewtonIntegrator):
             if self._ipc is not None:  # ipctk: bodies against colliders, each other and themselves
-                self.integrator.barrier = IPCContact(self.model, colliders, self._ipc, x0=self.state.x)
+                try:
+                    self.integrator.barrier = IPCContact(self.model, colliders, self._ipc, x0=self.state.x)
+                except ValueError as err:
+                    if not self._ipc_default:
+                        raise
+                    raise ValueError(f"{err}. Several bodies under integrator={self.integrator_name!r} get IPC "
+                                     "contact between them by default (contact=None means sa.IPC()); "
+                                     "contact=False keeps only the colliders' barrier and lets the bodies "
+                                     "pass through each other") from None
                 self.contact_model = "ipc"
             else:
                 barrier = barrier_of(self.model, colliders)
@@ -351,7 +370,7 @@ class Simulation:
         if self.contact is not None:  # colliders at x_{t+1}; bodies at the frame's detection (x_t)
             rec["max_penetration"] = max(self.contact.detector.max_penetration(x, bodies=False),
                                          rec.get("body_penetration", 0.0))
-        elif self.colliders:
+        elif self.colliders or self._bodies_detector is not None:
             rec["max_penetration"] = self.max_penetration(x)
         rec["checks"] = time.perf_counter() - t1
         self.monitor.accept()
@@ -373,6 +392,8 @@ class Simulation:
         for c in self.colliders:
             d, _ = c.query(x)
             depth = max(depth, float(-d.min(initial=0.0)))
+        if self._bodies_detector is not None:
+            depth = max(depth, self._bodies_detector.max_penetration(x))
         return depth
 
     # ------------------------------------------------------------------ checkpoints

@@ -181,3 +181,75 @@ def test_edge_contact_is_a_checked_switch():
     middle = np.concatenate([np.abs(first.p[1]) < 0.11, np.abs(second.p[2]) < 0.11])
     order, _, _ = _order(sim, 5, middle)
     assert order[-1] > 0
+
+
+def _thrown(**kw):
+    """A box thrown at 15 m/s at another, both on the floor (Newton integrator)."""
+    a = sa.ElasticBody(scenes.box_mesh(0.2, 2, center=(0, 0, 0.11)), sa.NeoHookean(E=1e6, nu=0.3),
+                       velocity=(15.0, 0, 0))
+    b = sa.ElasticBody(scenes.box_mesh(0.2, 1, center=(0.35, 0, 0.11)), sa.NeoHookean(E=1e6, nu=0.3))
+    return sa.Simulation([a, b], integrator="implicit_euler", gravity=(0, 0, -9.81), colliders=[sa.Plane()], **kw)
+
+
+def test_several_bodies_under_newton_collide_by_default():
+    sim = _thrown()
+    assert sim.contact_model == "ipc"
+    for s in sim.run(5):
+        xa, xb = sim.split(s.x)
+        assert xa[:, 0].mean() < xb[:, 0].mean() - 0.15  # never passes into the other box
+    assert xb[:, 0].mean() > 0.4  # it was hit and pushed on
+    assert max(r["max_penetration"] for r in sim.stats) == 0.0  # no vertex inside the other body
+
+
+def test_bodies_told_not_to_touch_pass_through_and_max_penetration_sees_it():
+    sim = _thrown(contact=False)
+    assert sim.contact_model == "ipc-barrier"
+    states = list(sim.run(3))
+    pen = [r["max_penetration"] for r in sim.stats]
+    assert pen[1] == pytest.approx(0.05, rel=1e-3) and pen[2] == pytest.approx(0.1, rel=1e-3)
+    assert sim.max_penetration(states[1].x) == pytest.approx(0.05, rel=1e-3)
+
+
+def test_several_bodies_touching_at_the_start_under_newton_are_refused_with_the_way_out():
+    a = sa.ElasticBody(scenes.box_mesh(0.2, 1), sa.NeoHookean(E=1e6, nu=0.3))
+    b = sa.ElasticBody(scenes.box_mesh(0.2, 1, center=(0.15, 0, 0)), sa.NeoHookean(E=1e6, nu=0.3))
+    with pytest.raises(ValueError, match="contact=False"):
+        sa.Simulation([a, b], integrator="implicit_euler")
+    sa.Simulation([a, b], integrator="implicit_euler", contact=False)  # allowed when asked for
+
+
+@pytest.mark.parametrize("dt", [0.2, 1.0])
+def test_a_box_at_rest_above_the_floor_is_caught_whatever_the_time_step(dt):
+    # at rest, its approach speed is 0, but gravity takes it 0.39 m (dt = 0.2) in the step
+    sim = scenes.drop(resolution=1, shape="box", height=0.1, dt=dt)
+    _bottoms(sim, 2)
+    assert max(r["max_penetration"] for r in sim.stats) < 5e-3
+
+
+def _pushed(mesh, force):
+    """A Pull of ``force`` (N) on every vertex of ``mesh`` shared by their masses."""
+    from skfem_affine.lab.loads import Pull, vertex_volumes
+    m = vertex_volumes(mesh, 1000.0)
+    return Pull(np.arange(mesh.nvertices), force, weights=m).vertex_force()
+
+
+def test_a_strong_force_does_not_push_a_box_through_the_floor():
+    mesh = scenes.box_mesh(0.5, 2, center=(0, 0, 0.26))  # 1 cm above the floor, pushed at 1e4 m/s^2
+    sim = sa.Simulation(sa.ElasticBody(mesh, sa.NeoHookean(E=1e5, nu=0.35)), gravity=(0, 0, -9.81),
+                        colliders=[sa.Plane()], forces=[_pushed(mesh, (0, 0, -1.25e6))])
+    _bottoms(sim, 3)
+    assert max(r["max_penetration"] for r in sim.stats) < 1e-3
+
+
+def test_a_strong_force_does_not_push_a_body_into_another():
+    # at rest 10 cm apart; the force alone takes the first box 0.25 m in one step
+    a_mesh = scenes.box_mesh(0.5, 2, center=(0, 0, 0))
+    a = sa.ElasticBody(a_mesh, sa.NeoHookean(E=1e7, nu=0.35))
+    b = sa.ElasticBody(scenes.box_mesh(0.5, 2, center=(0.6, 0, 0)), sa.NeoHookean(E=1e7, nu=0.35))
+    sim = sa.Simulation([a, b], forces=[_pushed(a_mesh, (125 * 2500.0, 0, 0))])
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", sa.SimulationWarning)
+        for s in sim.run(3):
+            xa, xb = sim.split(s.x)
+            assert xa[:, 0].mean() < xb[:, 0].mean() - 0.45
+    assert max(r["max_penetration"] for r in sim.stats) < 1e-3

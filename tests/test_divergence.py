@@ -167,3 +167,75 @@ def test_a_body_at_rest_with_nothing_acting_runs():
     states, err = _run(sim, 3)
     assert err is None and len(states) == 3
     assert np.abs(states[-1].x - mesh.p.T).max() < 1e-12
+
+
+def test_energy_created_without_work_is_warned_naming_the_frame():
+    # the linearized step of a stiff spinning cube creates a quarter of its energy in frame 1: not a
+    # blow-up (the step is accepted), but wrong, so it is said
+    sim = scenes.free_body(resolution=2, spin=(0, 0, 8.0), material=sa.NeoHookean(E=1e8, nu=0.3))
+    with pytest.warns(sa.SimulationWarning, match="created .* J .* at frame 1 ") as record:
+        states, err = _run(sim, 3)
+    assert err is None and len(record) == 1
+    assert sim.stats[0]["energy_gain"] > 0.2
+
+
+def _quiet(sim, frames):
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        return _run(sim, frames)
+
+
+def test_bodies_overlapping_at_rest_without_gravity_are_no_blow_up():
+    # their energies are round-off (1e-14 J): the energy test has a floor on the scale of the problem
+    a = sa.ElasticBody(scenes.box_mesh(0.5, 2, center=(0.1, 0.2, 0.3)), sa.NeoHookean(E=1e5, nu=0.3))
+    b = sa.ElasticBody(scenes.box_mesh(0.5, 2, center=(0.5, 0.2, 0.3)), sa.NeoHookean(E=1e5, nu=0.3))
+    sim = sa.Simulation([a, b])
+    states, err = _quiet(sim, 10)
+    assert err is None
+    assert 0 < sim.monitor.energy_floor < 1e-6
+
+
+def test_a_load_ramped_from_zero_on_a_bar_at_rest_is_no_blow_up():
+    mesh = scenes.beam_mesh(1).translated((0.1, 0.3, 0.7))
+    right, left = np.flatnonzero(mesh.p[0] > 4.09), np.flatnonzero(mesh.p[0] < 0.1 + 1e-9)
+    force = sa.VertexForce(right, lambda t, x, v: np.array([0.0, 0.0, -1e-3 * t]))
+    sim = sa.Simulation(sa.ElasticBody(mesh, sa.NeoHookean(E=1e5, nu=0.3), fixed=left), forces=[force])
+    states, err = _quiet(sim, 5)
+    assert err is None
+
+
+def test_a_blow_up_from_rest_is_still_refused_above_the_floor(monkeypatch):
+    monkeypatch.setattr(Monitor, "_tearing", lambda *args: None)
+    sim = scenes.cantilever(resolution=2, E=1e5, gravity=(0, 0, -1e6), on_inverted="ignore")
+    monitor_floor = sim.monitor.energy_floor
+    states, err = _run(sim, 30)
+    assert err is not None and "energy grew" in str(err) and monitor_floor < 1e-3
+
+
+def _sliver(quality):
+    """One tetrahedron whose volume is ``quality`` times that of a regular one with its longest edge."""
+    p = np.array([[0, 0, 0], [1, 0, 0], [0.5, np.sqrt(3) / 2, 0], [0.5, np.sqrt(3) / 6, 0.0]]).T
+    p[2, 3] = quality / (6 * np.sqrt(2)) * 3 / (np.sqrt(3) / 4)
+    return skfem.MeshTet(p, np.array([[0, 1, 2, 3]]).T)
+
+
+def test_a_sliver_the_linearized_step_gets_wrong_is_warned_naming_it():
+    # relative volume 5e-9 passes validation (1e-9) but falls 53 % short in 0.5 s under the linearized step
+    body = sa.ElasticBody(_sliver(5e-9), sa.NeoHookean(E=1e5, nu=0.3))
+    with pytest.warns(sa.SimulationWarning, match=r"element\(s\) \[0\] .* h\^2 k/m = 5.5e\+15"):
+        sim = sa.Simulation(body, gravity=(0, 0, -9.81))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        exact = sa.Simulation(body, gravity=(0, 0, -9.81), integrator="implicit_euler")  # exact: no warning
+        fine = sa.Simulation(sa.ElasticBody(_sliver(1e-5), sa.NeoHookean(E=1e5, nu=0.3)), gravity=(0, 0, -9.81))
+    assert fine.monitor.stiffness_ratio < 1e-2 * sa.monitor.STIFF_RATIO
+    # what the warning is about: backward Euler drops h^2 g n (n + 1) / 2
+    drops = []
+    for s in (sim, exact, fine):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            x0 = s.state.x[:, 2].mean()
+            for state in s.run(20):
+                pass
+        drops.append((x0 - state.x[:, 2].mean()) / (1e-4 * 9.81 * 20 * 21 / 2))
+    assert abs(drops[0] - 1) > 0.05 and abs(drops[1] - 1) < 1e-6 and abs(drops[2] - 1) < 1e-5

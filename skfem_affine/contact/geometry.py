@@ -197,17 +197,20 @@ class Detector:
         vertex = (cs.key < base) & (cs.key % self.n_kinds >= len(self.colliders))
         return vertex | (cs.key >= base) if edges else vertex
 
-    def find(self, x, v, dt):
+    def find(self, x, v, dt, w=None):
         """All contacts at positions x (n, 3) with vertex velocities v (n, 3), or None.
 
         A vertex (or a pair of edges) is a contact when its gap is below ``margin + 2 h`` times
-        its normal approach speed (towards a collider, or relative to the other body)."""
+        its normal approach speed (towards a collider, or relative to the other body). ``w``
+        (n, 3), optional: the velocity the step's own acceleration leads to, v + h a; the
+        approach speed is then the larger of the two, so that a vertex at rest that gravity or a
+        force takes to a collider within the step is found."""
         sets = []
         cv = self.collider_vertices
-        xc, vc = x[cv], v[cv]
+        fields = [v] if w is None else [v, w]
         for ci, col in enumerate(self.colliders):
-            d, n = col.query(xc)
-            approach = np.maximum(0.0, -np.einsum("ij,ij->i", vc, n))
+            d, n = col.query(x[cv])
+            approach = np.maximum.reduce([np.maximum(0.0, -np.einsum("ij,ij->i", u[cv], n)) for u in fields])
             hit = np.flatnonzero(d < self.margin + 2.0 * dt * approach)
             if hit.size:
                 vtx = cv[hit]
@@ -215,13 +218,16 @@ class Detector:
                                        d[hit], vtx * self.n_kinds + ci))
         if self.body_pairs:
             sv = self.body_vertices
-            speeds = self._speeds(self.body_of_vertex[sv], v[sv])
-            vertex_sets = self._body_contacts(x, v, x[sv], v[sv], dt, speeds)
+            if w is not None and not np.ptp(w[sv] - v[sv], axis=0).any():
+                fields = [v]  # a uniform acceleration (gravity alone) leaves relative approach speeds as they are
+            speeds = [self._speeds(self.body_of_vertex[sv], u[sv]) for u in fields]
+            vertex_sets = self._body_contacts(x, fields, x[sv], dt, speeds)
             held = np.zeros(len(x), dtype=bool)
             for cs in vertex_sets:
                 held[cs.vertex[np.abs(cs.distance) < self.margin]] = True
             sets += vertex_sets
-            found = None if self.edge_pairs is None else self._edge_contacts(x, v, dt, held, speeds[2])
+            found = None if self.edge_pairs is None else self._edge_contacts(x, fields, dt, held,
+                                                                             [s[2] for s in speeds])
             if found is not None:
                 sets.append(found)
         if not sets:
@@ -237,8 +243,7 @@ class Detector:
             depth = max(depth, float(-d.min(initial=0.0)))
         if bodies and self.body_pairs:
             xs = x[self.body_vertices]
-            zero = np.zeros_like(xs)
-            for cs in self._body_contacts(x, np.zeros_like(x), xs, zero, 0.0):
+            for cs in self._body_contacts(x, [np.zeros_like(x)], xs, 0.0):
                 depth = max(depth, float(-cs.distance.min(initial=0.0)))
         return depth
 
@@ -252,38 +257,44 @@ class Detector:
         np.maximum.at(max_spread, owner, spread)
         return mean_v, spread, max_spread
 
-    def _edge_contacts(self, x, v, dt, held, max_spread):
+    def _edge_contacts(self, x, fields, dt, held, max_spreads):
         """Speculative edge-edge contacts between sharp surface edges of different bodies
-        (:mod:`~skfem_affine.contact.edges`)."""
+        (:mod:`~skfem_affine.contact.edges`), within reach of any of the velocity ``fields``."""
         ep = self.edge_pairs
-        found = ep.find(x, v, dt, self.margin, max_spread, held)
-        if found is None:
+        found = [f for f in (ep.find(x, u, dt, self.margin, spread, held) for u, spread in zip(fields, max_spreads))
+                 if f is not None]
+        if not found:
             return None
-        ea, eb, s, t, normal, d = found
+        ea, eb, s, t, normal, d = (np.concatenate(parts) for parts in zip(*found))
+        if len(found) > 1:  # a pair found with both velocities counts once
+            _, first = np.unique(ea * len(ep.edges) + eb, return_index=True)
+            ea, eb, s, t, normal, d = (a[first] for a in (ea, eb, s, t, normal, d))
         a0, a1 = ep.edges[ea, 0], ep.edges[ea, 1]
         others = np.column_stack([a1, ep.edges[eb]])
         weights = np.column_stack([-s, 1.0 - t, t])
         key = self.n_vertices * self.n_kinds + ea * len(ep.edges) + eb
         return ContactSet(a0, others, weights, normal, d, key, own=1.0 - s)
 
-    def _body_contacts(self, x, v, xs, vs, dt, speeds=None):
+    def _body_contacts(self, x, fields, xs, dt, speeds=None):
         """Vertices ``xs`` (surface and free interior) of every body against the boundary triangles
-        of each other body.
+        of each other body, with the vertex velocities of each of ``fields`` (a list of (n, 3)).
 
         Broad phase: the other body's bounding box grown by a bound on the relative
         motion within the step, then a KD-tree on its triangle centroids (the
         :data:`NEAREST_TRIANGLES` nearest within reach). Narrow phase:
         :func:`closest_surface_points`; a pair is a contact when its gap may close at the
-        relative normal approach speed.
+        relative normal approach speed (the largest over the fields).
         """
         sv, out = self.body_vertices, []
         owner = self.body_of_vertex[sv]
         # |v_i - v_j| <= |v_i - vbar_a| + |vbar_a - vbar_b| + max_j |v_j - vbar_b| for i in a, j in b
-        mean_v, spread, max_spread = self._speeds(owner, vs) if speeds is None else speeds
+        if speeds is None:
+            speeds = [self._speeds(owner, u[sv]) for u in fields]
         for b in np.unique(self.tri_body):
             tris = self.tris[self.tri_body == b]
             corners = x[tris]                                             # (T, 3 corners, 3)
-            bound = spread + np.linalg.norm(mean_v[owner] - mean_v[b], axis=1) + max_spread[b]
+            bound = np.maximum.reduce([spread + np.linalg.norm(mean_v[owner] - mean_v[b], axis=1) + max_spread[b]
+                                       for mean_v, spread, max_spread in speeds])
             radius = self.margin + 2.0 * dt * bound
             lo, hi = corners.min(axis=(0, 1)), corners.max(axis=(0, 1))
             cand = np.flatnonzero((owner != b) & np.all((xs >= lo - radius[:, None]) & (xs <= hi + radius[:, None]),
@@ -299,8 +310,9 @@ class Detector:
                 continue
             found, tri, W, d, normal = closest_surface_points(xs[cand], rows, idx.reshape(len(cand), kq)[rows, cols],
                                                               corners, 1e-9 * self.mean_edge)
-            vq = np.einsum("kj,kjc->kc", W, v[tris[tri]])
-            approach = np.maximum(0.0, -np.einsum("ij,ij->i", vs[cand[found]] - vq, normal))
+            pairs = sv[cand[found]]
+            approach = np.maximum.reduce([np.maximum(0.0, -np.einsum("ij,ij->i", u[pairs] - np.einsum(
+                "kj,kjc->kc", W, u[tris[tri]]), normal)) for u in fields])
             hit = d < self.margin + 2.0 * dt * approach
             if np.any(hit):
                 vtx = sv[cand[found[hit]]]

@@ -307,6 +307,33 @@ class IPCContact:
             sdf.append((act, -e1[act], nrm[act]))              # vertex, normal force, lagged normal
         self.lagged = (x_hat, float(c), tc, sdf)
 
+    def normal_force(self):
+        """The total lagged normal force (N) of the current step's friction (0 without friction)."""
+        if self.lagged is None:
+            return 0.0
+        tc = self.lagged[2]
+        total = float(sum(tc[i].normal_force_magnitude for i in range(len(tc))))
+        return total + float(sum(lam.sum() for _, lam, _ in self.lagged[3]))
+
+    def relag(self, x):
+        r"""Freeze the step's friction again, at its solution x (flat (3n,)) instead of x_t.
+
+        Returns the relative change of the total normal force,
+        :math:`|\lambda(x) - \lambda(x_t)| / \max(\lambda(x), \lambda(x_t))` (0 without friction). The normal force at x_t is not the step's when it starts away
+        from equilibrium (inside dhat, or at an impact): a body started 2e-4 m above a plane is
+        pushed by many times its weight there, and friction lagged at that force stops it far too
+        soon. :class:`~skfem_affine.integrators.newton_integrator.NewtonIntegrator` re-solves the
+        step while this change is large (IPC's lagged friction iterations).
+        """
+        if self.lagged is None:
+            return 0.0
+        before = self.normal_force()
+        x_hat, c = self.lagged[:2]
+        self.begin_step(x, x_hat, c)
+        after = self.normal_force()
+        top = max(before, after)
+        return abs(after - before) / top if top > 0 else 0.0
+
     def _velocities(self, x):
         x_hat, c = self.lagged[:2]
         return np.asfortranarray(((x - x_hat) / (c * self.h)).reshape(-1, 3)[self.surface])

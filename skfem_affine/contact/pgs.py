@@ -270,18 +270,27 @@ class Contact:
             self.block_solvers[key] = solver
 
     # -------------------------------------------------------------- frame hooks
-    def detect(self, model, x, v, rec):
+    def detect(self, model, x, v, rec, f_ext=None):
         """Algorithm 1, "Find contacts": contacts at (x_t, v_t) (n, 3), their Jacobian, warm start
-        and the oracle's prediction impulses J^T lambda_pred (sec. 3.4). Returns the ContactSet or None."""
+        and the oracle's prediction impulses J^T lambda_pred (sec. 3.4). Returns the ContactSet or None.
+
+        The approach speeds are those of v_t and of the velocity the step's own acceleration
+        leads to, v_t + h (g + f_ext / m) (``f_ext`` (3n,): the frame's vertex forces), so that a
+        contact the step can reach under gravity and the forces is found whatever h."""
         t0 = time.perf_counter()
         sysm, h = model.system, model.dt
-        cs = self.detector.find(x, v, h)
+        a = np.broadcast_to(model.gravity, x.shape)
+        if f_ext is not None:
+            a = a + f_ext.reshape(-1, 3) / sysm.lumped_mass[:, None]
+        w = v + h * a
+        w[sysm.fixed] = v[sysm.fixed]  # a fixed vertex (or one on a prescribed path) keeps its velocity
+        cs = self.detector.find(x, v, h, w)
         self.current, self.prediction = cs, None
         if cs is not None:
             cs.J = jacobian(cs, sysm.n, sysm.free)
             self.lam0 = self._warm_start(cs)
             self.bias = self._bias(cs, h)
-            vg = v.reshape(-1)[sysm.free] + h * np.tile(model.gravity, sysm.n)[sysm.free]
+            vg = w.reshape(-1)[sysm.free]
             self.prediction = cs.J.T @ self._predicted_impulses(cs, vg)
         rec["n_contacts"] = 0 if cs is None else cs.size
         # penetrations between bodies at x_t (every penetrating pair is a contact): the frame's record

@@ -48,14 +48,14 @@ class LinearizedEuler:
         model, contact = self.model, self.contact
         free = model.system.free
         contacts, impulse = None, 0.0
-        if contact is not None:  # Algorithm 1: find contacts at x_t
-            contacts = contact.detect(model, state.x, state.v, rec)
-            impulse = contact.prediction_impulse()
         motion, self.last_motion = {}, None
         if getattr(model, "motion", None) is not None and model.motion.active:  # the frame's prescribed positions and forces
             motion = dict(targets=model.motion.targets(state.time + model.dt, state.x, model.dt),
                           f_ext=model.motion.force(state.time, state.x, state.v))
             self.last_motion = (motion["targets"], motion["f_ext"])  # for the simulation's energy check
+        if contact is not None:  # Algorithm 1: find contacts at x_t, within reach of the step's forces too
+            contacts = contact.detect(model, state.x, state.v, rec, f_ext=motion.get("f_ext"))
+            impulse = contact.prediction_impulse()
         if not free.size:  # every vertex fixed or prescribed: nothing to solve
             problem = StepProblem(model, state.x, state.v, state.frame + 1, None, None, impulse, contacts, **motion)
             result = StepResult(dv=np.zeros(0))

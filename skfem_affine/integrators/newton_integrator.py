@@ -41,6 +41,12 @@ class NewtonIntegrator:
     changed from outside) starts with an implicit Euler step.
     """
 
+    #: Lagged friction (IPC contact, full space): the step is solved again with the normal forces of
+    #: its solution while they differ by more than FRICTION_TOL (relative) from those it used, at
+    #: most FRICTION_ITERATIONS times.
+    FRICTION_TOL = 0.05
+    FRICTION_ITERATIONS = 4
+
     def __init__(self, model, scheme, reducer, solver, barrier, tol=1e-6, max_iters=50):
         if scheme not in SCHEMES:
             raise ValueError(f"integrator must be 'linearized' or one of {SCHEMES}, got {scheme!r}")
@@ -89,6 +95,16 @@ class NewtonIntegrator:
             result = StepResult(x=x, stats=stats)
         else:
             result = self.reducer.solve(problem)
+        relag = getattr(self.barrier, "relag", None)
+        if relag is not None and (self.reducer is None or self.reducer.name == "full"):
+            for _ in range(self.FRICTION_ITERATIONS):
+                # lagged friction: its normal forces from the solution, while they differ from those used
+                if relag(result.x) <= self.FRICTION_TOL:
+                    break
+                stats = result.stats
+                x, _ = newton_solve(problem, self.solver, stats)
+                stats["friction_iterations"] = stats.get("friction_iterations", 0) + 1
+                result = StepResult(x=x, stats=stats)
         merge_stats(rec, result.stats)
         v = problem.velocity(result.x)  # zero on fixed DOFs, which stay at x_t; the path's on prescribed ones
         self.history = (state.frame, state.x.copy(), state.v.copy())

@@ -71,7 +71,7 @@ from skfem_affine.reducers.subspace import oracle as so
 from skfem_affine.reducers.subspace.bases import SkinningEigenmodes, _Basis
 from skfem_affine.reducers.subspace.linalg import bfgs_update, masked_sandwich, metis_parts, schur_solve
 from skfem_affine.reducers.subspace.subdomains import Subdomains
-from skfem_affine.solvers import direct_solver
+from skfem_affine.solvers import SolverError, direct_solver
 
 
 def _threshold(value, name):
@@ -661,7 +661,18 @@ class _Iteration:
         gq, gx = Ba.T @ g, g[S]
         t4 = time.perf_counter()
         rec["reduced_assembly"] = rec.get("reduced_assembly", 0.0) + t4 - t3
-        dq, dx, iters, tf = schur_solve(Hq, C, Hx, gq, gx, red.pcg_tol, red.pcg_maxiter)
+        try:
+            dq, dx, iters, tf = schur_solve(Hq, C, Hx, gq, gx, red.pcg_tol, red.pcg_maxiter)
+        except SolverError as err:
+            # an indefinite modal block (a secant update or a fast rotation far from the basis' rest
+            # shape): this iterate has no reduced Newton direction; the full-space one has
+            if "modal block" not in str(err):
+                raise
+            rec["modal_fallbacks"] = rec.get("modal_fallbacks", 0) + 1
+            if red.control is not None:  # under the controllers: the step again from x_t, in full space
+                raise _LeaveReduction from None
+            self.full = True
+            return self._full(x, g, data, rec, e)
         self.pcg_total += iters
         red.last_system = (Hq, C, Hx, gq, gx)
         t5 = time.perf_counter()
