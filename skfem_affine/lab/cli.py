@@ -155,12 +155,14 @@ def _fmt(value, spec=".2e"):
 
 def _table(summaries):
     head = (f"{'method':>16} {'status':>8} {'wall s':>8} {'speedup':>8} {'DOF ratio':>9} {'bodies':>7} "
-            f"{'dist err':>9} {'step err':>9} {'residual':>9} {'energy err':>10}")
+            f"{'resp err':>9} {'dist err':>9} {'dist m':>9} {'stress err':>10} {'step err':>9} {'residual':>9} "
+            f"{'energy err':>10}")
     lines = [head, "-" * len(head)]
     for s in summaries:
         lines.append(f"{s['method']:>16} {s['status']:>8} {s['wall_s']:8.2f} {_fmt(s['speedup'], '8.2f')} "
                      f"{_fmt(s['dof_ratio'], '9.3f')} {s['mean_clusters']:7.1f} "
-                     f"{_fmt(s['max_distance_error'], '9.1e')} "
+                     f"{_fmt(s.get('max_response_error'), '9.1e')} {_fmt(s['max_distance_error'], '9.1e')} "
+                     f"{_fmt(s.get('max_distance_m'), '9.1e')} {_fmt(s.get('max_stress_error'), '10.1e')} "
                      f"{_fmt(s['max_step_error'], '9.1e')} {_fmt(s['max_residual'], '9.1e')} "
                      f"{_fmt(s['max_energy_error'], '10.1e')}")
     return "\n".join(lines)
@@ -322,8 +324,12 @@ def cmd_compare(args):
     _say(args, _table(summaries))
     _say(args, f"timing: {runners.TIMING[first['timing']]}")
     _say(args, "speedup = full wall time / method wall time (same frames, this machine); errors are the largest\n"
-               "over frames: vertex distance / scene size, step = reference re-started each frame, residual =\n"
-               "||A dv - b|| / ||b|| in full space, energy = |strain energy difference| / max reference energy.")
+               "over frames of the vertex distance to the reference: resp = over the response (the reference's\n"
+               f"largest displacement from rest, {_fmt(first.get('response_m'), '.3g').strip()} m), dist = over the "
+               f"scene size ({first['size_m']:.3g} m), dist m = in metres;\n"
+               "stress = largest element |sigma - sigma_ref| / largest reference stress; step = dist with the\n"
+               "reference re-started each frame, residual = ||A dv - b|| / ||b|| in full space, energy = |strain\n"
+               "energy difference| / max reference energy.")
     _say(args, f"wrote {out}/: {', '.join(written)}  ({time.perf_counter() - t0:.1f} s in all)")
     main = runs[methods[1]] if len(methods) > 1 else runs["full"]
     _emit(args, _summary_json(main.summary, {"timing": first["timing"], "out": out,
@@ -497,13 +503,18 @@ def cmd_budget(args):
     picture = plots.trade_plot(trade.budget_points(rows), os.path.join(out, "trade.png"), budgets=args.errors,
                                title=f"{spec.label}: {args.method} at error budgets (achieved beside each budget)")
     if not args.json:
-        print(f"{'budget':>8} {'achieved':>9} {'estimated':>9} {'speedup':>8} {'DOF ratio':>9} {'reduced':>8} "
-              f"{'mean tau':>9} {'status':>8}")
+        print(f"{'budget':>8} {'achieved':>9} {'estimated':>9} {'resp err':>9} {'dist err':>9} {'speedup':>8} "
+              f"{'DOF ratio':>9} {'reduced':>8} {'mean tau':>9} {'status':>8}")
         for r in rows:
-            print(f"{r['budget']:8.3g} {r['error']:9.2e} {r['max_estimated_error']:9.2e} {_fmt(r['speedup'], '8.2f')} "
+            print(f"{r['budget']:8.3g} {r['error']:9.2e} {r['max_estimated_error']:9.2e} "
+                  f"{_fmt(r['error_response'], '9.2e')} {r['error_size']:9.2e} {_fmt(r['speedup'], '8.2f')} "
                   f"{_fmt(r['dof_ratio'], '9.3f')} {100 * r['reduced_frames']:7.0f}% {_fmt(r['mean_tau_a'], '9.3g')} "
                   f"{r['status']:>8}")
-        print(f"timing: {runners.TIMING['interleaved']}; achieved = max vertex distance to the full-space run / size;"
+        first = rows[0] if rows else {}
+        print(f"timing: {runners.TIMING['interleaved']}; achieved and estimated = max vertex distance to the "
+              f"full-space run\nin the budget's unit ({first.get('relative_to')}); resp err = the same over the "
+              f"full-space run's response\n(largest displacement from rest, {_fmt(first.get('response_m'), '.3g').strip()}"
+              f" m), dist err = over the scene size ({first.get('size_m', 0.0):.3g} m);"
               f"\nreduced = frames that returned the reduced solution (the others: shadow, impact or fall-back "
               f"frames in full space)")
         print(f"wrote {table} and {picture} ({time.perf_counter() - t0:.1f} s)")
@@ -524,7 +535,7 @@ def cmd_demo(args):
     args.no_paraview, args.gif = True, False
     _say(args, f"demo: a cantilever beam ({24 * args.resolution ** 3} tets) pinned at x = 0 swings down under "
                "gravity, simulated in full space and\nwith affinification (elements with alike deformation rates "
-               "merge into 12-DOF affine bodies) at its default\nerror budget, 1 % of the beam's size; the "
+               "merge into 12-DOF affine bodies) at its default\nerror budget, 1 % of the beam's response; the "
                "full-space run is the reference for speed and error, both stepped\nframe by frame in turn. "
                "(`skfem-affine compare --help`: any scene and method; `skfem-affine budget`: several budgets.)")
     code = cmd_compare(args)

@@ -58,7 +58,10 @@ def budget_runs(spec, budgets, frames=None, method="affinification", warm=True, 
     Returns
     -------
     list of dict
-        Per budget: ``budget``, ``error`` (measured max distance error), ``speedup`` (interleaved
+        Per budget: ``budget``, ``relative_to`` (its unit), ``error`` (measured max distance
+        error in the budget's unit), ``error_response`` (over the full-space run's response, its
+        largest displacement from rest ``response_m``), ``error_size`` (over the scene size),
+        ``error_m`` (metres), ``speedup`` (interleaved
         wall-time ratio), ``dof_ratio``, ``reduced_frames`` (fraction of frames that returned the
         reduced solution), ``max_estimated_error``, ``mean_tau_a``, ``status``.
     """
@@ -74,21 +77,28 @@ def budget_runs(spec, budgets, frames=None, method="affinification", warm=True, 
         sims[f"budget {b:g}"] = spec.build(reducer=REDUCERS[method](target_error=b, **options))
     frames = default_frames(sims["full"], frames)
     full, size = sims["full"], sims["full"].size
-    errors = {name: 0.0 for name in sims}
+    errors = {name: 0.0 for name in sims}  # metres
+    response = [metrics.response_amplitude(full.state.x, full.system.p0)]
 
     def on_frame(frame, running):
         if "full" not in running:
             return
+        response[0] = max(response[0], metrics.response_amplitude(full.state.x, full.system.p0))
         for name, sim in running.items():
             if name != "full":
-                errors[name] = max(errors[name], metrics.distance_error(sim.state.x, full.state.x, size))
+                errors[name] = max(errors[name], metrics.distance_m(sim.state.x, full.state.x))
 
     runs = interleaved(sims, frames, on_frame=on_frame, progress=progress)
     rows = []
     for b in budgets:
         run = runs[f"budget {b:g}"]
         recs = run.records
-        rows.append({"scene": spec.label, "method": method, "budget": b, "error": errors[f"budget {b:g}"],
+        unit = run.sim.reducer.relative_to
+        err = errors[f"budget {b:g}"]
+        by_unit = {"response": metrics.relative(err, response[0]), "size": err / size, "metre": err}
+        rows.append({"scene": spec.label, "method": method, "budget": b, "relative_to": unit, "error": by_unit[unit],
+                     "error_response": by_unit["response"], "error_size": by_unit["size"], "error_m": err,
+                     "response_m": response[0], "size_m": size,
                      "speedup": run.summary.get("speedup"), "dof_ratio": run.summary.get("dof_ratio"),
                      "reduced_frames": float(np.mean([bool(r.get("reduced")) for r in recs])) if recs else 0.0,
                      "max_estimated_error": float(max((r.get("estimated_error", 0.0) for r in recs), default=0.0)),
