@@ -12,7 +12,7 @@ The package is laid out by idea: the elastic core (:mod:`materials`, :mod:`kinem
 (``affine/`` and ``subspace/``), :mod:`contact`, and the measuring tools in :mod:`lab`.
 """
 from skfem_affine import _compile_notice  # noqa: F401 (one stderr line when the kernels compile)
-from skfem_affine import assembly, kinematics, materials, solvers
+from skfem_affine import assembly, kinematics, materials, solvers, stress
 from skfem_affine.body import ElasticBody
 from skfem_affine.contact import colliders
 from skfem_affine.contact.colliders import Bowl, Box, Capsule, Plane, SDFCollider, Sphere
@@ -25,13 +25,14 @@ from skfem_affine.reducers.affine.rigidification import Rigidification
 from skfem_affine.reducers.subspace import bases
 from skfem_affine.reducers.subspace.bases import AffineModes, LinearModes, SkinningEigenmodes
 from skfem_affine.reducers.subspace.reducer import AdaptiveSubspace
+from skfem_affine.vertex_sets import vertices_of
 from skfem_affine.simulation import Rayleigh, Simulation, SimulationDiverged, SimulationWarning, State, Stats
 from skfem_affine.lab import io, metrics, runners, scenes
 
 __version__ = "0.1.0"
 
-__all__ = ["ElasticBody", "Prescribed", "VertexForce", "Simulation", "SimulationDiverged", "SimulationWarning", "State", "Stats", "Rayleigh",
+__all__ = ["ElasticBody", "Prescribed", "VertexForce", "vertices_of", "Simulation", "SimulationDiverged", "SimulationWarning", "State", "Stats", "Rayleigh",
            "Material", "StVK", "Corotational", "NeoHookean", "Affinification", "Rigidification",
            "AdaptiveSubspace", "AffineModes", "LinearModes", "SkinningEigenmodes", "bases",
            "Plane", "Sphere", "Box", "Capsule", "Bowl", "SDFCollider", "PGS", "IPC", "colliders",
-           "assembly", "io", "kinematics", "materials", "metrics", "runners", "scenes", "solvers"]
+           "assembly", "io", "kinematics", "materials", "metrics", "runners", "scenes", "solvers", "stress"]

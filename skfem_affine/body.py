@@ -9,6 +9,7 @@ import skfem
 from skfem_affine.kinematics import shape_gradients, signed_volumes
 from skfem_affine.checks import real_array
 from skfem_affine.materials import Material
+from skfem_affine.vertex_sets import vertices_of
 
 # a rest element whose volume is below this fraction of a regular tet with its longest edge
 # is degenerate (its shape gradients would be meaningless)
@@ -32,10 +33,14 @@ class ElasticBody:
         ``E``/``nu`` arrays of length m.
     density : float or (m,) array
         Mass density (kg/m^3), > 0.
-    fixed : array of vertex indices or boolean mask, optional
-        Vertices held in place (zero velocity, Dirichlet), e.g. from
-        ``mesh.nodes_satisfying``. A mask must be boolean with one entry per vertex;
-        an integer array of n zeros and ones is refused as ambiguous.
+    fixed : vertex indices, boolean mask, boundary name(s) or scikit-fem DofsView, optional
+        Vertices held in place (zero velocity, Dirichlet), e.g. ``mesh.nodes_satisfying(...)``,
+        ``"left"`` (a name of ``mesh.boundaries``) or ``basis.get_dofs("left")`` of an
+        ``ElementVector(ElementTetP1())`` basis. A plain integer array is read as vertex
+        indices: facet or DOF index arrays go through ``sa.vertices_of(mesh, facets=...)`` /
+        ``sa.vertices_of(mesh, dofs=...)`` (:mod:`skfem_affine.vertex_sets`). A mask must be
+        boolean with one entry per vertex; an integer array of n zeros and ones is refused as
+        ambiguous.
     velocity : (n, 3) or (3,) array, optional
         Initial velocity (default zero). Fixed and prescribed vertices get zero velocity.
     name : str, optional
@@ -54,8 +59,8 @@ class ElasticBody:
         self.n_vertices, self.n_elements = n, m
         self.materials, self.material_index = _element_materials(material, mesh)
         self.density = _positive_per_element(density, m, "density")
-        self.fixed = _vertex_mask(fixed, n)
-        self.prescribed, self.prescribed_vertices = _prescribed(prescribed, mesh.p.T, self.fixed)
+        self.fixed = _vertex_mask(fixed, mesh)
+        self.prescribed, self.prescribed_vertices = _prescribed(prescribed, mesh, self.fixed)
         self.velocity = _velocity(velocity, n)
         self.velocity[self.fixed] = 0.0
         for idx in self.prescribed_vertices:
@@ -242,44 +247,15 @@ def _positive_per_element(value, m, what):
     return a
 
 
-def _vertex_mask(fixed, n):
-    """Boolean (n,) mask from a boolean mask or vertex indices.
-
-    An integer array of only 0 and 1 with one entry per vertex reads as well as a mask as
-    as indices with repeats: it is refused, the user says which it is.
-    """
-    mask = np.zeros(n, dtype=bool)
-    if fixed is None:
-        return mask
-    if isinstance(fixed, (set, frozenset)):
-        fixed = sorted(fixed)
-    if isinstance(fixed, (str, bytes)):
-        raise TypeError(f"fixed must hold vertex indices (integers) or a boolean mask, got {type(fixed).__name__}")
-    if isinstance(fixed, (list, tuple)) and any(isinstance(v, (bool, np.bool_)) for v in fixed) \
-            and not all(isinstance(v, (bool, np.bool_)) for v in fixed):
-        raise TypeError("fixed mixes booleans and integers; pass a boolean mask of length "
-                        f"{n} or a list of vertex indices")
-    try:
-        f = np.asarray(fixed)
-    except (TypeError, ValueError):
-        raise TypeError(f"fixed must hold vertex indices (integers) or a boolean mask, got {type(fixed).__name__}") from None
-    if f.dtype == bool:
-        if f.shape != (n,):
-            raise ValueError(f"boolean fixed mask must have length {n} (one entry per vertex), got shape {f.shape}")
-        return f.copy()
-    if f.size and not np.issubdtype(f.dtype, np.integer):
-        raise TypeError(f"fixed must hold vertex indices (integers) or a boolean mask, got {f.dtype} values")
-    f = f.ravel().astype(np.int64)
-    if f.size == n and n > 2 and np.all((f == 0) | (f == 1)):
-        raise ValueError(f"fixed has {n} entries, all 0 or 1: a mask or vertex indices? Pass a boolean mask "
-                         f"(np.asarray(fixed, dtype=bool)) or the indices (np.flatnonzero(fixed))")
-    if f.size and (f.min() < 0 or f.max() >= n):
-        raise ValueError(f"fixed vertex indices out of range [0, {n}): min {f.min()}, max {f.max()}")
-    mask[f] = True
+def _vertex_mask(fixed, mesh):
+    """Boolean (n,) mask of the fixed vertices from any selection :func:`~skfem_affine.vertex_sets.vertices_of` takes."""
+    mask = np.zeros(mesh.p.shape[1], dtype=bool)
+    if fixed is not None:
+        mask[vertices_of(mesh, fixed, name="fixed")] = True
     return mask
 
 
-def _prescribed(prescribed, rest, fixed):
+def _prescribed(prescribed, mesh, fixed):
     """The list of :class:`~skfem_affine.motion.Prescribed` and their checked vertex indices."""
     from skfem_affine.motion import Prescribed
     if prescribed is None:
@@ -291,7 +267,7 @@ def _prescribed(prescribed, rest, fixed):
     taken = fixed.copy()
     indices = []
     for p in items:
-        idx = p.bind(rest)
+        idx = p.bind(mesh.p.T, mesh)
         if np.any(taken[idx]):
             raise ValueError(f"prescribed vertices {_some(idx[taken[idx]])} are also fixed or prescribed by "
                              f"another sa.Prescribed; a vertex has one boundary condition")

@@ -26,35 +26,21 @@ from dataclasses import dataclass
 import numpy as np
 
 from skfem_affine.checks import real_array
+from skfem_affine.vertex_sets import vertices_of
 
 __all__ = ["Prescribed", "VertexForce", "Motion", "Targets", "coupling", "work"]
 
 
-def vertex_indices(vertices, n, name):
-    """Vertex indices (k,) int64 from indices or a boolean mask of length n, checked against n."""
-    if isinstance(vertices, (str, bytes)) or callable(vertices):
-        raise TypeError(f"{name} must hold vertex indices (integers) or a boolean mask, got {type(vertices).__name__}")
-    try:
-        a = np.asarray(sorted(vertices) if isinstance(vertices, (set, frozenset)) else vertices)
-    except (TypeError, ValueError):
-        raise TypeError(f"{name} must hold vertex indices (integers) or a boolean mask, "
-                        f"got {type(vertices).__name__}") from None
-    if a.dtype == bool:
-        if n is not None and a.shape != (n,):
-            raise ValueError(f"boolean {name} mask must have length {n} (one entry per vertex), got shape {a.shape}")
-        a = np.flatnonzero(a)
-        if a.size == 0:
-            raise ValueError(f"{name} mask selects no vertex")
-        return a
-    if a.size and not np.issubdtype(a.dtype, np.integer):
-        raise TypeError(f"{name} must hold vertex indices (integers) or a boolean mask, got {a.dtype} values")
-    a = a.ravel().astype(np.int64)
+def vertex_indices(vertices, n, name, mesh=None):
+    """Vertex indices (k,) int64, none repeated, at least one, from any selection that
+    :func:`~skfem_affine.vertex_sets.vertices_of` takes (of ``mesh`` when given), checked against n."""
+    a = vertices_of(mesh, vertices, n=n, name=name)
     if a.size == 0:
+        if np.asarray(vertices).dtype == bool:
+            raise ValueError(f"{name} mask selects no vertex")
         raise ValueError(f"{name} is empty: give at least one vertex")
     if np.unique(a).size != a.size:
         raise ValueError(f"{name} repeats vertices")
-    if n is not None and (a.min() < 0 or a.max() >= n):
-        raise ValueError(f"{name} indices out of range [0, {n}): min {a.min()}, max {a.max()}")
     return a
 
 
@@ -63,8 +49,9 @@ class Prescribed:
 
     Parameters
     ----------
-    vertices : array of vertex indices or boolean mask
-        The body's vertices (e.g. ``mesh.nodes_satisfying(...)``).
+    vertices : vertex indices, boolean mask, boundary name(s) or scikit-fem DofsView
+        The body's vertices (e.g. ``mesh.nodes_satisfying(...)``, a name of ``mesh.boundaries``
+        or ``basis.get_dofs(...)``; :mod:`skfem_affine.vertex_sets`).
     path : callable
         ``path(t, X)`` with t the time (s) and X the rest positions (k, 3) of ``vertices``
         returns their positions (k, 3) at t. At t = 0 it gives the initial positions (the
@@ -94,12 +81,13 @@ class Prescribed:
         k = np.size(self.vertices) if np.asarray(self.vertices).dtype != bool else int(np.sum(self.vertices))
         return f"Prescribed({k} vertices, path={getattr(self.path, '__name__', self.path)!r})"
 
-    def bind(self, rest):
-        """Check against a body's rest positions (n, 3): the vertex indices and path(0, X).
+    def bind(self, rest, mesh=None):
+        """Check against a body's rest positions (n, 3) (and its mesh, for boundary names and
+        DofsViews): the vertex indices and path(0, X).
 
         Returns the indices (k,); raises ValueError/TypeError naming ``vertices`` or ``path``.
         """
-        idx = vertex_indices(self.vertices, rest.shape[0], "prescribed vertices")
+        idx = vertex_indices(self.vertices, rest.shape[0], "prescribed vertices", mesh)
         evaluate_path(self.path, 0.0, rest[idx])
         return idx
 
@@ -122,9 +110,11 @@ class VertexForce:
 
     Parameters
     ----------
-    vertices : array of vertex indices or boolean mask
+    vertices : vertex indices, boolean mask, boundary name(s) or scikit-fem DofsView
         Indices into the simulation's stacked vertices (``state.x``); for one body, its own.
-        With ``body=`` they are that body's indices.
+        With ``body=`` they are that body's indices. Boundary names of ``mesh.boundaries`` and
+        a ``DofsView`` (``basis.get_dofs(...)``) refer to the body's mesh: they need ``body=``
+        when the simulation has several bodies (:mod:`skfem_affine.vertex_sets`).
     force : callable or (3,) array
         ``force(t, x, v)`` with x, v the positions and velocities (k, 3) of ``vertices``
         returns the force on each (k, 3) or one force for all (3,), in newtons. A constant
@@ -204,13 +194,15 @@ class Motion:
             if not isinstance(f, VertexForce):
                 raise TypeError(f"forces[{k}] must be a sa.VertexForce(vertices, force), got {type(f).__name__}")
             if f.body is None:
-                idx = vertex_indices(f.vertices, system.n, f"forces[{k}] vertices")
+                mesh = bodies[0].mesh if len(bodies) == 1 else None  # one body: its mesh names its boundaries
+                idx = vertex_indices(f.vertices, system.n, f"forces[{k}] vertices", mesh)
             else:
                 match = [i for i, b in enumerate(bodies) if b is f.body]
                 if not match:
                     raise ValueError(f"forces[{k}] body is not one of the simulation's bodies")
                 i = match[0]
-                idx = vertex_indices(f.vertices, bodies[i].n_vertices, f"forces[{k}] vertices") + system.vertex_offsets[i]
+                idx = vertex_indices(f.vertices, bodies[i].n_vertices, f"forces[{k}] vertices",
+                                     bodies[i].mesh) + system.vertex_offsets[i]
             self.forces.append((idx, f.force))
 
     @property

@@ -19,10 +19,11 @@ from dataclasses import dataclass
 import numpy as np
 
 import skfem_affine
-from skfem_affine import checkpoint
+from skfem_affine import checkpoint, stress
 
 from skfem_affine.assembly import ElasticSystem
 from skfem_affine.checks import check_bodies, choice, flag, integer, positive, real_array
+from skfem_affine.vertex_sets import vector_p1_dofs
 from skfem_affine.contact import pgs
 from skfem_affine.contact.colliders import check_colliders
 from skfem_affine.contact.ipc import IPC, IPCContact
@@ -67,6 +68,48 @@ class State:
     def copy(self):
         return State(self.x.copy(), self.v.copy(), self.frame, self.time,
                      None if self.clusters is None else self.clusters.copy())
+
+    def dofs(self, basis, field="displacement"):
+        """This state as a DOF vector of a scikit-fem ``ElementVector(ElementTetP1())`` basis.
+
+        For ``basis.interpolate``, ``basis.probes``, skfem's plotting and forms. The basis is on
+        the body's mesh (one body; for several, :meth:`Simulation.to_dofs`).
+
+        Parameters
+        ----------
+        basis : skfem.Basis
+            ``Basis(mesh, ElementVector(ElementTetP1()))`` on the mesh of the state's body.
+        field : {"displacement", "position", "velocity"}
+            Displacement from the rest pose of ``basis.mesh`` (m, default), positions (m) or
+            velocities (m/s).
+
+        Returns
+        -------
+        (basis.N,) array
+
+        Examples
+        --------
+        >>> u = sim.state.dofs(basis)                       # doctest: +SKIP
+        >>> tip_displacement = basis.probes(tip.T) @ u      # doctest: +SKIP
+        """
+        nodal = vector_p1_dofs(basis, self.x.shape[0])
+        values = {"displacement": lambda: self.x - basis.mesh.p.T, "position": lambda: self.x,
+                  "velocity": lambda: self.v}
+        out = np.zeros(basis.N)
+        out[nodal] = values[choice(field, "field", tuple(values))]().T
+        return out
+
+    @classmethod
+    def from_dofs(cls, basis, u, v=None, frame=0, time=0.0):
+        """A state from scikit-fem DOF vectors of an ``ElementVector(ElementTetP1())`` basis: the
+        displacement ``u`` from the rest pose of ``basis.mesh`` (m) and optionally the velocity ``v``
+        (m/s, default zero). The inverse of :meth:`dofs`; e.g. ``sim.state = State.from_dofs(basis,
+        u_static)`` starts a run from a scikit-fem static solution."""
+        n = basis.mesh.p.shape[1] if hasattr(basis, "mesh") else 0
+        nodal = vector_p1_dofs(basis, n)
+        u = real_array(u, "u", shape=(basis.N,))
+        v = np.zeros(basis.N) if v is None else real_array(v, "v", shape=(basis.N,))
+        return cls(basis.mesh.p.T + u[nodal].T, np.ascontiguousarray(v[nodal].T), frame, time)
 
 
 class Stats(list):
@@ -406,6 +449,37 @@ class Simulation:
         strain = self.system.strain_energy(s.x)
         grav = -self.f_gravity @ (s.x - self.system.p0).reshape(-1)
         return {"kinetic": kin, "strain": strain, "gravity": grav, "total": kin + strain + grav}
+
+    def stress(self, state=None):
+        """Strains and stresses of a state (default: the current one), per element and at vertices.
+
+        Returns a :class:`~skfem_affine.stress.Stresses`: Green-Lagrange ``strain``, first
+        Piola ``piola`` and ``cauchy`` stress tensors (m, 3, 3), ``von_mises`` (m,), ``principal``
+        (m, 3, largest first), ``energy_density`` (m,), in Pa (J/m^3 for the energy), each from
+        the element's own material; ``.vertex`` holds the volume-weighted averages at the
+        vertices. Definitions in :mod:`skfem_affine.stress`.
+        """
+        s = self.state if state is None else state
+        x = getattr(s, "x", s)
+        x = real_array(x, "state positions")
+        if x.shape != self.state.x.shape:
+            raise ValueError(f"state must be a State of this simulation or positions of shape "
+                             f"{self.state.x.shape}, got shape {x.shape}")
+        return stress.evaluate(self.system, x)
+
+    def to_dofs(self, basis, state=None, field="displacement"):
+        """One body's part of a state (default: the current one) as a DOF vector of ``basis``, a
+        scikit-fem ``Basis(body.mesh, ElementVector(ElementTetP1()))``; the body is the one whose
+        mesh ``basis.mesh`` is. See :meth:`State.dofs` for ``field``."""
+        s = self.state if state is None else state
+        mesh = getattr(basis, "mesh", None)
+        match = [k for k, b in enumerate(self.bodies) if b.mesh is mesh]
+        if not match:
+            raise ValueError("basis must be built on the mesh of one of the simulation's bodies "
+                             "(Basis(body.mesh, ElementVector(ElementTetP1())))")
+        k = match[0]
+        part = State(self.split(s.x)[k], self.split(s.v)[k], s.frame, s.time)
+        return part.dofs(basis, field)
 
     def split(self, x):
         """Per-body views of a stacked per-vertex array (e.g. ``state.x``)."""

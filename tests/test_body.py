@@ -235,7 +235,7 @@ def test_mesh_too_small_for_floating_point_is_refused():
     (dict(density=[1000.0] * 23 + [np.inf]), ValueError, "density.*finite"),
     (dict(fixed=[0, 1] + [0] * 17 + [1]), ValueError, "fixed.*boolean mask.*indices"),
     (dict(fixed=[True, 3]), TypeError, "fixed mixes booleans and integers"),
-    (dict(fixed="0"), TypeError, "fixed"),
+    (dict(fixed="0"), ValueError, "fixed: .0. is not a boundary of the mesh"),  # a str names a boundary
     (dict(fixed=np.ones((20, 1), dtype=bool)), ValueError, "boolean fixed mask"),
     (dict(velocity=["1", "0", "0"]), TypeError, "velocity"),
     (dict(velocity=np.zeros((20, 2))), ValueError, "velocity"),

@@ -5,9 +5,16 @@ from xml.sax.saxutils import quoteattr
 import meshio
 import numpy as np
 
+from skfem_affine.checks import flag
 
-def frame_mesh(sim, state):
-    """A meshio.Mesh of all bodies at ``state`` with point velocity and cell data."""
+
+def frame_mesh(sim, state, stresses=True):
+    """A meshio.Mesh of all bodies at ``state`` with point velocity and cell data.
+
+    With ``stresses`` it also holds the strains and stresses of :meth:`Simulation.stress`
+    (:data:`skfem_affine.stress.FIELDS`) per element (cell data) and averaged at the
+    vertices (point data), under the same names; tensors as 9 components, row-major.
+    """
     sysm = sim.system
     cells = [("tetra", sysm.t.T.astype(np.int64))]
     clusters = state.clusters if state.clusters is not None else np.full(sysm.m, -1)
@@ -17,6 +24,10 @@ def frame_mesh(sim, state):
                  "affine": [(np.asarray(clusters) >= 0).astype(np.int8)]}
     point_data = {"velocity": state.v, "displacement": state.x - sysm.p0,
                   "fixed": sysm.fixed.astype(np.int8)}
+    if stresses:
+        st = sim.stress(state)
+        cell_data.update({k: [v] for k, v in st.fields().items()})
+        point_data.update(st.vertex.fields())
     return meshio.Mesh(state.x, cells, point_data=point_data, cell_data=cell_data)
 
 
@@ -32,7 +43,11 @@ class Series:
     ParaView opens, is rewritten after every state, so an interrupted run still opens. Writing
     the same frame again replaces it. Nothing is simulated here: the series holds exactly the
     states written. Each VTU holds point ``velocity``, ``displacement`` and ``fixed`` and cell
-    ``cluster`` (body id, -1 elastic), ``affine`` (0/1), ``material`` and ``body``.
+    ``cluster`` (body id, -1 elastic), ``affine`` (0/1), ``material`` and ``body``, and, unless
+    ``stresses=False``, the strains and stresses of :meth:`Simulation.stress` per cell and
+    averaged at the points: ``green_lagrange_strain``, ``first_piola_stress``,
+    ``cauchy_stress`` (tensors, 9 components row-major), ``von_mises_stress``,
+    ``principal_stress`` (3, largest first), all in Pa, and ``strain_energy_density`` (J/m^3).
 
     Parameters
     ----------
@@ -40,15 +55,18 @@ class Series:
         ``folder/stem`` (a trailing ``.pvd`` is dropped); the folder is created.
     sim : Simulation
         The simulation the states belong to (its mesh, materials and fixed vertices).
+    stresses : bool
+        Write strains and stresses (default True; :mod:`skfem_affine.stress`).
     """
 
-    def __init__(self, path, sim):
+    def __init__(self, path, sim, stresses=True):
         if not hasattr(sim, "system"):
             raise TypeError(f"sim must be a skfem_affine.Simulation, got {type(sim).__name__}")
         path = os.fspath(path)
         if path.endswith(".pvd"):
             path = path[:-4]
         self.sim = sim
+        self.stresses = flag(stresses, "stresses")
         self.dir, self.stem = os.path.dirname(path) or ".", os.path.basename(path)
         if not self.stem:
             raise ValueError(f"path must end in a file stem (e.g. 'out/beam'), got {path!r}")
@@ -69,7 +87,7 @@ class Series:
             raise ValueError(f"state has positions of shape {np.shape(x)}, but the series' simulation has "
                              f"{self.sim.state.x.shape}: the state is not one of this simulation's")
         name = f"{self.stem}_{state.frame:05d}.vtu"
-        meshio.write(os.path.join(self.dir, name), frame_mesh(self.sim, state), binary=True)
+        meshio.write(os.path.join(self.dir, name), frame_mesh(self.sim, state, self.stresses), binary=True)
         self.entries[state.frame] = (state.time, name)
         with open(self.pvd, "w") as fh:
             fh.write('<?xml version="1.0"?>\n<VTKFile type="Collection" version="0.1">\n<Collection>\n')
@@ -79,7 +97,7 @@ class Series:
         return name
 
 
-def write_series(path, sim, *, states):
+def write_series(path, sim, *, states, stresses=True):
     """Write already computed ``states`` of ``sim`` as a ParaView series.
 
     Nothing is simulated: to record a run as it goes, pass each state to a :class:`Series`.
@@ -93,59 +111,127 @@ def write_series(path, sim, *, states):
         The simulation the states belong to (its mesh and bodies).
     states : iterable of State
         The states to write, e.g. ``runners.Run.states`` or ``list(sim.run(60))``.
+    stresses : bool
+        Write strains and stresses per cell and at the points (default True; see :class:`Series`).
 
     Returns
     -------
     str
         The path of the ``.pvd`` file that ParaView opens as a time series.
     """
-    series = Series(path, sim)
+    series = Series(path, sim, stresses)
     for state in states:
         series.write(state)
     return series.pvd
 
 
-def load_mesh(path):
-    """Read a tetrahedral mesh file into a ``skfem.MeshTet``.
+# integer cell data read as region labels when scikit-fem names no subdomains, in this order
+REGION_KEYS = ("medit:ref", "gmsh:physical", "CellEntityIds", "region", "regions", "subdomain", "subdomains")
 
-    Any format meshio reads (Gmsh ``.msh``, MEDIT ``.mesh``, VTK/VTU, ...). Only the
+
+def load_mesh(path, regions=None):
+    """Read a tetrahedral mesh file into a ``skfem.MeshTet``, its region labels kept.
+
+    Any format meshio reads (Gmsh ``.msh``, MEDIT ``.mesh``, VTK/VTU, XDMF, ...). Only the
     tetrahedra are kept (other cells are ignored) and vertices no tetrahedron uses are
     dropped.
+
+    Regions become ``mesh.subdomains`` (element sets) and labelled boundary triangles
+    ``mesh.boundaries`` (facet sets, usable as ``fixed="name"``):
+
+    * named as ``skfem.MeshTet.load`` names them wherever it does: Gmsh physical names,
+      meshio cell sets (e.g. XDMF), and the regions scikit-fem itself saved (``mesh.save``);
+    * otherwise from integer labels in the cell data (``medit:ref``, ``gmsh:physical``,
+      ``CellEntityIds``, ``region``, ... in this order, or the field ``regions`` names), one
+      set per label value, named ``"ref<label>"``; a single label makes a single region.
 
     Parameters
     ----------
     path : str or path-like
         The mesh file.
+    regions : str, optional
+        The integer cell-data field holding the labels, when it is none of the above.
 
     Returns
     -------
     skfem.MeshTet
-        With ``mesh.subdomains`` named ``"ref<label>"`` when the file labels its
-        tetrahedra with more than one region (``medit:ref`` or ``gmsh:physical``), so
-        that ``ElasticBody(mesh, material={"ref1": ..., "ref2": ...})`` assigns a
-        material per region.
+        E.g. ``ElasticBody(mesh, material={"ref1": ..., "ref2": ...})`` assigns a material
+        per region.
 
     Raises
     ------
     ValueError
-        If the file holds no tetrahedra.
+        If the file holds no tetrahedra, or ``regions`` names no integer cell data.
+    ImportError
+        If meshio needs an optional package for the format (``h5py`` for XDMF).
     """
     import skfem
-    m = meshio.read(path)
+    try:
+        m = meshio.read(path)
+    except ModuleNotFoundError as err:  # meshio reads XDMF through h5py, an optional dependency
+        raise ImportError(f"reading {path} needs the package {err.name} (pip install {err.name})") from err
     tets = [(i, c.data) for i, c in enumerate(m.cells) if c.type == "tetra"]
     if not tets:
         raise ValueError(f"{path} holds no tetrahedra (cell types: {[c.type for c in m.cells]})")
-    t = np.concatenate([c for _, c in tets])
-    labels = None
-    for key in ("medit:ref", "gmsh:physical"):
-        if key in m.cell_data:
-            labels = np.concatenate([m.cell_data[key][i] for i, _ in tets])
-            break
-    used = np.unique(t)
-    remap = np.full(m.points.shape[0], -1)
-    remap[used] = np.arange(used.size)
-    subdomains = None
-    if labels is not None and np.unique(labels).size > 1:
-        subdomains = {f"ref{int(v)}": np.flatnonzero(labels == v) for v in np.unique(labels)}
-    return skfem.MeshTet(np.ascontiguousarray(m.points[used, :3].T), np.ascontiguousarray(remap[t].T),
-                         _subdomains=subdomains)
+    t = np.concatenate([c for _, c in tets]).T
+    p = np.ascontiguousarray(m.points[:, :3].T, dtype=float)
+    full = skfem.MeshTet(p, np.ascontiguousarray(t), validate=False)
+    subdomains, boundaries = _skfem_regions(m)
+    if regions is not None and regions not in m.cell_data:
+        raise ValueError(f"regions={regions!r} is not a cell field of {path} (fields: {sorted(m.cell_data)})")
+    keys = (regions,) if regions is not None else REGION_KEYS
+    key = next((k for k in keys if k in m.cell_data), None)
+    if key is not None:
+        if not subdomains:
+            labels = np.concatenate([np.asarray(m.cell_data[key][i]).ravel() for i, _ in tets])
+            subdomains = _label_sets(labels, f"{key} of the tetrahedra")
+        if not boundaries:
+            boundaries = _labelled_facets(full, m, key)
+    mesh = skfem.MeshTet(p, np.ascontiguousarray(t), _boundaries=boundaries or None, _subdomains=subdomains or None)
+    if np.unique(t).size < p.shape[1]:
+        mesh = mesh.remove_unused_nodes()  # keeps the vertex order: facets keep their indices
+    return mesh
+
+
+def _skfem_regions(m):
+    """(subdomains, boundaries) as ``skfem.MeshTet.load`` names them, empty where it names none."""
+    import logging
+    from skfem.io.meshio import from_meshio
+    log = logging.getLogger("skfem.io.meshio")
+    level = log.level
+    log.setLevel(logging.ERROR)  # its notes on files without names
+    try:
+        mesh = from_meshio(m, force_meshio_type="tetra")
+    except Exception:  # a file scikit-fem cannot parse for names: integer labels below
+        return {}, {}
+    finally:
+        log.setLevel(level)
+    named = lambda d: {k: np.asarray(v) for k, v in (d or {}).items() if isinstance(k, str) and not k.startswith("gmsh:")}
+    return named(mesh.subdomains), named(mesh.boundaries)
+
+
+def _label_sets(labels, what):
+    if labels.size and not np.issubdtype(labels.dtype, np.integer):
+        if not np.all(labels == np.round(labels)):
+            raise ValueError(f"{what}: region labels must be integers")
+        labels = labels.astype(np.int64)
+    return {f"ref{int(v)}": np.flatnonzero(labels == v).astype(np.int32) for v in np.unique(labels)}
+
+
+def _labelled_facets(mesh, m, key):
+    """Boundaries from the labels of the file's triangles that are facets of the mesh."""
+    tri = [(np.sort(c.data, axis=1), np.asarray(m.cell_data[key][i]).ravel()) for i, c in enumerate(m.cells)
+           if c.type == "triangle"]
+    if not tri:
+        return {}
+    faces = np.concatenate([a for a, _ in tri])
+    labels = np.concatenate([b for _, b in tri])
+    n = mesh.p.shape[1]
+    code = lambda f: (f[:, 0].astype(np.int64) * n + f[:, 1]) * n + f[:, 2]
+    facets = np.sort(mesh.facets, axis=0).T
+    order = np.argsort(code(facets))
+    keys = code(facets)[order]
+    pos = np.searchsorted(keys, code(faces))
+    found = (pos < keys.size) & (keys[np.minimum(pos, keys.size - 1)] == code(faces))
+    index = order[pos[found]]
+    return {name: index[sel] for name, sel in _label_sets(labels[found], f"{key} of the triangles").items()}
