@@ -102,7 +102,7 @@ def target_error(value, relative_to):
 
 def largest_displacement(x, rest):
     """max_i ||x_i - X_i|| of positions ``x`` and ``rest`` (flat 3n or (n, 3) arrays), in metres."""
-    d = (np.asarray(x, float) - np.asarray(rest, float)).reshape(-1, 3)
+    d = np.asarray(x, float).reshape(-1, 3) - np.asarray(rest, float).reshape(-1, 3)
     return float(np.sqrt(np.max(np.einsum("ij,ij->i", d, d)))) if d.size else 0.0
 
 
