@@ -114,8 +114,10 @@ def vertex_max_norm(free_values, free, n):
 
 
 def controllers_state(owner, names):
-    """{name: {attribute: value}} of the controllers ``owner`` holds under ``names`` (checkpoints)."""
-    return {name: dict(vars(obj)) for name in names if (obj := getattr(owner, name, None)) is not None}
+    """{name: {attribute: value}} of the controllers ``owner`` holds under ``names`` (checkpoints); an
+    attribute whose name starts with ``_`` is a setting given to the constructor, not state."""
+    return {name: {k: v for k, v in vars(obj).items() if not k.startswith("_")}
+            for name in names if (obj := getattr(owner, name, None)) is not None}
 
 
 def restore_controllers(owner, state, own):
@@ -175,8 +177,8 @@ class ErrorBudget:
 
     def __init__(self, target, tau, memory=0.5, safety=0.5, tau_min=1e-8, tau_max=1e3,
                  shrink=0.5, grow=2.0, shrink_over=0.7, ramp_grow=None, relative_to="size"):
-        self.relative_to = error_unit(relative_to)
-        self.target = target_error(target, self.relative_to)
+        self._relative_to = error_unit(relative_to)
+        self.target = target_error(target, self._relative_to)
         self.tau = positive(tau, "tau")
         self.memory = positive(memory, "memory")
         self.safety = real(safety, "safety", low=0.0, high=1.0, include_low=False)
@@ -217,6 +219,11 @@ class ErrorBudget:
             self.calibration = ratio if not self.calibrated else max(ratio, math.sqrt(self.calibration * ratio))
             self.calibrated += 1
         return measured
+
+    @property
+    def relative_to(self):
+        """The unit of the target and the estimate: "response", "size" or "metre"."""
+        return self._relative_to
 
     def scale(self, size, displacement=None):
         """Set the unit U (m) of the coming frame from the scene ``size`` and, for a budget relative to
