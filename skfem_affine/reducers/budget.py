@@ -15,7 +15,9 @@ full-space run they accept, in one of three units (``relative_to``, :data:`ERROR
   :math:`\max_i \|x_i - X_i\|`, floored at :data:`RESPONSE_FLOOR` times the scene size so that a
   scene at rest does not divide by zero. R only grows, so the estimate is measured against the
   response so far, never against a larger one to come: the run's final amplitude (what the
-  reports divide by) gives a smaller relative error;
+  reports divide by) gives a smaller relative error. When R grows by a factor r, so does the
+  threshold (the velocity error allowed grows with R): a motion that starts from rest is not held
+  to the small response of its first frames;
 * ``"size"``: relative to the scene size L (the diagonal of the rest bounding box);
 * ``"metre"``: absolute, in metres.
 
@@ -235,7 +237,12 @@ class ErrorBudget:
         else:
             if displacement is not None:
                 self.response = max(self.response, float(displacement))
-            self.unit = max(self.response, RESPONSE_FLOOR * float(size))
+            unit = max(self.response, RESPONSE_FLOOR * float(size))
+            if self.unit > 0 and unit > self.unit:
+                # the velocity error allowed grows with the response, and the threshold with it: a
+                # motion that starts from rest is not held to the small response of its first frames
+                self.tau = min(self.tau * unit / self.unit, self.tau_max)
+            self.unit = unit
         return self.unit
 
     def advance(self, delta, dt, size, introduced=True):
