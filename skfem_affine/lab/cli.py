@@ -262,12 +262,14 @@ def compare_outputs(args, spec, runs, out):
     runners.write_table(summaries, os.path.join(out, "summary.csv"))
     written = ["frames.csv", "summary.csv"]
     written += [os.path.basename(p) for p in plots.compare_plots(runs, out, frame=args.frame, stem="compare")]
-    points = trade.points_from_runs(runs)
-    budgets = sorted({r.sim.reducer.target_error for r in runs.values()
-                      if getattr(r.sim.reducer, "target_error", None) is not None})
+    budgeted = [r.sim.reducer for r in runs.values() if getattr(r.sim.reducer, "target_error", None) is not None]
+    units = {red.relative_to for red in budgeted}
+    unit = units.pop() if len(units) == 1 else "size"  # the budgets' unit (one unit per picture)
+    points = trade.points_from_runs(runs, unit)
+    budgets = sorted({red.target_error for red in budgeted if red.relative_to == unit})
     if points:
         written.append(os.path.basename(plots.trade_plot(points, os.path.join(out, "trade.png"), budgets=budgets,
-                                                         title=f"{spec.label}: speed against accuracy")))
+                                                         title=f"{spec.label}: speed against accuracy", unit=unit)))
     if not args.no_paraview:
         for name, run in runs.items():
             io.write_series(os.path.join(out, "paraview", name), run.sim, states=run.states)
@@ -501,7 +503,8 @@ def cmd_budget(args):
     rows = trade.budget_runs(spec, args.errors, frames, method=args.method, progress=_progress(args), **options)
     table = runners.write_table(rows, os.path.join(out, "budget.csv"))
     picture = plots.trade_plot(trade.budget_points(rows), os.path.join(out, "trade.png"), budgets=args.errors,
-                               title=f"{spec.label}: {args.method} at error budgets (achieved beside each budget)")
+                               title=f"{spec.label}: {args.method} at error budgets (achieved beside each budget)",
+                               unit=rows[0]["relative_to"] if rows else "size")
     if not args.json:
         print(f"{'budget':>8} {'achieved':>9} {'estimated':>9} {'resp err':>9} {'dist err':>9} {'speedup':>8} "
               f"{'DOF ratio':>9} {'reduced':>8} {'mean tau':>9} {'status':>8}")
@@ -711,7 +714,8 @@ def parser():
                                       "achieved error, speedup, trade.png", description=cmd_budget.__doc__)
     _common(p)
     p.add_argument("--errors", type=_real(0.0, strict=True), nargs="+", default=[0.001, 0.01, 0.05],
-                   help="error budgets (max vertex distance / scene size), default 0.001 0.01 0.05")
+                   help="error budgets (max vertex distance to the full-space run / the response, its largest "
+                        "displacement from rest), default 0.001 0.01 0.05")
     p.add_argument("--method", choices=sorted(trade.REDUCERS), default="affinification")
     p.add_argument("--never-slower", choices=("on", "off"), default=None,
                    help="the fall-back to full space when reduction does not pay (default: on)")

@@ -403,7 +403,13 @@ TRADE_MARKERS = "osD^v<>ph*"
 TRADE_COLORS = {"adaptive subspace": "#7570b3"}
 
 
-def trade_plot(points, path, budgets=(), title=None):
+#: The trade picture's error axis per unit of the errors (``trade_plot(unit=...)``).
+ERROR_AXIS = {"size": "max vertex distance to the full-space run / scene size",
+              "response": "max vertex distance to the full-space run / response (largest displacement from rest)",
+              "metre": "max vertex distance to the full-space run (m)"}
+
+
+def trade_plot(points, path, budgets=(), title=None, unit="size"):
     """The trade at a glance: speedup over full space against max distance error / size.
 
     Parameters
@@ -471,7 +477,7 @@ def trade_plot(points, path, budgets=(), title=None):
     xs = [max(p["error"], 1e-12) for p in pts] + [float(b) for b in budgets]
     if xs:  # room for the labels right of the points
         ax.set_xlim(min(xs) / 2, max(xs) * 4)
-    ax.set_xlabel("max vertex distance to the full-space run / scene size")
+    ax.set_xlabel(ERROR_AXIS[unit])
     ax.set_ylabel("speedup over full space (x)")
     ax.set_title(title or "Speed against accuracy (up and left is better)", fontsize=10)
     if len(scenes) > 1:

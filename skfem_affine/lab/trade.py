@@ -27,8 +27,13 @@ def points_from_rows(rows):
             for r in rows if r.get("status") == "ok"]
 
 
-def points_from_runs(runs):
-    """Trade points of compare runs (the full-space reference left out), labelled with their settings."""
+#: The summary entry of each unit's error (``points_from_runs``).
+SUMMARY_ERROR = {"size": "max_distance_error", "response": "max_response_error", "metre": "max_distance_m"}
+
+
+def points_from_runs(runs, unit="size"):
+    """Trade points of compare runs (the full-space reference left out), labelled with their settings;
+    the error in ``unit`` ("size", "response" or "metre")."""
     out = []
     for name, run in runs.items():
         s = run.summary
@@ -39,7 +44,7 @@ def points_from_runs(runs):
         else:
             target = getattr(run.sim.reducer, "target_error", None)
             label = f"{name}, budget {target:g}" if target is not None else name
-        out.append({"error": s.get("max_distance_error"), "speedup": s.get("speedup"), "method": name,
+        out.append({"error": s.get(SUMMARY_ERROR[unit]), "speedup": s.get("speedup"), "method": name,
                     "label": label.strip()})
     return out
 
