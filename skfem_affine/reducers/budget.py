@@ -80,9 +80,6 @@ ERROR_UNITS = ("response", "size", "metre")
 DEFAULT_RELATIVE_TO = "response"
 #: The response an error budget measures against is at least this fraction of the scene size.
 RESPONSE_FLOOR = 1e-3
-#: The response grows "fast" when it grows by more than this fraction in one frame: the frames
-#: are then not judged by the fall-back to full space (their thresholds still follow the response).
-GROWING = 0.02
 #: A reduced frame whose own estimated position error (h ||delta|| / U) exceeds this fraction of
 #: the budget is solved again in full space (:meth:`ErrorBudget.breaks`).
 KICK = 0.25
@@ -171,8 +168,6 @@ class ErrorBudget:
         U (m): the response so far (floored), the scene size, or 1.
     response : float
         The largest displacement from rest seen so far (m), with ``relative_to="response"``.
-    growing : bool
-        The response grew by more than :data:`GROWING` of itself this frame.
     calibration : float
         Measured / proxy local error of the latest shadow frames (>= 1 is typical: one CG step
         underestimates the smooth part of the error).
@@ -197,7 +192,6 @@ class ErrorBudget:
         self.estimate = 0.0
         self.unit = 0.0  # set by scale() (or advance(): the scene size)
         self.response = 0.0
-        self.growing = False  # the response grew by more than GROWING this frame
         self.calibration = 1.0
         self.calibrated = 0  # shadow frames that measured a nonzero proxy
         self.local_rate = 0.0
@@ -244,7 +238,6 @@ class ErrorBudget:
             if displacement is not None:
                 self.response = max(self.response, float(displacement))
             unit = max(self.response, RESPONSE_FLOOR * float(size))
-            self.growing = self.unit > 0 and unit > (1.0 + GROWING) * self.unit
             if self.unit > 0 and unit > self.unit:
                 # the velocity error allowed grows with the response, and the threshold with it: a
                 # motion that starts from rest is not held to the small response of its first frames

@@ -448,8 +448,7 @@ class ClusteringReducer(Reducer):
             measured = budgets.vertex_max_norm(result.dv - dv, sysm.free, sysm.n) if stats["n_clusters"] else 0.0
             stats.update(dofs=op.shape[0], solver=self.full_solver.name, local_error_measured=measured / unit)
             result = StepResult(dv=dv, operator=op, clusters=np.full(sysm.m, -1, dtype=np.int64), stats=stats)
-        # this frame's threshold is still on its way up (from its small start, or with a growing response)
-        ramp = eb is not None and (eb.ramping or eb.growing)
+        ramp = eb is not None and eb.ramping  # this frame's threshold is still on its way up
         if eb is not None:
             delta = eb.local(proxy, measured) + (0.0 if shadow else gap)
             if shadow and self.shadows is not None:
