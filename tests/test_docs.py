@@ -5,6 +5,7 @@ generated API pages and the gallery into its source folder), against this checko
 package. The gallery is rendered without running the examples (``-D plot_gallery=0``):
 tests/test_examples.py runs every one of them already.
 """
+import glob
 import importlib.util
 import os
 import shutil
@@ -26,6 +27,8 @@ def test_docs_build_without_warnings(tmp_path):
         shutil.copytree(os.path.join(ROOT, folder), tmp_path / folder,
                         ignore=shutil.ignore_patterns("_build", "auto_examples", "generated", "out", "__pycache__",
                                                       "*.png", "*.gif", "toplevel.inc", "sg_execution_times.rst"))
+    for picture in glob.glob(os.path.join(ROOT, "docs", "*.png")):  # the pictures committed with the user guide
+        shutil.copy(picture, tmp_path / "docs")
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([ROOT, os.environ.get("PYTHONPATH", "")]).rstrip(os.pathsep),
                MPLBACKEND="Agg")
     html = tmp_path / "html"
