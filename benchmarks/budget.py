@@ -1,6 +1,7 @@
 """The error budget, the time budget and "never slower" measured (docs/budget.md).
 
-Three tables, every ratio measured with the methods stepped frame by frame in turn in one
+Budgets here are relative to the scene size (the unit of these tables in docs/budget.md; the
+response unit: benchmarks/budget_response.py). Three tables, every ratio measured with the methods stepped frame by frame in turn in one
 process (``runners.interleaved``), errors against the full-space run stepped with them:
 
 1. ``--budgets``: for each scene (the paper's beams from ``--meshes``, our cantilever at
@@ -85,7 +86,8 @@ def budget_table(args, scenes):
     rows = []
     for scene, factory in scenes.items():
         warm(factory)
-        reducers = {f"budget {b:g}": sa.Affinification(target_error=b) for b in args.budgets}
+        reducers = {f"budget {b:g}": sa.Affinification(target_error=b, relative_to="size")
+                    for b in args.budgets}
         reducers.update({f"fixed {t:g}": sa.Affinification(t, 2 * t) for t in args.taus})
         res, _ = measured(factory, reducers, args.frames)
         for b in args.budgets:
@@ -105,7 +107,8 @@ def estimate_table(args, scenes):
     """The estimator against the measured error: never_slower=False, so that small scenes reduce at all."""
     rows = []
     for scene, factory in scenes.items():
-        reducers = {f"budget {b:g}": sa.Affinification(target_error=b, never_slower=False) for b in args.budgets}
+        reducers = {f"budget {b:g}": sa.Affinification(target_error=b, relative_to="size", never_slower=False)
+                    for b in args.budgets}
         res, runs = measured(factory, reducers, args.frames)
         free = runs["full"].sim.system.free.size
         for b in args.budgets:
@@ -156,7 +159,7 @@ def never_slower_table(args, scenes):
     rows = []
     for scene, factory in scenes.items():
         warm(factory)
-        res, runs = measured(factory, {"default": sa.Affinification()}, args.frames)
+        res, runs = measured(factory, {"default": sa.Affinification(relative_to="size")}, args.frames)
         err, speed, recs = res["default"]
         rows.append({"scene": scene, "elements": int(runs["full"].sim.system.m), "ratio": speed, "error": err,
                      "reduced_frames": float(np.mean([bool(r.get("reduced")) for r in recs]))})

@@ -107,7 +107,7 @@ def never_slower(args):
 def budget(args):
     rows = []
     for kind in args.scenes:
-        reducers = {b: sa.AdaptiveSubspace(target_error=b, never_slower=args.never_slower) for b in args.budgets}
+        reducers = {b: sa.AdaptiveSubspace(target_error=b, relative_to="size", never_slower=args.never_slower) for b in args.budgets}
         res = measured(kind, args.cells, {str(b): r for b, r in reducers.items()}, args.frames, args.solver)
         for b in args.budgets:
             r = res[str(b)]

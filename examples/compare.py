@@ -15,7 +15,9 @@ trade on the cantilever the way the paper's evaluation does (sec. 4.1):
    same initial state, frame by frame in turn in one process, so that load from
    elsewhere on the machine slows every method alike;
 3. every frame is measured (:mod:`skfem_affine.lab.metrics`): the largest vertex
-   distance to the reference over the scene size, the same after re-starting
+   distance to the reference over the response (the reference's largest
+   displacement from rest), over the scene size and in metres, the largest
+   element stress difference over the largest stress, the distance after re-starting
    the reference from the reduced state (step error, which discounts phase
    drift), the full-space residual :math:`\|A\Delta v - b\|/\|b\|` of eq. 1-2,
    the strain-energy difference, DOFs, bodies and the wall time of each phase;

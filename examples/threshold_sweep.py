@@ -50,9 +50,10 @@ speedup = np.array([r["speedup"] for r in rows])
 # -------------------
 # Pick the largest thresholds whose error you accept: the error grows and the DOFs
 # fall as the thresholds grow. The error is the largest vertex distance to the
-# full-space run over the scene's size; ``compare`` and the sweep also report the
-# step error (which discounts phase drift), the residual of the full-space system
-# and the strain-energy difference.
+# full-space run over the scene's size; ``compare`` and the sweep also report it over
+# the response (the reference's largest displacement from rest) and in metres, the
+# stress error, the step error (which discounts phase drift), the residual of the
+# full-space system and the strain-energy difference.
 if __name__ == "__main__":
     import matplotlib.pyplot as plt
 
@@ -74,8 +75,10 @@ if __name__ == "__main__":
 # Or state the error you accept
 # -----------------------------
 # Instead of thresholds, give the largest vertex distance to the full-space run you
-# accept, relative to the scene's size: ``sa.Affinification(target_error=0.01)`` (1 %
-# is also the default of ``sa.Affinification()``) chooses its thresholds and adapts them
+# accept, relative to the response (the largest displacement from rest, here the tip's
+# swing): ``sa.Affinification(target_error=0.01)`` (1 % of the response is also the
+# default of ``sa.Affinification()``; ``relative_to="size"`` or ``"metre"`` state it over
+# the scene size or in metres) chooses its thresholds and adapts them
 # during the run, checking itself against an occasional full-space step, and solves a
 # frame in full space where reduction would not pay. ``trade.budget_runs`` steps it
 # beside the full-space run and measures what it achieved; ``skfem-affine budget SCENE

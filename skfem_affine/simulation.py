@@ -136,9 +136,19 @@ class Stats(list):
         return {k: self.total(k) for k in self.PHASES if any(k in r for r in self)}
 
     def summary(self):
+        """Frames, wall time, mean DOFs and phase totals; under an error budget also the largest
+        estimated error in the budget's unit (``max_estimated_error``), in metres
+        (``max_estimated_error_m``) and the unit it was read in at the end (``error_unit_m``: the
+        response so far, the scene size, or 1)."""
         wall = self.total("wall")
-        return {"frames": len(self), "wall_s": wall, "frames_per_s": len(self) / wall if wall else float("inf"),
-                "mean_dofs": self.mean("dofs"), **{f"{k}_s": v for k, v in self.phase_totals().items()}}
+        out = {"frames": len(self), "wall_s": wall, "frames_per_s": len(self) / wall if wall else float("inf"),
+               "mean_dofs": self.mean("dofs"), **{f"{k}_s": v for k, v in self.phase_totals().items()}}
+        budgeted = [r for r in self if "estimated_error" in r]
+        if budgeted:
+            out["max_estimated_error"] = max(r["estimated_error"] for r in budgeted)
+            out["max_estimated_error_m"] = max(r["estimated_error"] * r.get("error_unit", 0.0) for r in budgeted)
+            out["error_unit_m"] = budgeted[-1].get("error_unit")
+        return out
 
 
 class Simulation:

@@ -276,9 +276,14 @@ def test_a_status_is_never_ok_beside_an_error_over_the_budget(tmp_path, capsys):
     for error, budget, status in ((0.02, 0.01, "over-budget"), (0.005, 0.01, "ok"), (0.02, None, "ok"),
                                   (None, 0.01, "ok")):
         run = SimpleNamespace(summary={"status": "ok", "max_distance_error": error},
-                              sim=SimpleNamespace(reducer=SimpleNamespace(target_error=budget)))
+                              sim=SimpleNamespace(reducer=SimpleNamespace(target_error=budget, relative_to="size")))
         _hold_to_budget(run)
         assert run.summary["status"] == status
+    # the error is read in the budget's unit: 2 % of the response is over a 1 % budget of the response
+    run = SimpleNamespace(summary={"status": "ok", "max_distance_error": 0.001, "max_response_error": 0.02},
+                          sim=SimpleNamespace(reducer=SimpleNamespace(target_error=0.01, relative_to="response")))
+    _hold_to_budget(run)
+    assert run.summary["status"] == "over-budget"
     # the budget command: every row's status agrees with its achieved error and its budget
     code, s = run_json(capsys, ["budget", "--resolution", "1", "--frames", "6", "--errors", "1e-7", "0.05",
                                 "--never-slower", "off", "--out", str(tmp_path)])

@@ -20,8 +20,23 @@ def test_every_example_is_tested():
     tested = {"cantilever.py", "beam_frequency.py", "affinification.py", "contact_drop.py",
               "contact_stacking.py", "contact_materials.py", "compare.py", "adaptive_subspace.py",
               "custom_reducer.py", "own_mesh.py", "boundaries.py", "threshold_sweep.py", "output.py",
-              "rotating_clamp.py", "skfem_static_to_dynamic.py"}
+              "rotating_clamp.py", "skfem_static_to_dynamic.py",
+              "engineer_beam.py"}
     assert set(f for f in os.listdir(EXAMPLES) if f.endswith(".py")) <= tested
+
+
+def test_engineer_beam_example_agrees_with_scikit_fem_and_beam_theory(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    g = run("engineer_beam.py")
+    assert g["deflection"] == pytest.approx(g["static_p1"], rel=0.01)  # at rest = scikit-fem's static solve
+    assert g["static_p2"] == pytest.approx(g["delta_timoshenko"], rel=0.03)
+    assert g["deflection"] < g["deflection_limit"] < g["delta_timoshenko"]  # locking, shrinking with refinement
+    assert g["f_sim"] == pytest.approx(g["f_fe"], rel=0.02)  # the period against scikit-fem's eigenvalue
+    assert g["sigma_limit"] == pytest.approx(g["sigma_theory"], rel=0.05)  # root stress: M c / I
+    for row in g["rows"]:  # the budget, relative to the response, holds
+        assert row["response_error"] <= 1.25 * row["budget"]
+    back = meshio.read(tmp_path / "out" / "engineer_beam" / "engineer_beam_00150.vtu")
+    assert "cauchy_stress" in back.cell_data and "von_mises_stress" in back.point_data
 
 
 def test_rotating_clamp_example():

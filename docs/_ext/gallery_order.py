@@ -16,6 +16,7 @@ TUTORIAL = [
     "adaptive_subspace.py",   # the second method
     "custom_reducer.py",      # writing your own reducer
     "beam_frequency.py",      # verification against beam theory
+    "engineer_beam.py",       # an engineer's check: deflection, frequency, stress, trade
 ]
 
 

@@ -164,12 +164,14 @@ def _fmt(value, spec=".2e"):
 
 def _table(summaries):
     head = (f"{'method':>16} {'status':>8} {'wall s':>8} {'speedup':>8} {'DOF ratio':>9} {'bodies':>7} "
-            f"{'dist err':>9} {'step err':>9} {'residual':>9} {'energy err':>10}")
+            f"{'resp err':>9} {'dist err':>9} {'dist m':>9} {'stress err':>10} {'step err':>9} {'residual':>9} "
+            f"{'energy err':>10}")
     lines = [head, "-" * len(head)]
     for s in summaries:
         lines.append(f"{s['method']:>16} {s['status']:>8} {s['wall_s']:8.2f} {_fmt(s['speedup'], '8.2f')} "
                      f"{_fmt(s['dof_ratio'], '9.3f')} {s['mean_clusters']:7.1f} "
-                     f"{_fmt(s['max_distance_error'], '9.1e')} "
+                     f"{_fmt(s.get('max_response_error'), '9.1e')} {_fmt(s['max_distance_error'], '9.1e')} "
+                     f"{_fmt(s.get('max_distance_m'), '9.1e')} {_fmt(s.get('max_stress_error'), '10.1e')} "
                      f"{_fmt(s['max_step_error'], '9.1e')} {_fmt(s['max_residual'], '9.1e')} "
                      f"{_fmt(s['max_energy_error'], '10.1e')}")
     return "\n".join(lines)
@@ -177,12 +179,18 @@ def _table(summaries):
 
 def _legend(summaries):
     """What each column of :func:`_table` means, and which columns were not measured ("-")."""
-    lines = ["status: ok; diverged (the run stopped: see its message); over-budget (dist err above the error budget)",
+    first = summaries[0] if summaries else {}
+    lines = ["status: ok; diverged (the run stopped: see its message); over-budget (the error in the budget's unit "
+             "above the budget)",
              "wall s: the run's wall time; speedup = full-space wall time / the method's (same frames, this machine)",
              "DOF ratio = DOFs solved / full-space DOFs, summed over frames; bodies = mean reduced bodies per frame",
-             "errors, each the largest over frames:",
-             "  dist err = vertex distance to the full-space run / scene size (bounding-box diagonal), as budgeted",
-             "  step err = the same after one step from the full-space state (the reference re-started each frame)",
+             "errors, each the largest over frames of the vertex distance to the full-space run:",
+             f"  resp err = over the response (the full-space run's largest displacement from rest, "
+             f"{_fmt(first.get('response_m'), '.3g').strip()} m)",
+             f"  dist err = over the scene size (bounding-box diagonal, {_fmt(first.get('size_m'), '.3g').strip()} m); "
+             f"dist m = in metres",
+             "  stress err = largest element |sigma - sigma_ref| / largest reference stress (Cauchy, Pa)",
+             "  step err = dist err after one step from the full-space state (the reference re-started each frame)",
              "  residual = ||A dv - b|| / ||b|| of the full-space system",
              "  energy err = |strain energy difference| / largest strain energy of the full-space run"]
     skipped = [(name, flag) for key, name, flag in (("max_step_error", "step err", "--no-step-error"),
@@ -197,11 +205,16 @@ def _legend(summaries):
 def _hold_to_budget(run):
     """A run whose largest distance error is over its reducer's error budget gets ``status="over-budget"``."""
     s = run.summary
-    budget = getattr(getattr(run.sim, "reducer", None), "target_error", None)
-    error = s.get("max_distance_error")
-    if budget is not None and error is not None and s.get("status") == "ok" and error > budget:
+    from skfem_affine.lab import trade
+    reducer = getattr(run.sim, "reducer", None)
+    budget = getattr(reducer, "target_error", None)
+    if budget is None:
+        return
+    unit = reducer.relative_to
+    error = s.get(trade.SUMMARY_ERROR[unit])
+    if error is not None and s.get("status") == "ok" and error > budget:
         s["status"] = "over-budget"
-        s["message"] = f"largest distance error {error:.2e} over the error budget {budget:g}"
+        s["message"] = f"largest distance error {error:.2e} ({unit} unit) over the error budget {budget:g}"
 
 
 def _frames_table(runs):
@@ -307,12 +320,14 @@ def compare_outputs(args, spec, runs, out):
     runners.write_table(summaries, os.path.join(out, "summary.csv"))
     written = ["frames.csv", "summary.csv"]
     written += [os.path.basename(p) for p in plots.compare_plots(runs, out, frame=args.frame, stem="compare")]
-    points = trade.points_from_runs(runs)
-    budgets = sorted({r.sim.reducer.target_error for r in runs.values()
-                      if getattr(r.sim.reducer, "target_error", None) is not None})
+    budgeted = [r.sim.reducer for r in runs.values() if getattr(r.sim.reducer, "target_error", None) is not None]
+    units = {red.relative_to for red in budgeted}
+    unit = units.pop() if len(units) == 1 else "size"  # the budgets' unit (one unit per picture)
+    points = trade.points_from_runs(runs, unit)
+    budgets = sorted({red.target_error for red in budgeted if red.relative_to == unit})
     if points:
         written.append(os.path.basename(plots.trade_plot(points, os.path.join(out, "trade.png"), budgets=budgets,
-                                                         title=f"{spec.label}: speed against accuracy")))
+                                                         title=f"{spec.label}: speed against accuracy", unit=unit)))
     if not args.no_paraview:
         for name, run in runs.items():
             io.write_series(os.path.join(out, "paraview", name), run.sim, states=run.states)
@@ -561,17 +576,22 @@ def cmd_budget(args):
     rows = trade.budget_runs(spec, args.errors, frames, method=args.method, progress=_progress(args), **options)
     table = runners.write_table(rows, os.path.join(out, "budget.csv"))
     picture = plots.trade_plot(trade.budget_points(rows), os.path.join(out, "trade.png"), budgets=args.errors,
-                               title=f"{spec.label}: {args.method} at error budgets (achieved beside each budget)")
+                               title=f"{spec.label}: {args.method} at error budgets (achieved beside each budget)",
+                               unit=rows[0]["relative_to"] if rows else "size")
     if not args.json:
-        print(f"{'budget':>8} {'achieved':>9} {'estimated':>9} {'speedup':>8} {'DOF ratio':>9} {'reduced':>8} "
-              f"{'mean tau':>9} {'status':>8}")
+        print(f"{'budget':>8} {'achieved':>9} {'estimated':>9} {'resp err':>9} {'dist err':>9} {'speedup':>8} "
+              f"{'DOF ratio':>9} {'reduced':>8} {'mean tau':>9} {'status':>8}")
         for r in rows:
-            print(f"{r['budget']:8.3g} {r['error']:9.2e} {r['max_estimated_error']:9.2e} {_fmt(r['speedup'], '8.2f')} "
+            print(f"{r['budget']:8.3g} {r['error']:9.2e} {r['max_estimated_error']:9.2e} "
+                  f"{_fmt(r['error_response'], '9.2e')} {r['error_size']:9.2e} {_fmt(r['speedup'], '8.2f')} "
                   f"{_fmt(r['dof_ratio'], '9.3f')} {100 * r['reduced_frames']:7.0f}% {_fmt(r['mean_tau_a'], '9.3g')} "
                   f"{r['status']:>8}")
-        print(f"timing: {runners.TIMING['interleaved']}; achieved = max vertex distance to the full-space run / size;"
-              f"\nestimated = the largest error the reducer itself estimated; mean tau = the mean tau_a it chose; "
-              f"reduced = frames\nthat returned the reduced solution (the others: shadow, impact or fall-back "
+        first = rows[0] if rows else {}
+        print(f"timing: {runners.TIMING['interleaved']}; achieved and estimated = max vertex distance to the "
+              f"full-space run\nin the budget's unit ({first.get('relative_to')}); resp err = the same over the "
+              f"full-space run's response\n(largest displacement from rest, {_fmt(first.get('response_m'), '.3g').strip()}"
+              f" m), dist err = over the scene size ({first.get('size_m', 0.0):.3g} m);"
+              f"\nreduced = frames that returned the reduced solution (the others: shadow, impact or fall-back "
               f"frames in full space);\nstatus: ok, diverged, or over-budget (achieved above the budget)")
         print(f"wrote {table} and {picture} ({time.perf_counter() - t0:.1f} s)")
     _emit(args, {"scene": spec.label, "method": args.method, "rows": rows, "table": table, "trade": picture})
@@ -598,7 +618,7 @@ def cmd_demo(args):
     args.no_paraview, args.gif = True, False
     _say(args, f"demo: a cantilever beam ({24 * args.resolution ** 3} tets) pinned at x = 0 swings down under "
                "gravity, simulated in full space and\nwith affinification (elements with alike deformation rates "
-               "merge into 12-DOF affine bodies) at its default\nerror budget, 1 % of the beam's size; the "
+               "merge into 12-DOF affine bodies) at its default\nerror budget, 1 % of the beam's response; the "
                "full-space run is the reference for speed and error, both stepped\nframe by frame in turn. "
                "(`skfem-affine compare --help`: any scene and method; `skfem-affine budget`: several budgets.)")
     code = cmd_compare(args)
@@ -777,7 +797,8 @@ def parser():
                                       "achieved error, speedup, trade.png", description=cmd_budget.__doc__)
     _common(p)
     p.add_argument("--errors", type=_real(0.0, strict=True), nargs="+", default=[0.001, 0.01, 0.05],
-                   help="error budgets (max vertex distance / scene size), default 0.001 0.01 0.05")
+                   help="error budgets (max vertex distance to the full-space run / the response, its largest "
+                        "displacement from rest), default 0.001 0.01 0.05")
     p.add_argument("--method", choices=BUDGET_METHODS, default="affinification")
     p.add_argument("--never-slower", choices=("on", "off"), default=None,
                    help="the fall-back to full space when reduction does not pay (default: on)")

@@ -482,7 +482,13 @@ def _short_label(point):
     return label
 
 
-def trade_plot(points, path, budgets=(), title=None):
+#: The trade picture's error axis per unit of the errors (``trade_plot(unit=...)``).
+ERROR_AXIS = {"size": "max vertex distance to the full-space run (% of the scene size)",
+              "response": "max vertex distance to the full-space run (% of the response: largest displacement from rest)",
+              "metre": "max vertex distance to the full-space run (m)"}
+
+
+def trade_plot(points, path, budgets=(), title=None, unit="size"):
     """The trade at a glance: speedup over full space against max distance error / size.
 
     Parameters
@@ -514,10 +520,10 @@ def trade_plot(points, path, budgets=(), title=None):
     runs of different problems). 1x (no gain) is a dotted line. The error axis is logarithmic,
     in percent of the scene size; labels are placed clear of each other and of the points.
     """
-    return _save(trade_figure(points, budgets, title), path)
+    return _save(trade_figure(points, budgets, title, unit), path)
 
 
-def trade_figure(points, budgets=(), title=None):
+def trade_figure(points, budgets=(), title=None, unit="size"):
     """The :func:`trade_plot` figure itself (a matplotlib ``Figure``, drawn, not saved)."""
     points = list(points)
     for i, p in enumerate(points):
@@ -564,7 +570,7 @@ def trade_figure(points, budgets=(), title=None):
     xs = [max(p["error"], 1e-12) for p in pts] + [float(b) for b in budgets]
     if xs:  # room for the labels around the points
         ax.set_xlim(min(xs) / 3, max(xs) * 5)
-    ax.set_xlabel("max vertex distance to the full-space run (% of the scene size)")
+    ax.set_xlabel(ERROR_AXIS[unit])
     ax.set_ylabel("speedup over full space (x)")
     ax.set_title(title or "Speed against accuracy (up and left is better)", fontsize=10)
     if len(scenes) > 1:
@@ -576,7 +582,7 @@ def trade_figure(points, budgets=(), title=None):
         pad = 0.12 * max(hi - lo, 0.2)
         ax.set_ylim(max(lo - pad, 0.0), hi + 2 * pad)
         ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.16), ncol=3, frameon=False)
-    log_ticks(ax.xaxis, _percent)
+    log_ticks(ax.xaxis, (lambda v: f"{v:g}") if unit == "metre" else _percent)
     if len(scenes) > 1:
         log_ticks(ax.yaxis, lambda v: f"{v:g}x")
     fig.tight_layout()

@@ -33,13 +33,17 @@ TIMING = {"interleaved": "interleaved frame by frame in one process",
 
 @dataclass
 class Reference:
-    """The full-space run: positions per frame (frames + 1, n, 3), strain energy, wall and DOFs per frame."""
+    """The full-space run: positions per frame (frames + 1, n, 3), strain energy, wall and DOFs per
+    frame, the scene size, the response (largest displacement from rest over the run, m) and the
+    largest element stress per frame (Pa; None when not measured)."""
 
     x: np.ndarray
     strain: np.ndarray
     wall: np.ndarray
     dofs: np.ndarray
     size: float
+    amplitude: float = 0.0
+    stress: np.ndarray = None
 
     @property
     def frames(self):
@@ -50,7 +54,9 @@ class Reference:
         path = os.fspath(path)
         tmp = f"{path}.tmp{os.getpid()}.npz"
         try:
-            np.savez(tmp, x=self.x, strain=self.strain, wall=self.wall, dofs=self.dofs, size=self.size)
+            extra = {} if self.stress is None else {"stress": self.stress}
+            np.savez(tmp, x=self.x, strain=self.strain, wall=self.wall, dofs=self.dofs, size=self.size,
+                     amplitude=self.amplitude, **extra)
             os.replace(tmp, path)
         finally:
             if os.path.exists(tmp):
@@ -63,7 +69,10 @@ class Reference:
         path = os.fspath(path)
         try:
             with np.load(path) as d:
-                ref = cls(d["x"], d["strain"], d["wall"], d["dofs"], float(d["size"]))
+                # (a file without the response: the largest displacement from the first frame)
+                amplitude = float(d["amplitude"]) if "amplitude" in d else metrics.response_amplitude(d["x"], d["x"][0])
+                ref = cls(d["x"], d["strain"], d["wall"], d["dofs"], float(d["size"]), amplitude,
+                          d["stress"] if "stress" in d else None)
         except FileNotFoundError:
             raise
         except Exception as err:  # zipfile.BadZipFile, EOFError, ValueError, KeyError, OSError, ...
@@ -95,7 +104,7 @@ class _Stepped:
     """One simulation stepped by the runners: its records, kept states and trajectory.
 
     ``ref_x`` (positions per frame, possibly growing while the reference steps) and ``size``
-    give the distance error per frame; ``trajectory=True`` keeps every state for the
+    give the distance error per frame (and, with ``strain``, the largest stress difference); ``trajectory=True`` keeps every state for the
     measurements made after the loop (step error, residual); ``positions`` (a list)
     receives every state's positions.
     """
@@ -136,12 +145,19 @@ class _Stepped:
         state = self._state
         rec = _record(self.sim.stats[-1])
         rec["time"] = state.time
+        system = self.sim.system
         if self.strain:
-            rec["strain_energy"] = self.sim.system.strain_energy(state.x)
+            rec["strain_energy"] = system.strain_energy(state.x)
+            sigma = metrics.cauchy_stress(system, state.x)
+            rec["max_stress"] = metrics.largest_stress(sigma)
         rec.setdefault("n_clusters", 0)
         rec.setdefault("elastic_dofs", rec.get("dofs", 0))
         if self.ref_x is not None:
-            rec["distance_error"] = metrics.distance_error(state.x, self.ref_x[state.frame], self.size)
+            x_ref = self.ref_x[state.frame]
+            rec["distance_m"] = metrics.distance_m(state.x, x_ref)
+            rec["distance_error"] = rec["distance_m"] / self.size
+            if self.strain:  # in Pa here; relative to the reference's largest stress after the run
+                rec["stress_difference"] = metrics.stress_error(sigma, metrics.cauchy_stress(system, x_ref), 0.0)
         self.records.append(rec)
         if self.trajectory is not None:
             self.trajectory.append(state)
@@ -185,14 +201,20 @@ def _step_in_turn(stepped, frames, bar=None, on_frame=None):
 
 
 def _measure_after(s, reference, evaluator, step_error, residual):
-    """The metrics that need the whole reference (energy) or a full-space solve (step error, residual)."""
+    """The metrics that need the whole reference (energy, response, stress) or a full-space solve
+    (step error, residual)."""
     if reference is None:
         return
     scale = float(np.max(reference.strain))
+    stress = None if reference.stress is None else float(np.max(reference.stress))
     for rec in s.records:
         if "strain_energy" in rec:
             frame = int(rec["frame"])
             rec["energy_error"] = float(metrics.energy_error(rec["strain_energy"], reference.strain[frame], scale))
+        if "distance_m" in rec:
+            rec["response_error"] = metrics.relative(rec["distance_m"], reference.amplitude)
+        if "stress_difference" in rec and stress is not None:
+            rec["stress_error"] = metrics.relative(rec["stress_difference"], stress)
     if evaluator is None or s.trajectory is None:
         return
     for rec, before, after in zip(s.records, s.trajectory[:-1], s.trajectory[1:]):
@@ -210,6 +232,7 @@ def _summary(spec, method, tau_a, tau_e, s, reference, timing):
             "tau_a": tau_a if sim.reducer is not None else None,
             "tau_e": tau_e if sim.reducer is not None else None,
             "elements": int(sim.system.m), "vertices": int(sim.system.n),
+            "size_m": float(sim.size), "response_m": None if reference is None else float(reference.amplitude),
             **metrics.summarise(s.records, reference), "setup_s": float(getattr(sim.reducer, "setup_time", 0.0)),
             "timing": timing, "status": s.status, "message": s.message}
 
@@ -282,10 +305,14 @@ def _as_reference(s):
         raise SimulationDiverged(len(s.records) + 1, f"the full-space reference diverged ({s.message})")
     sim, records = s.sim, s.records
     strain0 = sim.system.strain_energy(s.positions[0])
-    ref = Reference(np.array(s.positions), np.concatenate([[strain0], metrics.column(records, "strain_energy")]),
-                    metrics.column(records, "wall"), metrics.column(records, "dofs"), sim.size)
+    stress0 = metrics.largest_stress(metrics.cauchy_stress(sim.system, s.positions[0]))
+    x = np.array(s.positions)
+    ref = Reference(x, np.concatenate([[strain0], metrics.column(records, "strain_energy")]),
+                    metrics.column(records, "wall"), metrics.column(records, "dofs"), sim.size,
+                    metrics.response_amplitude(x, sim.system.p0),
+                    np.concatenate([[stress0], metrics.column(records, "max_stress")]))
     for rec in records:  # the reference measured against itself
-        rec.update(distance_error=0.0, energy_error=0.0)
+        rec.update(distance_error=0.0, distance_m=0.0, response_error=0.0, energy_error=0.0, stress_error=0.0)
     return ref
 
 

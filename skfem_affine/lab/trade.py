@@ -27,8 +27,13 @@ def points_from_rows(rows):
             for r in rows if r.get("status") == "ok"]
 
 
-def points_from_runs(runs):
-    """Trade points of compare runs (the full-space reference left out), labelled with their settings."""
+#: The summary entry of each unit's error (``points_from_runs``).
+SUMMARY_ERROR = {"size": "max_distance_error", "response": "max_response_error", "metre": "max_distance_m"}
+
+
+def points_from_runs(runs, unit="size"):
+    """Trade points of compare runs (the full-space reference left out), labelled with their settings;
+    the error in ``unit`` ("size", "response" or "metre")."""
     out = []
     for name, run in runs.items():
         s = run.summary
@@ -38,8 +43,8 @@ def points_from_runs(runs):
             label = f"{name} {_label(float(s['tau_a']), float(s['tau_e']))}"
         else:
             target = getattr(run.sim.reducer, "target_error", None)
-            label = f"{name}, budget {100 * target:g} %" if target is not None else name
-        out.append({"error": s.get("max_distance_error"), "speedup": s.get("speedup"), "method": name,
+            label = _budget_label(target, run.sim.reducer.relative_to, name) if target is not None else name
+        out.append({"error": s.get(SUMMARY_ERROR[unit]), "speedup": s.get("speedup"), "method": name,
                     "label": label.strip()})
     return out
 
@@ -58,7 +63,10 @@ def budget_runs(spec, budgets, frames=None, method="affinification", warm=True, 
     Returns
     -------
     list of dict
-        Per budget: ``budget``, ``error`` (measured max distance error), ``speedup`` (interleaved
+        Per budget: ``budget``, ``relative_to`` (its unit), ``error`` (measured max distance
+        error in the budget's unit), ``error_response`` (over the full-space run's response, its
+        largest displacement from rest ``response_m``), ``error_size`` (over the scene size),
+        ``error_m`` (metres), ``speedup`` (interleaved
         wall-time ratio), ``dof_ratio``, ``reduced_frames`` (fraction of frames that returned the
         reduced solution), ``max_estimated_error``, ``mean_tau_a``, ``status`` ("ok", "diverged", or
         "over-budget" when ``error`` is over ``budget``).
@@ -75,24 +83,31 @@ def budget_runs(spec, budgets, frames=None, method="affinification", warm=True, 
         sims[f"budget {b:g}"] = spec.build(reducer=REDUCERS[method](target_error=b, **options))
     frames = default_frames(sims["full"], frames)
     full, size = sims["full"], sims["full"].size
-    errors = {name: 0.0 for name in sims}
+    errors = {name: 0.0 for name in sims}  # metres
+    response = [metrics.response_amplitude(full.state.x, full.system.p0)]
 
     def on_frame(frame, running):
         if "full" not in running:
             return
+        response[0] = max(response[0], metrics.response_amplitude(full.state.x, full.system.p0))
         for name, sim in running.items():
             if name != "full":
-                errors[name] = max(errors[name], metrics.distance_error(sim.state.x, full.state.x, size))
+                errors[name] = max(errors[name], metrics.distance_m(sim.state.x, full.state.x))
 
     runs = interleaved(sims, frames, on_frame=on_frame, progress=progress)
     rows = []
     for b in budgets:
         run = runs[f"budget {b:g}"]
         recs = run.records
+        unit = run.sim.reducer.relative_to
+        err = errors[f"budget {b:g}"]
+        by_unit = {"response": metrics.relative(err, response[0]), "size": err / size, "metre": err}
         status = run.summary["status"]
-        if status == "ok" and errors[f"budget {b:g}"] > b:
+        if status == "ok" and by_unit[unit] > b:
             status = "over-budget"
-        rows.append({"scene": spec.label, "method": method, "budget": b, "error": errors[f"budget {b:g}"],
+        rows.append({"scene": spec.label, "method": method, "budget": b, "relative_to": unit, "error": by_unit[unit],
+                     "error_response": by_unit["response"], "error_size": by_unit["size"], "error_m": err,
+                     "response_m": response[0], "size_m": size,
                      "speedup": run.summary.get("speedup"), "dof_ratio": run.summary.get("dof_ratio"),
                      "reduced_frames": float(np.mean([bool(r.get("reduced")) for r in recs])) if recs else 0.0,
                      "max_estimated_error": float(max((r.get("estimated_error", 0.0) for r in recs), default=0.0)),
@@ -105,4 +120,11 @@ def budget_runs(spec, budgets, frames=None, method="affinification", warm=True, 
 def budget_points(rows):
     """Trade points of :func:`budget_runs` rows, each with its budget marked beside it."""
     return [{"error": r["error"], "speedup": r["speedup"], "method": r["method"], "budget": r["budget"],
-             "label": f"budget {100 * r['budget']:g} %"} for r in rows if r["status"] in ("ok", "over-budget")]
+             "label": _budget_label(r["budget"], r.get("relative_to", "size"))}
+            for r in rows if r["status"] in ("ok", "over-budget")]
+
+
+def _budget_label(budget, unit, name=""):
+    """``name, budget 1 %`` (of the response or the size), ``budget 0.002 m`` for a budget in metres."""
+    text = f"budget {budget:g} m" if unit == "metre" else f"budget {100 * budget:g} %"
+    return f"{name}, {text}" if name else text

@@ -7,8 +7,21 @@ whether to solve the frame in full space. Their state is plain numbers, so a che
 save it (``vars(controller)``).
 
 **Error budget** (:class:`ErrorBudget`). The user states the largest vertex distance to the
-full-space run they accept, relative to the scene size L (``max_distance_error`` of
-:mod:`skfem_affine.lab.metrics`). What is estimated:
+full-space run they accept, in one of three units (``relative_to``, :data:`ERROR_UNITS`):
+
+* ``"response"`` (the default): relative to the response R, the largest displacement of a vertex
+  from the rest pose so far in the run (a beam's tip deflection, a body's fall). Online the reducer
+  knows only its own run: R is the running maximum over the frames stepped of
+  :math:`\max_i \|x_i - X_i\|`, floored at :data:`RESPONSE_FLOOR` times the scene size so that a
+  scene at rest does not divide by zero. R only grows, so the estimate is measured against the
+  response so far, never against a larger one to come: the run's final amplitude (what the
+  reports divide by) gives a smaller relative error. When R grows by a factor r, so does the
+  threshold (the velocity error allowed grows with R): a motion that starts from rest is not held
+  to the small response of its first frames;
+* ``"size"``: relative to the scene size L (the diagonal of the rest bounding box);
+* ``"metre"``: absolute, in metres.
+
+What is estimated:
 
 * the *local* error of a reduced frame, the largest vertex norm of
   :math:`\delta = \Delta v_{red} - \Delta v_{full}` (m/s), where both solve the same frame
@@ -19,16 +32,18 @@ full-space run they accept, relative to the scene size L (``max_distance_error``
   that the shadow frames keep up to date (:meth:`ErrorBudget.local`);
 * the *global* position error, accumulated as
 
-  .. math:: E_{t+1} = \rho\,E_t + h\,\|\delta_t\|_\infty / L,
-            \qquad \rho = e^{-h/T},
+  .. math:: D_{t+1} = \rho\,D_t + h\,\|\delta_t\|_\infty,
+            \qquad \rho = e^{-h/T}, \qquad E_t = D_t / U_t,
 
   a velocity error moving the vertices by h delta per step, forgotten over the memory time T
   (an error in an oscillating scene comes back rather than growing without bound; T is
   the scale of the slowest motion that still builds up drift). Shadow frames return the full
-  solution, so they add no error.
+  solution, so they add no error. D is in metres; U_t is the unit of the budget (R_t, L or 1 m).
+  A reduced frame whose estimated h ||delta|| / U alone is over a quarter of the budget, or that
+  would take E over the budget, is solved again in full space (:meth:`ErrorBudget.breaks`).
 
 The controller keeps the *steady-state* contribution of the current local error,
-S = T ||delta|| / L (what E would settle at), at ``safety`` times the budget: each reduced frame
+S = T ||delta|| / U (what E would settle at), at ``safety`` times the budget: each reduced frame
 the threshold is multiplied by (goal / S)^(1/2), clipped to [``shrink``, ``grow``]; when the
 accumulated E itself is over the goal it shrinks by at least ``shrink_over``. How well the
 estimate follows the measured error is in ``docs/budget.md``.
@@ -56,8 +71,41 @@ import numpy as np
 
 from skfem_affine.checks import positive, real
 
-#: The error budget of a reducer given no threshold: 1 % of the scene size.
+#: The error budget of a reducer given no threshold: 1 % of the response.
 DEFAULT_TARGET_ERROR = 0.01
+#: What an error budget is relative to: the response (largest displacement from rest), the scene
+#: size, or a metre (absolute).
+ERROR_UNITS = ("response", "size", "metre")
+#: The default unit of an error budget.
+DEFAULT_RELATIVE_TO = "response"
+#: The response an error budget measures against is at least this fraction of the scene size.
+RESPONSE_FLOOR = 1e-3
+#: A reduced frame whose own estimated position error (h ||delta|| / U) exceeds this fraction of
+#: the budget is solved again in full space (:meth:`ErrorBudget.breaks`).
+KICK = 0.25
+
+
+def error_unit(relative_to):
+    """``relative_to`` checked: one of :data:`ERROR_UNITS` (None: the default), or a ValueError naming it."""
+    if relative_to is None:
+        return DEFAULT_RELATIVE_TO
+    if not isinstance(relative_to, str) or relative_to not in ERROR_UNITS:
+        raise ValueError(f"relative_to must be one of {', '.join(map(repr, ERROR_UNITS))} (the response: the "
+                         f"largest displacement from rest; the scene size; or metres), got {relative_to!r}")
+    return relative_to
+
+
+def target_error(value, relative_to):
+    """A budget checked for its unit: in (0, 1] relative to the response or the size, > 0 in metres."""
+    if relative_to == "metre":
+        return real(value, "target_error", low=0.0, include_low=False)
+    return real(value, "target_error", low=0.0, high=1.0, include_low=False)
+
+
+def largest_displacement(x, rest):
+    """max_i ||x_i - X_i|| of positions ``x`` and ``rest`` (flat 3n or (n, 3) arrays), in metres."""
+    d = np.asarray(x, float).reshape(-1, 3) - np.asarray(rest, float).reshape(-1, 3)
+    return float(np.sqrt(np.max(np.einsum("ij,ij->i", d, d)))) if d.size else 0.0
 
 
 def vertex_max_norm(free_values, free, n):
@@ -68,8 +116,10 @@ def vertex_max_norm(free_values, free, n):
 
 
 def controllers_state(owner, names):
-    """{name: {attribute: value}} of the controllers ``owner`` holds under ``names`` (checkpoints)."""
-    return {name: dict(vars(obj)) for name in names if (obj := getattr(owner, name, None)) is not None}
+    """{name: {attribute: value}} of the controllers ``owner`` holds under ``names`` (checkpoints); an
+    attribute whose name starts with ``_`` is a setting given to the constructor, not state."""
+    return {name: {k: v for k, v in vars(obj).items() if not k.startswith("_")}
+            for name in names if (obj := getattr(owner, name, None)) is not None}
 
 
 def restore_controllers(owner, state, own):
@@ -88,7 +138,7 @@ class ErrorBudget:
     Parameters
     ----------
     target : float
-        The accepted max vertex distance to the full-space run over the scene size, in (0, 1].
+        The accepted max vertex distance to the full-space run, in the unit ``relative_to``.
     tau : float
         The threshold to start from (the reducer's unit; small: the first frames reduce little).
     memory : float
@@ -105,11 +155,19 @@ class ErrorBudget:
         The factor per frame (default ``grow``) while the threshold rises from its small start and
         the error has not shown yet (:attr:`ramping`): the first frames, which keep most DOFs
         elastic, cost more than a full solve.
+    relative_to : {"response", "size", "metre"}
+        The unit of ``target`` and of the estimate (module docstring).
 
     Attributes
     ----------
+    drift : float
+        D, the accumulated position error estimate in metres.
     estimate : float
-        E, the accumulated position error estimate (relative to the scene size).
+        E = D / U, the estimate in the budget's unit.
+    unit : float
+        U (m): the response so far (floored), the scene size, or 1.
+    response : float
+        The largest displacement from rest seen so far (m), with ``relative_to="response"``.
     calibration : float
         Measured / proxy local error of the latest shadow frames (>= 1 is typical: one CG step
         underestimates the smooth part of the error).
@@ -120,8 +178,9 @@ class ErrorBudget:
     """
 
     def __init__(self, target, tau, memory=0.5, safety=0.5, tau_min=1e-8, tau_max=1e3,
-                 shrink=0.5, grow=2.0, shrink_over=0.7, ramp_grow=None):
-        self.target = real(target, "target_error", low=0.0, high=1.0, include_low=False)
+                 shrink=0.5, grow=2.0, shrink_over=0.7, ramp_grow=None, relative_to="size"):
+        self._relative_to = error_unit(relative_to)
+        self.target = target_error(target, self._relative_to)
         self.tau = positive(tau, "tau")
         self.memory = positive(memory, "memory")
         self.safety = real(safety, "safety", low=0.0, high=1.0, include_low=False)
@@ -129,7 +188,10 @@ class ErrorBudget:
         self.shrink, self.grow, self.shrink_over = float(shrink), float(grow), float(shrink_over)
         self.ramp_grow = self.grow if ramp_grow is None else float(ramp_grow)
         self.ramping = True  # tau rises by ramp_grow per frame from the small start until the error shows
+        self.drift = 0.0
         self.estimate = 0.0
+        self.unit = 0.0  # set by scale() (or advance(): the scene size)
+        self.response = 0.0
         self.calibration = 1.0
         self.calibrated = 0  # shadow frames that measured a nonzero proxy
         self.local_rate = 0.0
@@ -160,16 +222,58 @@ class ErrorBudget:
             self.calibrated += 1
         return measured
 
+    @property
+    def relative_to(self):
+        """The unit of the target and the estimate: "response", "size" or "metre"."""
+        return self._relative_to
+
+    def scale(self, size, displacement=None):
+        """Set the unit U (m) of the coming frame from the scene ``size`` and, for a budget relative to
+        the response, the frame's largest ``displacement`` from rest (the running maximum is kept)."""
+        if self.relative_to == "size":
+            self.unit = float(size)
+        elif self.relative_to == "metre":
+            self.unit = 1.0
+        else:
+            if displacement is not None:
+                self.response = max(self.response, float(displacement))
+            unit = max(self.response, RESPONSE_FLOOR * float(size))
+            if self.unit > 0 and unit > self.unit:
+                # the velocity error allowed grows with the response, and the threshold with it: a
+                # motion that starts from rest is not held to the small response of its first frames
+                self.tau = min(self.tau * unit / self.unit, self.tau_max)
+            self.unit = unit
+        return self.unit
+
     def advance(self, delta, dt, size, introduced=True):
-        """E <- rho E + h delta / L (``introduced=False``: the frame returned the full solution)."""
+        """D <- rho D + h delta (``introduced=False``: the frame returned the full solution); E = D / U.
+
+        ``size`` is the scene size; the unit is the one :meth:`scale` set (the scene size if never set).
+        """
+        if self.relative_to != "response" or not self.unit > 0:
+            self.scale(size)
         rho = math.exp(-dt / self.memory)
-        self.local_rate = delta / size
-        self.estimate = rho * self.estimate + (dt * delta / size if introduced else 0.0)
+        self.local_rate = delta / self.unit
+        self.drift = rho * self.drift + (dt * delta if introduced else 0.0)
+        self.estimate = self.drift / self.unit
         return self.estimate
 
+    def breaks(self, delta, dt):
+        """Whether a reduced frame of local error ``delta`` (m/s) would break the promise: its own
+        position error h delta / U is over :data:`KICK` budgets, or it would take the estimate over
+        the budget. Such a frame is solved again in full space (a shadow frame: it adds no error and
+        calibrates the estimate). The controller keeps the estimate near half the budget, where a
+        frame adds about h / T of it, so only a sudden jump of the error (a threshold grown while
+        nothing could reduce, then everything does) is refused."""
+        if not self.unit > 0:
+            return False
+        kick = dt * float(delta) / self.unit
+        return kick > KICK * self.target or math.exp(-dt / self.memory) * self.estimate + kick > self.target
+
     def decay(self, dt):
-        """A frame solved in full space: E only decays."""
-        self.estimate *= math.exp(-dt / self.memory)
+        """A frame solved in full space: D only decays."""
+        self.drift *= math.exp(-dt / self.memory)
+        self.estimate = self.drift / self.unit if self.unit > 0 else 0.0
         return self.estimate
 
     def adapt(self, saturated=False):

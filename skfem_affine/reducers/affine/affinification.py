@@ -18,11 +18,15 @@ class Affinification(ClusteringReducer):
     tau_e : float, optional
         More permissive threshold for elements that were affine to stay affine (default 2 tau_a).
     target_error : float, optional
-        The error budget: the largest vertex distance to the full-space run accepted, over the
-        scene size. The reducer then chooses tau_a (and tau_e = 2 tau_a) frame by frame
+        The error budget: the largest vertex distance to the full-space run accepted, in the unit
+        ``relative_to``. The reducer then chooses tau_a (and tau_e = 2 tau_a) frame by frame
         (:mod:`skfem_affine.reducers.budget`). Given no thresholds and no budget, the budget is
-        :data:`~skfem_affine.reducers.budget.DEFAULT_TARGET_ERROR` (1 %). Thresholds and a budget
-        together are refused.
+        :data:`~skfem_affine.reducers.budget.DEFAULT_TARGET_ERROR` (1 % of the response). Thresholds
+        and a budget together are refused.
+    relative_to : {"response", "size", "metre"}, optional
+        The unit of ``target_error``: ``"response"`` (default), the largest displacement of a vertex
+        from the rest pose so far in the run (a tip deflection, a fall); ``"size"``, the diagonal of
+        the scene's rest bounding box; ``"metre"``, absolute.
     time_budget : float, optional
         Seconds per frame: the forced fraction (``min_fraction``) adapts each frame so that frames
         stay under it; misses are recorded in ``sim.stats`` (``"time_budget_miss"``).
@@ -64,8 +68,10 @@ class Affinification(ClusteringReducer):
     >>> import skfem_affine as sa
     >>> sa.Affinification(0.1, 0.2).target_error is None        # explicit thresholds, as given
     True
-    >>> sa.Affinification().target_error                         # the default budget: 1 % of the scene size
+    >>> sa.Affinification().target_error                         # the default budget: 1 % of the response
     0.01
+    >>> sa.Affinification(target_error=0.002, relative_to="metre").relative_to  # 2 mm
+    'metre'
     >>> sa.Affinification(target_error=0.003, time_budget=0.05).time_budget
     0.05
     """
@@ -76,21 +82,21 @@ class Affinification(ClusteringReducer):
     threshold = "tau_a"
     tau_start = 1e-3
 
-    def __init__(self, tau_a=None, tau_e=None, *, target_error=None, time_budget=None, never_slower=None,
+    def __init__(self, tau_a=None, tau_e=None, *, target_error=None, relative_to=None, time_budget=None, never_slower=None,
                  min_fraction=None, seeding="random", preconditioner="ichol", seed=0, solver=None,
                  min_body_elements=2, min_affine_fraction=None, shadow_every=10, memory=0.5, refresh=False,
                  refresh_tol=0.2, refresh_background=False, pinned_bodies=False):
-        self.tau_a, tau_e, target_error = resolve_thresholds(tau_a, tau_e, target_error, "tau_a")
+        self.tau_a, tau_e, target_error = resolve_thresholds(tau_a, tau_e, target_error, "tau_a", relative_to)
         # >= 2: singletons are always dissolved
         self.min_body_elements = integer(min_body_elements, "min_body_elements", low=2)
         super().__init__(tau_e, min_fraction=forced_fraction(min_fraction, min_affine_fraction, "min_affine_fraction"),
                          seeding=seeding, preconditioner=preconditioner, seed=seed, solver=solver,
                          target_error=target_error, time_budget=time_budget, never_slower=never_slower,
                          shadow_every=shadow_every, memory=memory, refresh=refresh, refresh_tol=refresh_tol,
-                         refresh_background=refresh_background, pinned_bodies=pinned_bodies)
+                         refresh_background=refresh_background, relative_to=relative_to, pinned_bodies=pinned_bodies)
 
     def __repr__(self):
-        what = (f"target_error={self.target_error:g}" if self.target_error is not None
+        what = (f"target_error={self.target_error:g}, relative_to={self.relative_to!r}" if self.target_error is not None
                 else f"tau_a={self.tau_a:g}, tau_e={self.tau_e:g}")
         budget = f", time_budget={self.time_budget:g}" if self.time_budget is not None else ""
         return (f"Affinification({what}{budget}, min_fraction={self.min_fraction:g}, "

@@ -62,18 +62,22 @@ def forced_fraction(min_fraction, old_value, old_name):
     return 0.0 if min_fraction is None else real(min_fraction, name, low=0.0, high=1.0)
 
 
-def resolve_thresholds(tau, tau_e, target_error, name):
+def resolve_thresholds(tau, tau_e, target_error, name, relative_to=None):
     """(tau, tau_e, target_error) from what the user gave: thresholds, a budget, or neither.
 
     Explicit thresholds switch the error budget off (a missing one is the other's half or
     double); none gives the default budget, :data:`~skfem_affine.reducers.budget.DEFAULT_TARGET_ERROR`.
+    ``relative_to`` (checked here) is the budget's unit; it is refused beside explicit thresholds.
     """
     explicit = tau is not None or tau_e is not None
+    unit = budgets.error_unit(relative_to)
     if explicit and target_error is not None:
         raise ValueError(f"give the thresholds ({name}, tau_e) or target_error, not both")
+    if explicit and relative_to is not None:
+        raise ValueError(f"relative_to is the unit of target_error; explicit thresholds ({name}, tau_e) have none")
     if not explicit:
         target = budgets.DEFAULT_TARGET_ERROR if target_error is None else target_error
-        return None, None, real(target, "target_error", low=0.0, high=1.0, include_low=False)
+        return None, None, budgets.target_error(target, unit)
     tau_e = None if tau_e is None else check_threshold(tau_e, "tau_e")
     tau = check_threshold(tau if tau is not None else 0.5 * tau_e, name)
     return tau, (tau_e if tau_e is not None else 2.0 * tau), None
@@ -107,6 +111,8 @@ class ClusteringReducer(Reducer):
         Solver of the reduced system (default: the fastest direct solver).
     target_error : float or None
         The error budget (None: explicit thresholds); see :mod:`skfem_affine.reducers.budget`.
+    relative_to : {"response", "size", "metre"} or None
+        The unit of ``target_error`` (None: ``"response"``, the largest displacement from rest).
     time_budget : float or None
         Seconds per frame; the forced fraction adapts to it.
     never_slower : bool or None
@@ -220,8 +226,9 @@ class ClusteringReducer(Reducer):
 
     def __init__(self, tau_e, *, min_fraction=0.0, seeding="random", preconditioner="ichol", seed=0, solver=None,
                  target_error=None, time_budget=None, never_slower=None, shadow_every=10, memory=0.5,
-                 refresh=False, refresh_tol=0.2, refresh_background=False, pinned_bodies=False):
+                 refresh=False, refresh_tol=0.2, refresh_background=False, pinned_bodies=False, relative_to=None):
         self.target_error = target_error
+        self.relative_to = None if target_error is None else budgets.error_unit(relative_to)
         if target_error is not None:
             tau_e = 2.0 * self.tau_start
             setattr(self, self.threshold, self.tau_start)
@@ -286,7 +293,8 @@ class ClusteringReducer(Reducer):
             return
         if self.target_error is not None:
             self.error_budget = budgets.ErrorBudget(self.target_error, self.tau_start, memory=self.memory,
-                                                    tau_min=self.tau_min, tau_max=self.tau_max, ramp_grow=4.0)
+                                                    tau_min=self.tau_min, tau_max=self.tau_max, ramp_grow=4.0,
+                                                    relative_to=self.relative_to)
             self._set_thresholds(self.tau_start)
         if self.time_budget is not None:
             self.timer = budgets.TimeBudget(self.time_budget, self.min_fraction)
@@ -393,6 +401,8 @@ class ClusteringReducer(Reducer):
         if self.timer is not None:
             self.min_fraction = self.timer.fraction
         mode = pays.plan() if pays is not None else "reduced"
+        # the budget's unit (m) this frame: the response so far, the scene size, or a metre
+        unit = eb.scale(model.size, budgets.largest_displacement(problem.x, sysm.p0)) if eb is not None else model.size
         if eb is not None and mode not in ("full", "confirm") and self._new_contacts(problem):
             mode = "impact"
         if mode in ("full", "confirm", "impact"):
@@ -424,24 +434,27 @@ class ClusteringReducer(Reducer):
         reduced_seconds = time.perf_counter() - t0
         initial = self.shadows is not None and self.shadows.first > 0
         shadow = mode == "probe" or (self.shadows is not None and self.shadows.due())
+        gap = self._integration_gap(problem, result) if eb is not None and stats["n_clusters"] else 0.0
+        refused = not shadow and eb is not None and stats["n_clusters"] > 0 and eb.breaks(eb.local(proxy) + gap, h)
+        shadow = shadow or refused  # the reduced step would break the budget: solved again in full space
         if shadow and not initial and mode != "probe" and self.timer is not None \
                 and not self.timer.fits(self.timer.full_cost):
             shadow = False  # the time budget wins: a full solve on top of the frame would miss it
-        stats.update(reduced_dofs=stats["dofs"], shadow=bool(shadow), reduced=not shadow)
+        stats.update(reduced_dofs=stats["dofs"], shadow=bool(shadow), reduced=not shadow, refused=bool(refused))
         measured = None
         seconds = 0.0
         if shadow:
             dv, op, seconds = self._full(problem, stats)
             measured = budgets.vertex_max_norm(result.dv - dv, sysm.free, sysm.n) if stats["n_clusters"] else 0.0
-            stats.update(dofs=op.shape[0], solver=self.full_solver.name, local_error_measured=measured / model.size)
+            stats.update(dofs=op.shape[0], solver=self.full_solver.name, local_error_measured=measured / unit)
             result = StepResult(dv=dv, operator=op, clusters=np.full(sysm.m, -1, dtype=np.int64), stats=stats)
         ramp = eb is not None and eb.ramping  # this frame's threshold is still on its way up
         if eb is not None:
-            delta = eb.local(proxy, measured)
+            delta = eb.local(proxy, measured) + (0.0 if shadow else gap)
             if shadow and self.shadows is not None:
                 self.shadows.settled(eb.stable and eb.estimate < eb.goal)
             eb.advance(delta, h, model.size, introduced=not shadow)
-            stats["local_error"] = delta / model.size
+            stats["local_error"] = delta / unit
             reducible = 1.0 - float(np.mean(self.excluded)) if sysm.m else 0.0
             eb.adapt(saturated=stats["reduced_fraction"] >= reducible - 1e-9)
         if pays is not None:  # judged in end_frame, on the frame's wall time
@@ -450,6 +463,18 @@ class ClusteringReducer(Reducer):
                             "dof_ratio": stats["reduced_dofs"] / max(sysm.free.size, 1)}
         self._record(stats)
         return result
+
+    def _integration_gap(self, problem, result):
+        """max_i ||x_i(body kind's update) - (x_i + h v_i)|| / h (m/s) of a reduced frame: rigid bodies
+        rotate exactly while the full-space step moves along v, a difference in position the
+        velocity error does not see; zero for affine bodies (their update is x + h v)."""
+        if self.kind is not reduction.RIGID or result.mapping is None:
+            return 0.0
+        sysm, h = problem.system, problem.model.dt
+        v = np.array(problem.v, dtype=float).reshape(-1)
+        v[sysm.free] += result.dv
+        x, v = np.asarray(problem.x, float).reshape(-1, 3), v.reshape(-1, 3)
+        return budgets.largest_displacement(result.positions(x, v, h), x + h * v) / h
 
     @staticmethod
     def _new_contacts(problem):
@@ -476,6 +501,7 @@ class ClusteringReducer(Reducer):
         eb = self.error_budget
         if eb is not None:
             stats["estimated_error"] = float(eb.estimate)
+            stats["error_unit"] = float(eb.unit)
         stats["tau_a"] = float(getattr(self, self.threshold))
         stats["tau_e"] = float(self.tau_e)
         stats["min_fraction"] = float(self.min_fraction)

@@ -33,8 +33,8 @@ class Rigidification(ClusteringReducer):
         Strain-rate threshold to turn elastic elements rigid.
     tau_e : float, optional
         Predicted strain-rate threshold for rigid elements to stay rigid (default 2 tau_r).
-    target_error, time_budget, never_slower
-        The error budget (default 1 % when no threshold is given), the time budget (s per
+    target_error, relative_to, time_budget, never_slower
+        The error budget (default 1 % of the response when no threshold is given) and its unit, the time budget (s per
         frame) and the fall-back to full space, as for :class:`~skfem_affine.Affinification`;
         the budget drives tau_r (recorded as ``tau_a`` in ``sim.stats``) and tau_e = 2 tau_r.
     warmup_frames : int
@@ -53,20 +53,20 @@ class Rigidification(ClusteringReducer):
     threshold = "tau_r"
     tau_start = 1e-6
 
-    def __init__(self, tau_r=None, tau_e=None, *, target_error=None, time_budget=None, never_slower=None,
+    def __init__(self, tau_r=None, tau_e=None, *, target_error=None, relative_to=None, time_budget=None, never_slower=None,
                  warmup_frames=3, min_fraction=None, seeding="random", preconditioner="ichol", seed=0, solver=None,
                  min_rigid_fraction=None, shadow_every=10, memory=0.5, refresh=False, refresh_tol=0.2,
                  refresh_background=False):
-        self.tau_r, tau_e, target_error = resolve_thresholds(tau_r, tau_e, target_error, "tau_r")
+        self.tau_r, tau_e, target_error = resolve_thresholds(tau_r, tau_e, target_error, "tau_r", relative_to)
         self.warmup_frames = integer(warmup_frames, "warmup_frames", low=0)
         super().__init__(tau_e, min_fraction=forced_fraction(min_fraction, min_rigid_fraction, "min_rigid_fraction"),
                          seeding=seeding, preconditioner=preconditioner, seed=seed, solver=solver,
                          target_error=target_error, time_budget=time_budget, never_slower=never_slower,
                          shadow_every=shadow_every, memory=memory, refresh=refresh, refresh_tol=refresh_tol,
-                         refresh_background=refresh_background)
+                         refresh_background=refresh_background, relative_to=relative_to)
 
     def __repr__(self):
-        what = (f"target_error={self.target_error:g}" if self.target_error is not None
+        what = (f"target_error={self.target_error:g}, relative_to={self.relative_to!r}" if self.target_error is not None
                 else f"tau_r={self.tau_r:g}, tau_e={self.tau_e:g}")
         return f"Rigidification({what}, warmup_frames={self.warmup_frames}, min_fraction={self.min_fraction:g})"
 

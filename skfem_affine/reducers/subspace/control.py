@@ -60,23 +60,27 @@ TRIAL = 0.5
 PHASE = 0.5
 
 
-def resolve(eps_nodal, eps_modal, target_error, never_slower):
-    """(eps_nodal, eps_modal, target_error, never_slower) from what the user gave.
+def resolve(eps_nodal, eps_modal, target_error, never_slower, relative_to=None):
+    """(eps_nodal, eps_modal, target_error, never_slower, relative_to) from what the user gave.
 
     Thresholds given (either one) switch every controller off unless asked for (a missing one is
     :data:`DEFAULT_EPS`, as before budgets existed); ``target_error`` with a threshold is refused.
-    ``never_slower`` defaults to on unless a threshold is given.
+    ``never_slower`` defaults to on unless a threshold is given. ``relative_to`` is the budget's
+    unit (:data:`~skfem_affine.reducers.budget.ERROR_UNITS`), None without a budget.
     """
     explicit = eps_nodal is not None or eps_modal is not None
+    unit = budgets.error_unit(relative_to)
     if explicit and target_error is not None:
         raise ValueError("give the thresholds (eps_nodal, eps_modal) or target_error, not both")
+    if relative_to is not None and target_error is None:
+        raise ValueError("relative_to is the unit of target_error; give target_error with it")
     if target_error is not None:
-        target_error = real(target_error, "target_error", low=0.0, high=1.0, include_low=False)
+        target_error = budgets.target_error(target_error, unit)
         eps_nodal, eps_modal = EPS_START, MODAL_RATIO * EPS_START
     eps_nodal = DEFAULT_EPS if eps_nodal is None else eps_nodal
     eps_modal = DEFAULT_EPS if eps_modal is None else eps_modal
     never_slower = (not explicit) if never_slower is None else flag(never_slower, "never_slower")
-    return eps_nodal, eps_modal, target_error, never_slower
+    return eps_nodal, eps_modal, target_error, never_slower, (unit if target_error is not None else None)
 
 
 class Controllers:
@@ -86,6 +90,8 @@ class Controllers:
     ----------
     target_error, time_budget : float or None
     never_slower : bool
+    relative_to : {"response", "size", "metre"}
+        The unit of ``target_error``.
     shadow_every : int
         Reduced steps per shadow step (error budget); doubles up to 4x while the calibration holds.
     memory : float
@@ -94,11 +100,12 @@ class Controllers:
 
     NAMES = ("error_budget", "timer", "pays", "shadows")
 
-    def __init__(self, target_error=None, time_budget=None, never_slower=False, shadow_every=10, memory=0.5):
+    def __init__(self, target_error=None, time_budget=None, never_slower=False, shadow_every=10, memory=0.5,
+                 relative_to="response"):
         self.error_budget = self.timer = self.pays = self.shadows = None
         if target_error is not None:
             self.error_budget = budgets.ErrorBudget(target_error, EPS_START, memory=memory,
-                                                    tau_min=EPS_MIN, tau_max=EPS_MAX)
+                                                    tau_min=EPS_MIN, tau_max=EPS_MAX, relative_to=relative_to)
         if time_budget is not None:
             self.timer = budgets.TimeBudget(time_budget)
         if never_slower:

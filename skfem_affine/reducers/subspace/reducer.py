@@ -118,9 +118,12 @@ class AdaptiveSubspace(Reducer):
         either switches the controllers off unless asked for (the other is then 0.5); giving
         neither uses 0.5 and 0.5 (the paper's) with ``never_slower`` on, or the error budget.
     target_error : float, optional
-        The error budget: the largest vertex distance to the full-space run accepted, relative
-        to the scene size; ``eps_nodal`` (and ``eps_modal`` = 3 ``eps_nodal``) then adapt to it
+        The error budget: the largest vertex distance to the full-space run accepted, in the unit
+        ``relative_to``; ``eps_nodal`` (and ``eps_modal`` = 3 ``eps_nodal``) then adapt to it
         (:mod:`~skfem_affine.reducers.subspace.control`). Not together with the thresholds.
+    relative_to : {"response", "size", "metre"}, optional
+        The unit of ``target_error`` (default ``"response"``, the largest displacement from rest so
+        far; :mod:`skfem_affine.reducers.budget`).
     time_budget : float, optional
         Seconds per step; the enrichment is capped so that steps stay under it.
     never_slower : bool, optional
@@ -178,13 +181,14 @@ class AdaptiveSubspace(Reducer):
     def __init__(self, basis=None, eps_nodal=None, eps_modal=None, eps_progress=1e-4, eps_down=0.1,
                  subdomains=200, newton_tol=None, max_newton=None, pcg_tol=1e-5, pcg_maxiter=10000,
                  record_residual=False, hessian_init="rest", blas_threads=1, fallback="nnz",
-                 target_error=None, time_budget=None, never_slower=None, shadow_every=10, memory=0.5):
+                 target_error=None, time_budget=None, never_slower=None, shadow_every=10, memory=0.5,
+                 relative_to=None):
         basis = SkinningEigenmodes(n=16) if basis is None else basis
         if not isinstance(basis, _Basis):
             raise TypeError(f"basis must be a basis such as sa.SkinningEigenmodes(n=16), got {type(basis).__name__}")
         self.basis_spec = basis
-        eps_nodal, eps_modal, self.target_error, self.never_slower = control.resolve(
-            eps_nodal, eps_modal, target_error, never_slower)
+        eps_nodal, eps_modal, self.target_error, self.never_slower, self.relative_to = control.resolve(
+            eps_nodal, eps_modal, target_error, never_slower, relative_to)
         self.time_budget, self.shadow_every, self.memory = control.check_settings(time_budget, shadow_every, memory)
         self.controlled = self.target_error is not None or self.time_budget is not None or self.never_slower
         self.eps_nodal = _threshold(eps_nodal, "eps_nodal")
@@ -210,7 +214,8 @@ class AdaptiveSubspace(Reducer):
         self.clock = time.perf_counter  # what the fall-back's measured times are read from (tests feed a fake one)
 
     def __repr__(self):
-        budget = "" if self.target_error is None else f", target_error={self.target_error}"
+        budget = ("" if self.target_error is None
+                  else f", target_error={self.target_error}, relative_to={self.relative_to!r}")
         return (f"AdaptiveSubspace(basis={self.basis_spec!r}, eps_nodal={self.eps_nodal}, eps_modal={self.eps_modal}, "
                 f"eps_progress={self.eps_progress}, eps_down={self.eps_down}, subdomains={self.n_subdomains}, "
                 f"fallback={self.fallback!r}{budget}, never_slower={self.never_slower})")
@@ -265,7 +270,7 @@ class AdaptiveSubspace(Reducer):
         self.control = None
         if self.controlled:
             self.control = control.Controllers(self.target_error, self.time_budget, self.never_slower,
-                                               self.shadow_every, self.memory)
+                                               self.shadow_every, self.memory, self.relative_to)
             if self.target_error is not None:
                 self.rest_diagonal = control.rest_stiffness_diagonal(sysm, self.project_hessian)
 
@@ -309,6 +314,8 @@ class AdaptiveSubspace(Reducer):
         (:mod:`~skfem_affine.reducers.subspace.control`)."""
         c, h, size, free = self.control, ip.h, ip.model.size, ip.free
         eb, pays, n = c.error_budget, c.pays, self.system.n
+        # the budget's unit (m) this step: the response so far, the scene size, or a metre
+        unit = eb.scale(size, budgets.largest_displacement(ip.x_t, self.system.p0)) if eb is not None else size
         forced = 0.0 if c.timer is None else c.timer.fraction
         self.max_enriched = None if c.timer is None else int((1.0 - forced) * self.free_vertex.sum())
         if self.max_enriched is not None and self.enriched.sum() > self.max_enriched:
@@ -345,7 +352,7 @@ class AdaptiveSubspace(Reducer):
                 rec[key] = rec.get(key, 0.0) + part.get(key, 0.0)
             if x_red is not None:
                 measured = budgets.vertex_max_norm((x_red - x)[free], free, n) / h
-                rec["local_error_measured"] = measured / size
+                rec["local_error_measured"] = measured / unit
             rec.update(dofs=int(free.size), solver=self.fallback_solver.name, full_solve=seconds,
                        full_newton_iters=part.get("newton_iters", 0))
         rec["shadow"] = bool(shadow)
@@ -365,7 +372,7 @@ class AdaptiveSubspace(Reducer):
                 else:  # no shadow, or a measured error at the Newton tolerance's level: nothing to calibrate by
                     delta = eb.local(estimate) if measured is None else measured
                 eb.advance(delta, h, size, introduced=rec["reduced"])
-                rec["local_error"] = delta / size
+                rec["local_error"] = delta / unit
                 # the smallest space (no enrichment, the permanent modes only): a larger eps gains nothing
                 smallest = not went_full and not self.step_enriched.any() and rec["active_modes"] <= self.permanent_columns
                 # a step solved in full space says nothing about eps's error: eps may grow while the
@@ -387,6 +394,7 @@ class AdaptiveSubspace(Reducer):
         c = self.control
         if c.error_budget is not None:
             rec["estimated_error"] = float(c.error_budget.estimate)
+            rec["error_unit"] = float(c.error_budget.unit)
         rec["eps_nodal"], rec["eps_modal"] = float(self.eps_nodal), float(self.eps_modal)
         rec["min_fraction"] = float(forced)
         if c.pays is not None:

@@ -1,0 +1,63 @@
+"""An error budget is a promise: on every registered scene, at two budgets, the achieved error
+stays within 1.25 budgets (small resolutions, few frames; docs/budget.md)."""
+import numpy as np
+import pytest
+
+import skfem_affine as sa
+from skfem_affine.lab import metrics
+
+MARGIN = 1.25
+BUDGETS = (0.01, 0.03)  # relative to the response: the default unit
+FRAMES = 40
+
+#: The smallest version of each registered scene (a scene added to the registry must be added here).
+SMALL = {"cantilever": dict(resolution=1), "paper_beam": dict(resolution=1), "free_body": dict(resolution=1),
+         "drop": dict(resolution=1, shape="box"), "stacked_beams": dict(resolution=1), "pills": dict(n=2),
+         "bowling": dict(n=1), "toothbrush": dict(), "wheel": dict(), "octopus": dict(),
+         "armadillo": dict(resolution=1), "twisting_beam": dict(resolution=1)}
+#: Contact-free scenes, where rigidification's estimate is checked too (on the contact scenes at this
+#: size nearly every frame is an impact frame, solved in full space).
+RIGID = ("cantilever", "paper_beam", "free_body", "drop")
+
+
+def achieved(name, reducers, frames=FRAMES):
+    """Largest vertex distance to the full-space run over the full-space run's response, per reducer."""
+    factory = sa.scenes.SCENES[name]
+    full = factory(solver="direct", reducer=None, **SMALL[name])  # reducer=None: the armadillo has its own
+    sims = [factory(solver="direct", reducer=r, **SMALL[name]) for r in reducers]
+    worst, response = np.zeros(len(sims)), 0.0
+    for _ in range(frames):
+        full.step()
+        response = max(response, metrics.response_amplitude(full.state.x, full.system.p0))
+        for i, sim in enumerate(sims):
+            sim.step()
+            worst[i] = max(worst[i], metrics.distance_m(sim.state.x, full.state.x))
+    return worst / response
+
+
+def test_every_registered_scene_is_listed():
+    assert set(SMALL) == set(sa.scenes.SCENES)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", sorted(SMALL))
+def test_affinification_keeps_its_budget_on_every_scene(name):
+    errors = achieved(name, [sa.Affinification(target_error=b, never_slower=False) for b in BUDGETS])
+    for b, err in zip(BUDGETS, errors):
+        assert err <= MARGIN * b, (name, b, err)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", RIGID)
+def test_rigidification_keeps_its_budget(name):
+    errors = achieved(name, [sa.Rigidification(target_error=b, never_slower=False) for b in BUDGETS])
+    for b, err in zip(BUDGETS, errors):
+        assert err <= MARGIN * b, (name, b, err)
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason="rigidification on the soft twisting beam: velocity errors keep moving the "
+                                       "vertices for longer than the estimate's memory time (measured 1.3-1.6 budgets)")
+def test_rigidification_on_the_twisting_beam_exceeds_its_budget():
+    errors = achieved("twisting_beam", [sa.Rigidification(target_error=b, never_slower=False) for b in BUDGETS], 60)
+    assert np.all(errors <= MARGIN * np.array(BUDGETS)), errors
