@@ -275,7 +275,8 @@ def real_array(value, name, shape=None, low=None, high=None, include_low=True, i
         flat = raw.ravel()
         if not all(isinstance(v, numbers.Real) and not _is_bool(v) for v in flat):
             raise TypeError(f"{name} must be a real number or an array of real numbers, got {_describe(value)}")
-    elif raw.dtype.kind not in "iuf":
+    elif raw.dtype.kind not in "iuf" or (not isinstance(value, np.ndarray) and _holds_bool(value)):
+        # (a bool among numbers is converted to 0/1 by np.asarray: found in the sequence itself)
         raise TypeError(f"{name} must be a real number or an array of real numbers, got {_describe(value)}")
     a = np.array(raw, dtype=float)
     if shape is not None and (a.ndim != len(shape) or any(s is not None and s != k for s, k in zip(shape, a.shape))):
@@ -294,6 +295,13 @@ def real_array(value, name, shape=None, low=None, high=None, include_low=True, i
             raise ValueError(f"{name} must lie in {_interval(low, high, include_low, include_high)}, "
                              f"got {_show(a[out].ravel()[0])}{where}")
     return a
+
+
+def _holds_bool(value):
+    """Whether a (nested) sequence holds a bool (``[0, 0, True]``, ``[1e5, np.True_]``)."""
+    if isinstance(value, (list, tuple)):
+        return any(_holds_bool(v) for v in value)
+    return _is_bool(value) or (isinstance(value, np.ndarray) and value.dtype.kind == "b")
 
 
 def _first_index(mask):

@@ -83,7 +83,7 @@ def test_valid_values_are_stored_as_plain_numbers():
 
 def test_barrier_arguments(body):
     sim = sa.Simulation(body, integrator="implicit_euler")
-    with pytest.raises(TypeError, match="collider 0 is the class Plane"):
+    with pytest.raises(TypeError, match=r"colliders\[0\] is the class Plane"):
         Barrier(sim.model, [sa.Plane])
     with pytest.raises(ValueError, match="dhat"):
         Barrier(sim.model, [sa.Plane()], dhat=0.0)
