@@ -22,7 +22,8 @@ import skfem_affine
 from skfem_affine import checkpoint
 
 from skfem_affine.assembly import ElasticSystem
-from skfem_affine.checks import check_bodies, choice, flag, integer, positive, real_array
+from skfem_affine.body import check_bodies
+from skfem_affine.checks import choice, flag, integer, positive, real_array
 from skfem_affine.contact import pgs
 from skfem_affine.contact.colliders import check_colliders
 from skfem_affine.contact.ipc import IPC, IPCContact
@@ -185,6 +186,9 @@ class Simulation:
         if reducer is not None and not isinstance(reducer, Reducer):
             raise TypeError(f"reducer must be None or a reducer such as sa.Affinification(...) "
                             f"(a skfem_affine.reducers.base.Reducer), got {type(reducer).__name__}")
+        if reducer is not None and reducer.model is not None:
+            raise ValueError(f"reducer {reducer!r} already runs in another simulation (it holds that run's clusters, "
+                             f"bases and controllers); give each simulation its own reducer object")
         # one place for the Newton settings: a reducer's own (AdaptiveSubspace(newton_tol=...)) are
         # adopted when the simulation's are not given, and must agree with them when both are
         newton_tol, newton_iters = newton.resolve_newton_settings(newton_tol, newton_iters, reducer)
@@ -275,6 +279,7 @@ class Simulation:
         t0 = time.perf_counter()
         s = self.state
         frame = s.frame + 1
+        self._check_state(s, "sim.state")
         if not (np.all(np.isfinite(s.x)) and np.all(np.isfinite(s.v))):
             raise SimulationDiverged(frame)  # e.g. a state set from outside: before contact detection
         rec = {"frame": frame, "contact": 0.0, "contact_model": self.contact_model}
@@ -323,7 +328,7 @@ class Simulation:
     def max_penetration(self, x=None):
         """Largest penetration depth (m, >= 0) of a surface vertex into a collider or another body
         at positions x (default: the current state)."""
-        x = self.state.x if x is None else x
+        x = self.state.x if x is None else self._positions(x, "x")
         if self.contact is not None:
             return self.contact.detector.max_penetration(x)
         depth = 0.0
@@ -389,8 +394,9 @@ class Simulation:
         return self.state
 
     def energy(self, state=None):
-        """Kinetic, strain, gravitational and total energy (J) of a state."""
-        s = state or self.state
+        """Kinetic, strain, gravitational and total energy (J) of a state (default: the current one)."""
+        s = self.state if state is None else state
+        self._check_state(s, "state")
         vf = s.v.reshape(-1)
         kin = 0.5 * vf @ (self.system.M @ vf)
         strain = self.system.strain_energy(s.x)
@@ -399,7 +405,28 @@ class Simulation:
 
     def split(self, x):
         """Per-body views of a stacked per-vertex array (e.g. ``state.x``)."""
+        n = self.system.n
+        if not hasattr(x, "shape") or x.ndim < 1 or x.shape[0] != n:
+            raise ValueError(f"x must hold one row per vertex ({n}) of the simulation's bodies, got "
+                             f"{'shape ' + str(x.shape) if hasattr(x, 'shape') else type(x).__name__}")
         return self.system.split(x)
+
+    def _positions(self, x, name):
+        """``x`` as an (n, 3) float array, or an error naming it."""
+        return real_array(x, name, shape=(self.system.n, 3), finite=False)
+
+    def _check_state(self, state, name):
+        """TypeError/ValueError naming ``name`` unless ``state`` is a State with (n, 3) arrays x and v."""
+        if not isinstance(state, State):
+            raise TypeError(f"{name} must be a sa.State (e.g. sim.state.copy()), got {type(state).__name__}")
+        n = self.system.n
+        for key in ("x", "v"):
+            a = getattr(state, key)
+            if not isinstance(a, np.ndarray) or a.dtype.kind != "f":
+                raise TypeError(f"{name}.{key} must be a float array of shape ({n}, 3), got {type(a).__name__}"
+                                f"{'' if not isinstance(a, np.ndarray) else ' of ' + str(a.dtype)}")
+            if a.shape != (n, 3):
+                raise ValueError(f"{name}.{key} must have shape ({n}, 3) (one row per vertex), got shape {a.shape}")
 
     def linear_system(self, x, v, rec=None, frame=None):
         """A (CSR, free DOFs), b, and the frame's evaluation (eq. 1-2) at state (x, v).

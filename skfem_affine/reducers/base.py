@@ -45,6 +45,9 @@ class Reducer(abc.ABC):
         Newton solve of implicit Euler); only the full space does.
     setup_time : float
         Seconds spent in :meth:`attach` (set by it).
+    model : Model or None
+        The run the reducer is attached to (set by :meth:`attach`); a reducer serves one
+        simulation, and a second one refuses it.
     _state_keys : tuple of str
         Attributes that carry state from one frame to the next (arrays, numbers, None, or
         JSON-like values); :meth:`state_dict` saves them for a checkpoint
@@ -55,6 +58,7 @@ class Reducer(abc.ABC):
     integrators = ("linearized",)
     iterates_linearized = False
     setup_time = 0.0
+    model = None
     _state_keys = ()
 
     def state_dict(self):

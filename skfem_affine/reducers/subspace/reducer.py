@@ -236,7 +236,7 @@ class AdaptiveSubspace(Reducer):
         the METIS subdomains and, with ``hessian_init="rest"``, the rest subspace Hessians."""
         t0 = time.perf_counter()
         sysm = model.system
-        self.system, self.project_hessian = sysm, bool(model.project_hessian)
+        self.model, self.system, self.project_hessian = model, sysm, bool(model.project_hessian)
         self.basis = self.basis_spec.build(sysm)
         self.U = self.basis.U[sysm.free]  # (nfree, r)
         self.queries = so.ModalQueries(self.basis.U, self.basis.blocks)
