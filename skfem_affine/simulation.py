@@ -275,7 +275,31 @@ class Simulation:
             yield self.state.copy()
 
     def step(self):
-        """Advance one time step; returns the new state."""
+        """Advance one time step; returns the new state.
+
+        A step that raises (:class:`SimulationDiverged`, or an error in a user's force or path)
+        leaves the simulation as it was before it: the state, the statistics and the state of
+        every component (the integrator's history, the reducer's clusters, random generator and
+        controllers, the contact warm starts, the solver's ordering), so that a run continued
+        after it equals one that never tried the step.
+        """
+        saved = self._snapshot()
+        try:
+            return self._advance()
+        except BaseException:
+            self._restore(saved)
+            raise
+
+    def _snapshot(self):
+        """The state of every component (what a checkpoint saves), for :meth:`_restore`."""
+        return {name: comp.state_dict() for name, comp in self._components().items()}
+
+    def _restore(self, saved):
+        for name, comp in self._components().items():
+            comp.load_state_dict(saved[name])
+
+    def _advance(self):
+        """One step; :meth:`step` restores the components when it raises."""
         t0 = time.perf_counter()
         s = self.state
         frame = s.frame + 1
@@ -340,7 +364,8 @@ class Simulation:
     # ------------------------------------------------------------------ checkpoints
     def _components(self):
         """The parts whose state later frames depend on, by checkpoint name."""
-        comps = {"integrator": self.integrator, "reducer": self.integrator.reducer, "contact": self.contact,
+        reducer = self.integrator.reducer if self.system.free.size else None  # (attached only with free DOFs)
+        comps = {"integrator": self.integrator, "reducer": reducer, "contact": self.contact,
                  "solver": self.solver, "monitor": self.monitor}
         return {k: c for k, c in comps.items() if c is not None and hasattr(c, "state_dict")}
 
