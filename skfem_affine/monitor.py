@@ -45,7 +45,7 @@ import warnings
 
 import numpy as np
 
-from skfem_affine.checks import choice, flag, positive
+from skfem_affine.checks import choice, flag, positive, real
 
 POLICIES = ("warn", "raise", "ignore")
 
@@ -201,7 +201,7 @@ class Monitor:
                 "warned_nonconvergence": self.warned["nonconvergence"]}
 
     def load_state_dict(self, state):
-        self.energy = state["energy"]
-        self.in_play = float(state["in_play"])
-        self.warned = {"inverted": bool(state["warned_inverted"]),
-                       "nonconvergence": bool(state["warned_nonconvergence"])}
+        self.energy = None if state["energy"] is None else real(state["energy"], "energy")
+        self.in_play = real(state["in_play"], "in_play", low=0.0)
+        self.warned = {"inverted": flag(state["warned_inverted"], "warned_inverted"),
+                       "nonconvergence": flag(state["warned_nonconvergence"], "warned_nonconvergence")}

@@ -23,7 +23,7 @@ from skfem_affine import checkpoint
 
 from skfem_affine.assembly import ElasticSystem
 from skfem_affine.body import check_bodies
-from skfem_affine.checks import choice, flag, integer, positive, real_array
+from skfem_affine.checks import choice, flag, integer, positive, real, real_array
 from skfem_affine.contact import pgs
 from skfem_affine.contact.colliders import check_colliders
 from skfem_affine.contact.ipc import IPC, IPCContact
@@ -219,6 +219,9 @@ class Simulation:
             solver = "direct"
         self.solver = make_solver(solver)
         self.reducer = reducer
+        # the settings a checkpoint must match, as built (a budget moves thresholds during the run)
+        self._settings = {"reducer_settings": None if reducer is None else checkpoint.settings_of(reducer),
+                          "contact_settings": repr(contact)}
         x0 = self.system.p0.copy()
         if self.motion.paths:  # prescribed vertices start on their paths
             idx, xp = self.motion.positions(0.0)
@@ -373,7 +376,10 @@ class Simulation:
         """What a checkpoint must match to be loaded into this simulation."""
         return {"integrator": self.integrator_name, "reducer": type(self.integrator.reducer).__name__,
                 "contact_model": self.contact_model, "n_vertices": int(self.system.n),
-                "n_elements": int(self.system.m), "dt": float(self.dt), "mesh": checkpoint.mesh_hash(self.system)}
+                "n_elements": int(self.system.m), "dt": float(self.dt), "mesh": checkpoint.mesh_hash(self.system),
+                **checkpoint.setup_signature(self.system), "gravity": self.gravity.tolist(),
+                "damping": [self.damping.alpha, self.damping.beta], "mass": self.system.mass_kind,
+                "colliders": [repr(c) for c in self.colliders], **self._settings}
 
     def save(self, path):
         """Write a checkpoint of the run to ``path`` (an ``.npz``; :mod:`skfem_affine.checkpoint`).
@@ -403,20 +409,49 @@ class Simulation:
         Raises
         ------
         ValueError
-            The file is no checkpoint, comes from an incompatible format version, or does not
-            match this simulation (mesh, integrator, reducer, contact model, time step).
+            The file is no checkpoint, comes from an incompatible format version, does not match
+            this simulation (mesh, bodies, materials, density, fixed and prescribed vertices,
+            gravity, damping, colliders, integrator, reducer and its settings, contact model and
+            settings, time step), or is damaged (the message names the entry). The simulation is
+            then left as it was.
         """
         header, arrays = checkpoint.read(path)
         checkpoint.check_matches(path, header, self._signature())
         values = header["values"]
-        st = checkpoint.unflatten(arrays, values, "state")
-        clusters = st.get("clusters")
-        self.state = State(np.array(st["x"]), np.array(st["v"]), int(st["frame"]), float(st["time"]),
-                           None if clusters is None else np.array(clusters))
-        for name, comp in self._components().items():
-            comp.load_state_dict(checkpoint.unflatten(arrays, values, name))
-        self.stats = Stats(header.get("stats", []))
+        state, stats, saved = self.state, self.stats, self._snapshot()
+        try:
+            self.state = self._loaded_state(checkpoint.unflatten(arrays, values, "state"))
+            for name, comp in self._components().items():
+                loaded = checkpoint.unflatten(arrays, values, name)
+                checkpoint.check_like(name, loaded, saved[name])
+                try:
+                    comp.load_state_dict(loaded)
+                except Exception as err:  # whatever a component's loader raises on values it cannot take
+                    missing = f"entry {err} is missing" if isinstance(err, KeyError) else f"{type(err).__name__}: {err}"
+                    raise ValueError(f"the {name} state is damaged ({missing})") from None
+            self.stats = Stats(header["stats"])
+        except (TypeError, ValueError) as err:
+            self.state, self.stats = state, stats
+            self._restore(saved)
+            raise ValueError(f"checkpoint {path} is damaged: {err}") from None
         return self.state
+
+    def _loaded_state(self, st):
+        """The State of a checkpoint's ``state.*`` entries, checked (ValueError naming the entry)."""
+        for key in ("x", "v", "frame", "time", "clusters"):
+            if key not in st:
+                raise ValueError(f"state.{key} is missing")
+        x = real_array(st["x"], "state.x", shape=(self.system.n, 3))
+        v = real_array(st["v"], "state.v", shape=(self.system.n, 3))
+        frame = integer(st["frame"], "state.frame", low=0)
+        time_ = real(st["time"], "state.time", low=0.0)
+        clusters = st["clusters"]
+        if clusters is not None:
+            clusters = np.asarray(clusters)
+            if clusters.shape != (self.system.m,) or clusters.dtype.kind not in "iu":
+                raise ValueError(f"state.clusters must be {self.system.m} integers (one per element), got "
+                                 f"{clusters.dtype} of shape {clusters.shape}")
+        return State(x, v, frame, time_, clusters)
 
     def energy(self, state=None):
         """Kinetic, strain, gravitational and total energy (J) of a state (default: the current one)."""

@@ -72,8 +72,16 @@ class Reducer(abc.ABC):
         if missing:
             raise ValueError(f"{type(self).__name__} state is missing {missing}")
         for key in self._state_keys:
-            value = state[key]
-            setattr(self, key, value.copy() if isinstance(value, np.ndarray) else copy.deepcopy(value))
+            value, current = state[key], getattr(self, key, None)
+            if isinstance(current, np.ndarray) and isinstance(value, np.ndarray) and value.shape != current.shape \
+                    and current.shape[:1] in ((self.model.system.n,), (self.model.system.m,)):
+                raise ValueError(f"{type(self).__name__} {key} must have shape {current.shape} (one entry per "
+                                 f"{'vertex' if current.shape[0] == self.model.system.n else 'element'}), "
+                                 f"got {value.shape}")
+            try:  # a property may check or rebuild from the value
+                setattr(self, key, value.copy() if isinstance(value, np.ndarray) else copy.deepcopy(value))
+            except Exception as err:
+                raise ValueError(f"{type(self).__name__} {key}: {type(err).__name__}: {err}") from None
 
     def attach(self, model):
         """Rest-state set-up, once per run, before the first frame.

@@ -29,7 +29,7 @@ import time
 
 import numpy as np
 
-from skfem_affine.checks import choice, flag, integer, positive, real
+from skfem_affine.checks import choice, flag, integer, positive, real, real_array
 from skfem_affine.threads import serial_blas
 from skfem_affine.integrators.problem import Operator, StepResult
 from skfem_affine.reducers import budget as budgets
@@ -194,7 +194,7 @@ class ClusteringReducer(Reducer):
                                                      kind=self.preconditioner_kind)
             self.precond_pose = None
         else:
-            self.precond_pose = np.array(pose, dtype=float)
+            self.precond_pose = real_array(pose, "precond_pose_state", shape=(self.model.system.n, 3))
             self.precond = self._build(self.precond_pose)
 
     @property
