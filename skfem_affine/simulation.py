@@ -310,7 +310,7 @@ class Simulation:
         if not (np.all(np.isfinite(s.x)) and np.all(np.isfinite(s.v))):
             raise SimulationDiverged(frame)  # e.g. a state set from outside: before contact detection
         rec = {"frame": frame, "contact": 0.0, "contact_model": self.contact_model}
-        barrier = getattr(self.integrator, "barrier", None)
+        barrier = self.integrator.barrier
         self.monitor.start(s, barrier)
         try:
             x, v, result = self.integrator.step(s, rec)
@@ -321,13 +321,13 @@ class Simulation:
         if not (np.all(np.isfinite(x)) and np.all(np.isfinite(v))):
             raise SimulationDiverged(frame)
         t1 = time.perf_counter()
-        uncorrected = getattr(self.integrator, "uncorrected", None)
+        uncorrected = self.integrator.uncorrected
         if uncorrected is not None and self.monitor.check_energy:
             # contact pushed penetrations out through the positions: the energy it moved counts as work
             work = self.monitor.energies(x, v, barrier)[0] - self.monitor.energies(uncorrected, v, barrier)[0]
             rec["contact_work"] = work
             rec["external_work"] = rec.get("external_work", 0.0) + work
-        moved = getattr(self.integrator, "last_motion", None)
+        moved = self.integrator.last_motion
         if moved is not None and self.monitor.check_energy:
             # a moving clamp and vertex forces put energy in: their work counts as external work
             work = motion_work(self.system, self.f_gravity, *moved, s.x, s.v, x, v, self.dt)
@@ -346,9 +346,8 @@ class Simulation:
         self.monitor.accept()
         self.state = State(x, v, frame, s.time + self.dt, result.clusters)
         rec["wall"] = time.perf_counter() - t0
-        end_frame = getattr(self.reducer, "end_frame", None)  # a time budget reads the frame's wall time
-        if end_frame is not None and self.system.free.size:  # (a reducer with nothing to solve is not attached)
-            end_frame(rec)
+        if self.system.free.size:  # a time budget reads the frame's wall time (a reducer with nothing to
+            self.integrator.reducer.end_frame(rec)  # solve is not attached)
         self.stats.append(rec)
         return self.state
 

@@ -40,6 +40,9 @@ class NewtonIntegrator:
     changed from outside) starts with an implicit Euler step.
     """
 
+    uncorrected = None  # positions are never corrected after the solve (contact is in the potential)
+    last_motion = None  # the step's prescribed targets and vertex forces (for the energy check)
+
     def __init__(self, model, scheme, reducer, solver, barrier, tol=1e-6, max_iters=50):
         if scheme not in SCHEMES:
             raise ValueError(f"integrator must be 'linearized' or one of {SCHEMES}, got {scheme!r}")

@@ -48,6 +48,11 @@ class Reducer(abc.ABC):
     model : Model or None
         The run the reducer is attached to (set by :meth:`attach`); a reducer serves one
         simulation, and a second one refuses it.
+    newton_tol, max_newton : float or int, optional
+        A reducer's own Newton settings (None: the Simulation's); a Simulation given others refuses
+        the pair (:func:`~skfem_affine.integrators.newton.resolve_newton_settings`).
+    default_newton_tol, default_max_newton : float or int, optional
+        The Newton settings a reducer recommends when nobody gives any (None: the integrator's).
     _state_keys : tuple of str
         Attributes that carry state from one frame to the next (arrays, numbers, None, or
         JSON-like values); :meth:`state_dict` saves them for a checkpoint
@@ -59,6 +64,7 @@ class Reducer(abc.ABC):
     iterates_linearized = False
     setup_time = 0.0
     model = None
+    newton_tol = max_newton = default_newton_tol = default_max_newton = None
     _state_keys = ()
 
     def state_dict(self):
