@@ -7,15 +7,19 @@ statistics so far, and the ``state_dict()`` of each component that carries state
 warm starts, the solver's AMG hierarchy, the divergence monitor). It does not hold the bodies,
 materials or settings: the user rebuilds the :class:`~skfem_affine.Simulation` with the same
 arguments and calls ``sim.load_state(path)``. A file that does not match the simulation
-(another mesh, integrator, reducer, contact model or time step) or comes from an incompatible
-format version is refused with a ValueError that says what differs.
+(another mesh, bodies, materials, density, fixed or prescribed vertices, gravity, damping,
+colliders, integrator, reducer or its settings, contact model or settings, time step), comes
+from an incompatible format version or is damaged (:func:`check_like`) is refused with a
+ValueError that says what differs or what is wrong.
 
 The file is an uncompressed NumPy ``.npz`` (``np.load(path)`` reads it without pickle):
 
 * ``__header__``: a JSON string: ``format`` (``"skfem-affine-checkpoint"``), ``version``
   (:data:`VERSION`), ``package`` (skfem_affine's version), what the simulation must match
   (``integrator``, ``reducer``, ``contact_model``, ``n_vertices``, ``n_elements``, ``dt``,
-  ``mesh``: a SHA-256 of the rest positions and connectivity), ``values`` (the non-array entries
+  ``mesh``: a SHA-256 of the rest positions and connectivity; :func:`setup_signature`,
+  ``gravity``, ``damping``, ``mass``, ``colliders``, ``reducer_settings``, ``contact_settings``),
+  ``values`` (the non-array entries
   of every state dict, e.g. ``"reducer.rng_state"``), ``stats`` (the per-frame records);
 * one array per array entry of a state dict, named ``<component>.<key>`` (``state.x``,
   ``integrator.x_prev``, ``reducer.labels``, ``contact.previous_keys``, ...).

@@ -48,7 +48,7 @@ class SimulationDiverged(RuntimeError):
     """A step failed the divergence policy (:mod:`skfem_affine.monitor`): a non-finite state, a
     failed linear solve, energy created by the step, a body torn apart, or (when asked to raise)
     inverted elements or a Newton solve that did not converge. ``frame`` is the frame that failed;
-    the simulation's state stays at the frame before it."""
+    the simulation (its state and every component's) stays at the frame before it."""
 
     def __init__(self, frame, reason="non-finite state detected"):
         self.frame = frame
