@@ -21,7 +21,8 @@ from skfem.helpers import dot
 
 from skfem_affine._eigensystems import evaluate_elements, internal_force, scatter_forces
 from skfem_affine._kernels import deformation_gradients, element_hessians, scatter_add
-from skfem_affine.checks import check_bodies, choice
+from skfem_affine.body import check_bodies
+from skfem_affine.checks import choice
 from skfem_affine.kinematics import deformation_operator, element_dofs
 from skfem_affine.threads import serial_blas
 

@@ -7,7 +7,7 @@ import numpy as np
 import skfem
 
 from skfem_affine.kinematics import shape_gradients, signed_volumes
-from skfem_affine.checks import real_array
+from skfem_affine.checks import _describe, real_array
 from skfem_affine.materials import Material
 from skfem_affine.vertex_sets import vertices_of
 
@@ -285,3 +285,49 @@ def _velocity(velocity, n):
     if v.shape != (n, 3):
         raise ValueError(f"velocity must have shape ({n}, 3) or (3,), got {v.shape}")
     return v
+
+
+def check_bodies(bodies):
+    """A non-empty list of :class:`~skfem_affine.ElasticBody` from one body or a sequence of them.
+
+    Raises
+    ------
+    TypeError
+        ``bodies`` is None, a mesh, a class, or holds something that is not an ElasticBody;
+        the message says which entry and how to make a body.
+    ValueError
+        ``bodies`` is an empty sequence, or lists one body twice.
+
+    Examples
+    --------
+    >>> check_bodies(None)
+    Traceback (most recent call last):
+    ...
+    TypeError: bodies must be an ElasticBody or a non-empty list of them, got None (NoneType)
+    """
+    hint = "make one with sa.ElasticBody(mesh, material)"
+    if isinstance(bodies, ElasticBody):
+        return [bodies]
+    if bodies is None or isinstance(bodies, (str, bytes, type, dict)) or not hasattr(bodies, "__iter__") \
+            or _looks_like_mesh(bodies):
+        extra = f"; {hint}" if bodies is not None and _looks_like_mesh(bodies) else ""
+        raise TypeError(f"bodies must be an ElasticBody or a non-empty list of them, got {_describe(bodies)}{extra}")
+    out = list(bodies)
+    if not out:
+        raise ValueError("bodies must hold at least one ElasticBody, got an empty sequence")
+    for i, b in enumerate(out):
+        if not isinstance(b, ElasticBody):
+            what = f"the class {b.__name__}" if isinstance(b, type) else type(b).__name__
+            raise TypeError(f"bodies[{i}] must be an ElasticBody, got {what}"
+                            f"{'; ' + hint if _looks_like_mesh(b) or isinstance(b, type) else ''}")
+    first = {}
+    for i, b in enumerate(out):
+        if id(b) in first:  # two coincident copies of one body would overlap everywhere
+            raise ValueError(f"bodies[{first[id(b)]}] and bodies[{i}] are the same ElasticBody; make one body per "
+                             f"object in the scene (a second sa.ElasticBody(...) of a moved mesh)")
+        first[id(b)] = i
+    return out
+
+
+def _looks_like_mesh(obj):
+    return hasattr(obj, "p") and hasattr(obj, "t")

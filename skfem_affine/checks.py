@@ -275,7 +275,8 @@ def real_array(value, name, shape=None, low=None, high=None, include_low=True, i
         flat = raw.ravel()
         if not all(isinstance(v, numbers.Real) and not _is_bool(v) for v in flat):
             raise TypeError(f"{name} must be a real number or an array of real numbers, got {_describe(value)}")
-    elif raw.dtype.kind not in "iuf":
+    elif raw.dtype.kind not in "iuf" or (not isinstance(value, np.ndarray) and _holds_bool(value)):
+        # (a bool among numbers is converted to 0/1 by np.asarray: found in the sequence itself)
         raise TypeError(f"{name} must be a real number or an array of real numbers, got {_describe(value)}")
     a = np.array(raw, dtype=float)
     if shape is not None and (a.ndim != len(shape) or any(s is not None and s != k for s, k in zip(shape, a.shape))):
@@ -296,48 +297,13 @@ def real_array(value, name, shape=None, low=None, high=None, include_low=True, i
     return a
 
 
+def _holds_bool(value):
+    """Whether a (nested) sequence holds a bool (``[0, 0, True]``, ``[1e5, np.True_]``)."""
+    if isinstance(value, (list, tuple)):
+        return any(_holds_bool(v) for v in value)
+    return _is_bool(value) or (isinstance(value, np.ndarray) and value.dtype.kind == "b")
+
+
 def _first_index(mask):
     idx = np.argwhere(mask)[0]
     return int(idx[0]) if idx.size == 1 else tuple(int(i) for i in idx)
-
-
-def check_bodies(bodies):
-    """A non-empty list of :class:`~skfem_affine.ElasticBody` from one body or a sequence of them.
-
-    Raises
-    ------
-    TypeError
-        ``bodies`` is None, a mesh, a class, or holds something that is not an ElasticBody;
-        the message says which entry and how to make a body.
-    ValueError
-        ``bodies`` is an empty sequence.
-
-    Examples
-    --------
-    >>> check_bodies(None)
-    Traceback (most recent call last):
-    ...
-    TypeError: bodies must be an ElasticBody or a non-empty list of them, got None (NoneType)
-    """
-    from skfem_affine.body import ElasticBody
-
-    hint = "make one with sa.ElasticBody(mesh, material)"
-    if isinstance(bodies, ElasticBody):
-        return [bodies]
-    if bodies is None or isinstance(bodies, (str, bytes, type, dict)) or not hasattr(bodies, "__iter__") \
-            or _looks_like_mesh(bodies):
-        extra = f"; {hint}" if bodies is not None and _looks_like_mesh(bodies) else ""
-        raise TypeError(f"bodies must be an ElasticBody or a non-empty list of them, got {_describe(bodies)}{extra}")
-    out = list(bodies)
-    if not out:
-        raise ValueError("bodies must hold at least one ElasticBody, got an empty sequence")
-    for i, b in enumerate(out):
-        if not isinstance(b, ElasticBody):
-            what = f"the class {b.__name__}" if isinstance(b, type) else type(b).__name__
-            raise TypeError(f"bodies[{i}] must be an ElasticBody, got {what}"
-                            f"{'; ' + hint if _looks_like_mesh(b) or isinstance(b, type) else ''}")
-    return out
-
-
-def _looks_like_mesh(obj):
-    return hasattr(obj, "p") and hasattr(obj, "t")

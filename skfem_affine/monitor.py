@@ -53,7 +53,7 @@ import warnings
 
 import numpy as np
 
-from skfem_affine.checks import choice, flag, positive
+from skfem_affine.checks import choice, flag, positive, real
 
 POLICIES = ("warn", "raise", "ignore")
 
@@ -271,8 +271,8 @@ class Monitor:
                 "warned_nonconvergence": self.warned["nonconvergence"], "warned_energy": self.warned["energy"]}
 
     def load_state_dict(self, state):
-        self.energy = state["energy"]
-        self.in_play = float(state["in_play"])
-        self.warned = {"inverted": bool(state["warned_inverted"]),
-                       "nonconvergence": bool(state["warned_nonconvergence"]),
-                       "energy": bool(state.get("warned_energy", False))}
+        self.energy = None if state["energy"] is None else real(state["energy"], "energy")
+        self.in_play = real(state["in_play"], "in_play", low=0.0)
+        self.warned = {"inverted": flag(state["warned_inverted"], "warned_inverted"),
+                       "nonconvergence": flag(state["warned_nonconvergence"], "warned_nonconvergence"),
+                       "energy": flag(state.get("warned_energy", False), "warned_energy")}

@@ -76,6 +76,7 @@ class Prescribed:
     def __init__(self, vertices, path):
         if not callable(path):
             raise TypeError(f"path must be a callable path(t, X) -> (k, 3) positions, got {type(path).__name__}")
+        vertex_indices(vertices, None, "vertices")  # their kind now, their range when bound to a body
         self.vertices = vertices
         self.path = path
 
@@ -137,6 +138,7 @@ class VertexForce:
                 raise ValueError(f"force must be a callable force(t, x, v) or a finite (3,) vector, got shape "
                                  f"{value.shape}")
             force = _Constant(value)
+        vertex_indices(vertices, None, "vertices")  # their kind now, their range in the simulation
         self.vertices, self.force, self.body = vertices, force, body
 
     def __repr__(self):

@@ -22,7 +22,8 @@ import skfem_affine
 from skfem_affine import checkpoint, stress
 
 from skfem_affine.assembly import ElasticSystem
-from skfem_affine.checks import check_bodies, choice, flag, integer, positive, real_array
+from skfem_affine.body import check_bodies
+from skfem_affine.checks import choice, flag, integer, positive, real, real_array
 from skfem_affine.vertex_sets import vector_p1_dofs
 from skfem_affine.contact import pgs
 from skfem_affine.contact.colliders import check_colliders
@@ -49,7 +50,7 @@ class SimulationDiverged(RuntimeError):
     """A step failed the divergence policy (:mod:`skfem_affine.monitor`): a non-finite state, a
     failed linear solve, energy created by the step, a body torn apart, or (when asked to raise)
     inverted elements or a Newton solve that did not converge. ``frame`` is the frame that failed;
-    the simulation's state stays at the frame before it."""
+    the simulation (its state and every component's) stays at the frame before it."""
 
     def __init__(self, frame, reason="non-finite state detected"):
         self.frame = frame
@@ -241,6 +242,9 @@ class Simulation:
         if reducer is not None and not isinstance(reducer, Reducer):
             raise TypeError(f"reducer must be None or a reducer such as sa.Affinification(...) "
                             f"(a skfem_affine.reducers.base.Reducer), got {type(reducer).__name__}")
+        if reducer is not None and reducer.model is not None:
+            raise ValueError(f"reducer {reducer!r} already runs in another simulation (it holds that run's clusters, "
+                             f"bases and controllers); give each simulation its own reducer object")
         # one place for the Newton settings: a reducer's own (AdaptiveSubspace(newton_tol=...)) are
         # adopted when the simulation's are not given, and must agree with them when both are
         newton_tol, newton_iters = newton.resolve_newton_settings(newton_tol, newton_iters, reducer)
@@ -277,6 +281,9 @@ class Simulation:
             solver = "direct"
         self.solver = make_solver(solver)
         self.reducer = reducer
+        # the settings a checkpoint must match, as built (a budget moves thresholds during the run)
+        self._settings = {"reducer_settings": None if reducer is None else checkpoint.settings_of(reducer),
+                          "contact_settings": repr(contact)}
         x0 = self.system.p0.copy()
         if self.motion.paths:  # prescribed vertices start on their paths
             idx, xp = self.motion.positions(0.0)
@@ -343,14 +350,39 @@ class Simulation:
             yield self.state.copy()
 
     def step(self):
-        """Advance one time step; returns the new state."""
+        """Advance one time step; returns the new state.
+
+        A step that raises (:class:`SimulationDiverged`, or an error in a user's force or path)
+        leaves the simulation as it was before it: the state, the statistics and the state of
+        every component (the integrator's history, the reducer's clusters, random generator and
+        controllers, the contact warm starts, the solver's ordering), so that a run continued
+        after it equals one that never tried the step.
+        """
+        saved = self._snapshot()
+        try:
+            return self._advance()
+        except BaseException:
+            self._restore(saved)
+            raise
+
+    def _snapshot(self):
+        """The state of every component (what a checkpoint saves), for :meth:`_restore`."""
+        return {name: comp.state_dict() for name, comp in self._components().items()}
+
+    def _restore(self, saved):
+        for name, comp in self._components().items():
+            comp.load_state_dict(saved[name])
+
+    def _advance(self):
+        """One step; :meth:`step` restores the components when it raises."""
         t0 = time.perf_counter()
         s = self.state
         frame = s.frame + 1
+        self._check_state(s, "sim.state")
         if not (np.all(np.isfinite(s.x)) and np.all(np.isfinite(s.v))):
             raise SimulationDiverged(frame)  # e.g. a state set from outside: before contact detection
         rec = {"frame": frame, "contact": 0.0, "contact_model": self.contact_model}
-        barrier = getattr(self.integrator, "barrier", None)
+        barrier = self.integrator.barrier
         self.monitor.start(s, barrier)
         try:
             x, v, result = self.integrator.step(s, rec)
@@ -361,13 +393,13 @@ class Simulation:
         if not (np.all(np.isfinite(x)) and np.all(np.isfinite(v))):
             raise SimulationDiverged(frame)
         t1 = time.perf_counter()
-        uncorrected = getattr(self.integrator, "uncorrected", None)
+        uncorrected = self.integrator.uncorrected
         if uncorrected is not None and self.monitor.check_energy:
             # contact pushed penetrations out through the positions: the energy it moved counts as work
             work = self.monitor.energies(x, v, barrier)[0] - self.monitor.energies(uncorrected, v, barrier)[0]
             rec["contact_work"] = work
             rec["external_work"] = rec.get("external_work", 0.0) + work
-        moved = getattr(self.integrator, "last_motion", None)
+        moved = self.integrator.last_motion
         if moved is not None and self.monitor.check_energy:
             # a moving clamp and vertex forces put energy in: their work counts as external work
             work = motion_work(self.system, self.f_gravity, *moved, s.x, s.v, x, v, self.dt)
@@ -386,16 +418,15 @@ class Simulation:
         self.monitor.accept()
         self.state = State(x, v, frame, s.time + self.dt, result.clusters)
         rec["wall"] = time.perf_counter() - t0
-        end_frame = getattr(self.reducer, "end_frame", None)  # a time budget reads the frame's wall time
-        if end_frame is not None and self.system.free.size:  # (a reducer with nothing to solve is not attached)
-            end_frame(rec)
+        if self.system.free.size:  # a time budget reads the frame's wall time (a reducer with nothing to
+            self.integrator.reducer.end_frame(rec)  # solve is not attached)
         self.stats.append(rec)
         return self.state
 
     def max_penetration(self, x=None):
         """Largest penetration depth (m, >= 0) of a surface vertex into a collider or another body
         at positions x (default: the current state)."""
-        x = self.state.x if x is None else x
+        x = self.state.x if x is None else self._positions(x, "x")
         if self.contact is not None:
             return self.contact.detector.max_penetration(x)
         depth = 0.0
@@ -409,7 +440,8 @@ class Simulation:
     # ------------------------------------------------------------------ checkpoints
     def _components(self):
         """The parts whose state later frames depend on, by checkpoint name."""
-        comps = {"integrator": self.integrator, "reducer": self.integrator.reducer, "contact": self.contact,
+        reducer = self.integrator.reducer if self.system.free.size else None  # (attached only with free DOFs)
+        comps = {"integrator": self.integrator, "reducer": reducer, "contact": self.contact,
                  "solver": self.solver, "monitor": self.monitor}
         return {k: c for k, c in comps.items() if c is not None and hasattr(c, "state_dict")}
 
@@ -417,7 +449,10 @@ class Simulation:
         """What a checkpoint must match to be loaded into this simulation."""
         return {"integrator": self.integrator_name, "reducer": type(self.integrator.reducer).__name__,
                 "contact_model": self.contact_model, "n_vertices": int(self.system.n),
-                "n_elements": int(self.system.m), "dt": float(self.dt), "mesh": checkpoint.mesh_hash(self.system)}
+                "n_elements": int(self.system.m), "dt": float(self.dt), "mesh": checkpoint.mesh_hash(self.system),
+                **checkpoint.setup_signature(self.system), "gravity": self.gravity.tolist(),
+                "damping": [self.damping.alpha, self.damping.beta], "mass": self.system.mass_kind,
+                "colliders": [repr(c) for c in self.colliders], **self._settings}
 
     def save(self, path):
         """Write a checkpoint of the run to ``path`` (an ``.npz``; :mod:`skfem_affine.checkpoint`).
@@ -447,24 +482,54 @@ class Simulation:
         Raises
         ------
         ValueError
-            The file is no checkpoint, comes from an incompatible format version, or does not
-            match this simulation (mesh, integrator, reducer, contact model, time step).
+            The file is no checkpoint, comes from an incompatible format version, does not match
+            this simulation (mesh, bodies, materials, density, fixed and prescribed vertices,
+            gravity, damping, colliders, integrator, reducer and its settings, contact model and
+            settings, time step), or is damaged (the message names the entry). The simulation is
+            then left as it was.
         """
         header, arrays = checkpoint.read(path)
         checkpoint.check_matches(path, header, self._signature())
         values = header["values"]
-        st = checkpoint.unflatten(arrays, values, "state")
-        clusters = st.get("clusters")
-        self.state = State(np.array(st["x"]), np.array(st["v"]), int(st["frame"]), float(st["time"]),
-                           None if clusters is None else np.array(clusters))
-        for name, comp in self._components().items():
-            comp.load_state_dict(checkpoint.unflatten(arrays, values, name))
-        self.stats = Stats(header.get("stats", []))
+        state, stats, saved = self.state, self.stats, self._snapshot()
+        try:
+            self.state = self._loaded_state(checkpoint.unflatten(arrays, values, "state"))
+            for name, comp in self._components().items():
+                loaded = checkpoint.unflatten(arrays, values, name)
+                checkpoint.check_like(name, loaded, saved[name])
+                try:
+                    comp.load_state_dict(loaded)
+                except Exception as err:  # whatever a component's loader raises on values it cannot take
+                    missing = f"entry {err} is missing" if isinstance(err, KeyError) else f"{type(err).__name__}: {err}"
+                    raise ValueError(f"the {name} state is damaged ({missing})") from None
+            self.stats = Stats(header["stats"])
+        except (TypeError, ValueError) as err:
+            self.state, self.stats = state, stats
+            self._restore(saved)
+            raise ValueError(f"checkpoint {path} is damaged: {err}") from None
         return self.state
 
+    def _loaded_state(self, st):
+        """The State of a checkpoint's ``state.*`` entries, checked (ValueError naming the entry)."""
+        for key in ("x", "v", "frame", "time", "clusters"):
+            if key not in st:
+                raise ValueError(f"state.{key} is missing")
+        x = real_array(st["x"], "state.x", shape=(self.system.n, 3))
+        v = real_array(st["v"], "state.v", shape=(self.system.n, 3))
+        frame = integer(st["frame"], "state.frame", low=0)
+        time_ = real(st["time"], "state.time", low=0.0)
+        clusters = st["clusters"]
+        if clusters is not None:
+            clusters = np.asarray(clusters)
+            if clusters.shape != (self.system.m,) or clusters.dtype.kind not in "iu":
+                raise ValueError(f"state.clusters must be {self.system.m} integers (one per element), got "
+                                 f"{clusters.dtype} of shape {clusters.shape}")
+        return State(x, v, frame, time_, clusters)
+
     def energy(self, state=None):
-        """Kinetic, strain, gravitational and total energy (J) of a state."""
-        s = state or self.state
+        """Kinetic, strain, gravitational and total energy (J) of a state (default: the current one)."""
+        s = self.state if state is None else state
+        self._check_state(s, "state")
         vf = s.v.reshape(-1)
         kin = 0.5 * vf @ (self.system.M @ vf)
         strain = self.system.strain_energy(s.x)
@@ -504,7 +569,28 @@ class Simulation:
 
     def split(self, x):
         """Per-body views of a stacked per-vertex array (e.g. ``state.x``)."""
+        n = self.system.n
+        if not hasattr(x, "shape") or x.ndim < 1 or x.shape[0] != n:
+            raise ValueError(f"x must hold one row per vertex ({n}) of the simulation's bodies, got "
+                             f"{'shape ' + str(x.shape) if hasattr(x, 'shape') else type(x).__name__}")
         return self.system.split(x)
+
+    def _positions(self, x, name):
+        """``x`` as an (n, 3) float array, or an error naming it."""
+        return real_array(x, name, shape=(self.system.n, 3), finite=False)
+
+    def _check_state(self, state, name):
+        """TypeError/ValueError naming ``name`` unless ``state`` is a State with (n, 3) arrays x and v."""
+        if not isinstance(state, State):
+            raise TypeError(f"{name} must be a sa.State (e.g. sim.state.copy()), got {type(state).__name__}")
+        n = self.system.n
+        for key in ("x", "v"):
+            a = getattr(state, key)
+            if not isinstance(a, np.ndarray) or a.dtype.kind != "f":
+                raise TypeError(f"{name}.{key} must be a float array of shape ({n}, 3), got {type(a).__name__}"
+                                f"{'' if not isinstance(a, np.ndarray) else ' of ' + str(a.dtype)}")
+            if a.shape != (n, 3):
+                raise ValueError(f"{name}.{key} must have shape ({n}, 3) (one row per vertex), got shape {a.shape}")
 
     def linear_system(self, x, v, rec=None, frame=None):
         """A (CSR, free DOFs), b, and the frame's evaluation (eq. 1-2) at state (x, v).

@@ -22,7 +22,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from skfem_affine import threads
-from skfem_affine.checks import integer, positive
+from skfem_affine.checks import flag, integer, positive
 
 AMG_MIN_DOFS = 5000
 AMG_MIN_DOFS_PARDISO = 30000
@@ -108,11 +108,14 @@ class Pardiso:
         return out
 
     def load_state_dict(self, state):
-        self._analysed = bool(state["analysed"])
+        self._analysed = flag(state["analysed"], "analysed")
         self._resume = None
-        if state["pattern"]:
+        if flag(state["pattern"], "pattern"):
+            ordering = state["ordering"]
+            if ordering not in ("metis", "md", "given"):
+                raise ValueError(f"ordering must be 'metis', 'md' or 'given', got {ordering!r}")
             self._resume = (np.asarray(state["indptr"], np.int32), np.asarray(state["indices"], np.int32),
-                            state["ordering"], np.asarray(state["perm"], np.int32))
+                            ordering, np.asarray(state["perm"], np.int32))
 
     def _upper(self, A, upper):
         """Upper triangle of A as sorted CSR (int32), reusing the positions of the last pattern."""
@@ -331,7 +334,7 @@ class AMGCG:
         if "A_data" in state:
             A = sp.csr_matrix((state["A_data"], state["A_indices"], state["A_indptr"]), shape=tuple(state["A_shape"]))
             self._build(A)
-        self._stale = bool(state["stale"])
+        self._stale = flag(state["stale"], "stale")
         self.fresh_iterations = state["fresh_iterations"]
         self.rebuilds = int(state["rebuilds"])
 
@@ -503,7 +506,7 @@ class AutoSolver:
         return out
 
     def load_state_dict(self, state):
-        self.amg_abandoned = bool(state["amg_abandoned"])
+        self.amg_abandoned = flag(state["amg_abandoned"], "amg_abandoned")
         self.choice = state.get("choice")
         names = [s for s in str(state.get("trial_solvers", "")).split(",") if s]
         self.trial = list(zip(names, np.asarray(state.get("trial_seconds", np.zeros(0)), dtype=float).tolist()))
@@ -517,7 +520,10 @@ class AutoSolver:
             direct = {k[7:]: v for k, v in state.items() if k.startswith("direct.")}
             if direct and hasattr(self._direct, "load_state_dict"):
                 self._direct.load_state_dict(direct)
-        self._current = {"amg": self._amg, "direct": self._direct, None: None}[state["current"]]
+        current = state["current"]
+        if current not in ("amg", "direct", None) or isinstance(current, bool):
+            raise ValueError(f"current must be 'amg', 'direct' or None, got {current!r:.40}")
+        self._current = {"amg": self._amg, "direct": self._direct, None: None}[current]
 
 
 SOLVERS = {"superlu": SuperLU, "pardiso": Pardiso, "amg": AMGCG, "auto": AutoSolver, "direct": direct_solver}

@@ -4,6 +4,8 @@ import json
 import numpy as np
 import pytest
 import skfem
+from hypothesis import HealthCheck, assume, given, settings
+from hypothesis import strategies as st
 
 import skfem_affine as sa
 from skfem_affine import checkpoint
@@ -203,3 +205,147 @@ def test_resuming_at_any_frame_of_any_scene_is_bit_identical(tmp_path_factory, k
     resumed.load_state(path)
     for (xa, va), s in zip(ahead, resumed.run(after)):
         assert np.array_equal(xa, s.x) and np.array_equal(va, s.v)
+
+
+def _saved(sim, tmp_path, frames=2):
+    list(sim.run(frames))
+    return sim.save(tmp_path / "run.npz")
+
+
+def test_a_file_of_another_set_up_of_the_same_mesh_is_refused(tmp_path):
+    path = _saved(sa.Simulation(_body(), gravity=(0, 0, -9.81), reducer=sa.Affinification(1e-4, 2e-4)), tmp_path)
+    right = np.flatnonzero(MESH.p[0] > 1 - 1e-9)
+    mat = sa.NeoHookean(E=1e5, nu=0.3)
+    refused = {  # what differs: a simulation of the same mesh built otherwise
+        "fixed": lambda: sa.Simulation(_body(fixed=right), gravity=(0, 0, -9.81), reducer=sa.Affinification(1e-4, 2e-4)),
+        "materials": lambda: sa.Simulation(sa.ElasticBody(MESH, sa.NeoHookean(E=2e5, nu=0.3), fixed=PINNED),
+                                           gravity=(0, 0, -9.81), reducer=sa.Affinification(1e-4, 2e-4)),
+        "density": lambda: sa.Simulation(sa.ElasticBody(MESH, mat, density=500.0, fixed=PINNED), gravity=(0, 0, -9.81),
+                                         reducer=sa.Affinification(1e-4, 2e-4)),
+        "gravity": lambda: sa.Simulation(_body(), gravity=(0, 0, -1.0), reducer=sa.Affinification(1e-4, 2e-4)),
+        "reducer_settings": lambda: sa.Simulation(_body(), gravity=(0, 0, -9.81), reducer=sa.Affinification(1e-3, 2e-3)),
+        "damping": lambda: sa.Simulation(_body(), gravity=(0, 0, -9.81), damping=sa.Rayleigh(0.1, 0.0),
+                                         reducer=sa.Affinification(1e-4, 2e-4)),
+        "prescribed": lambda: sa.Simulation(_body(fixed=None, prescribed=sa.Prescribed(PINNED, lambda t, X: X)),
+                                            gravity=(0, 0, -9.81), reducer=sa.Affinification(1e-4, 2e-4)),
+    }
+    for what, make in refused.items():
+        with pytest.raises(ValueError, match=rf"does not match this simulation.*\b{what}\b"):
+            make().load_state(path)
+    same = sa.Simulation(_body(), gravity=(0, 0, -9.81), reducer=sa.Affinification(1e-4, 2e-4))
+    assert same.load_state(path).frame == 2
+
+
+def test_a_file_of_two_bodies_does_not_load_into_one_body_of_the_same_vertices(tmp_path):
+    a, b = MESH, MESH.translated((0.0, 0.0, 1.0))
+    both = skfem.MeshTet(np.hstack([a.p, b.p]), np.hstack([a.t, b.t + a.p.shape[1]]))
+    mat = sa.NeoHookean(E=1e5, nu=0.3)
+    path = _saved(sa.Simulation([sa.ElasticBody(a, mat), sa.ElasticBody(b, mat)], contact=False), tmp_path)
+    with pytest.raises(ValueError, match=r"bodies: file \[45, 45\], simulation \[90\]"):
+        sa.Simulation(sa.ElasticBody(both, mat), contact=False).load_state(path)
+
+
+def test_a_file_with_other_colliders_is_refused(tmp_path):
+    path = _saved(SCENES["pgs-contact"](), tmp_path)
+    other = sa.Simulation(_falling(), gravity=(0, 0, -9.81), colliders=[sa.Plane(point=(0, 0, -0.05))])
+    with pytest.raises(ValueError, match="colliders"):
+        other.load_state(path)
+
+
+# arrays whose rows are checked on loading (the run's state and history, the reducers' per-element
+# and per-vertex labels); rows of warm starts and solver patterns are not (docs/reliability.md)
+ROW_CHECKED = ("x", "v", "clusters", "x_prev", "v_prev", "labels", "was_reduced", "enriched")
+
+
+def _damage(arrays, header, kind, key, draw):
+    """Damage one entry of a checkpoint; returns what the error must name."""
+    if kind == "drop array":
+        del arrays[key]
+        return key
+    if kind == "drop row":
+        arrays[key] = arrays[key][:-1]
+        return key
+    if kind == "strings":
+        arrays[key] = arrays[key].astype(str)
+        return key
+    if kind == "nan":
+        a = arrays[key].astype(float)
+        a.reshape(-1)[draw(st.integers(0, max(a.size - 1, 0)))] = np.nan
+        arrays[key] = a
+        return key
+    if kind == "drop value":
+        del header["values"][key]
+        return key
+    if kind == "bad value":  # (the monitor's energy may be negative; None is "not set yet" where a
+        # simulation starts with None, e.g. the monitor's energy, the solver chosen)
+        bad = ["x", [1, "a"], {"a": 1}, float("nan")] + ([] if key == "monitor.energy" else [-7])
+        bad += [] if key in ("monitor.energy", "solver.current") else [None]
+        header["values"][key] = draw(st.sampled_from(bad))
+        return key
+    del header[key]  # "drop header key"
+    return key
+
+
+@pytest.fixture(scope="module")
+def saved_files(tmp_path_factory):
+    """A checkpoint after 3 frames of each scene of the damage test."""
+    names = ("bdf2", "affinification", "pgs-contact")
+    return {name: _saved(SCENES[name](), tmp_path_factory.mktemp(name), frames=3) for name in names}
+
+
+@settings(max_examples=25, deadline=None, database=None, suppress_health_check=[HealthCheck.too_slow])
+@given(data=st.data())
+def test_every_damaged_file_is_a_value_error_naming_what_is_wrong(saved_files, tmp_path_factory, data):
+    name = data.draw(st.sampled_from(sorted(saved_files)))
+    tmp = tmp_path_factory.mktemp("damaged")
+    with np.load(saved_files[name]) as z:
+        arrays = {k: z[k] for k in z.files}
+    header = json.loads(str(arrays.pop("__header__")))
+    kind = data.draw(st.sampled_from(["drop array", "drop row", "strings", "nan", "drop value", "bad value",
+                                      "drop header key"]))
+    if kind in ("drop array", "drop row", "strings", "nan"):
+        keys = [k for k, a in arrays.items() if a.size and (kind != "nan" or a.dtype.kind == "f")
+                and (kind != "drop row" or k.split(".")[-1] in ROW_CHECKED)]
+    elif kind in ("drop value", "bad value"):
+        keys = [k for k, v in header["values"].items() if not (kind == "bad value" and k == "state.clusters")]
+    else:
+        keys = ["values", "stats", "frame", "mesh", "fixed", "materials"]
+    assume(keys)
+    key = data.draw(st.sampled_from(sorted(keys)))
+    named = _damage(arrays, header, kind, key, data.draw)
+    np.savez(tmp / "damaged.npz", __header__=np.array(json.dumps(header)), **arrays)
+    fresh = SCENES[name]()
+    before = fresh.state.copy()
+    try:
+        fresh.load_state(tmp / "damaged.npz")
+    except ValueError as err:
+        assert named.split(".")[-1] in str(err) or named in str(err), f"{err} does not name {named}"
+        assert np.array_equal(fresh.state.x, before.x) and fresh.state.frame == 0  # left as it was
+        return
+    # accepted: then the damage changed nothing a later frame reads (e.g. a statistic)
+    raise AssertionError(f"{kind} of {key} was accepted")
+
+
+def test_the_reported_damaged_files_are_refused(tmp_path):
+    sim = SCENES["linearized-full"]()
+    path = _saved(sim, tmp_path)
+    with np.load(path) as z:
+        arrays = {k: z[k] for k in z.files}
+    header = json.loads(str(arrays.pop("__header__")))
+
+    def write(arrays=arrays, header=header):
+        np.savez(tmp_path / "d.npz", __header__=np.array(json.dumps(header)), **arrays)
+        return tmp_path / "d.npz"
+
+    cases = [
+        (dict(arrays, **{"state.x": arrays["state.x"][:-1]}), header, r"state.x must have shape \(45, 3\)"),
+        (dict(arrays, **{"state.x": arrays["state.x"].astype(str)}), header, "state.x"),
+        ({k: v for k, v in arrays.items() if k != "state.x"}, header, "state.x"),
+        (arrays, dict(header, values=dict(header["values"], **{"state.frame": -7})), "frame"),
+        (arrays, dict(header, values=dict(header["values"], **{"state.time": float("nan")})), "time"),
+        (arrays, {k: v for k, v in header.items() if k != "values"}, "values"),
+        (arrays, [1, 2], "header"),
+    ]
+    for a, h, match in cases:
+        with pytest.raises(ValueError, match=match):
+            SCENES["linearized-full"]().load_state(write(a, h))

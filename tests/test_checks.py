@@ -5,7 +5,8 @@ import numpy as np
 import pytest
 
 import skfem_affine as sa
-from skfem_affine.checks import check_bodies, choice, flag, integer, nonnegative, positive, real, real_array
+from skfem_affine.body import check_bodies
+from skfem_affine.checks import choice, flag, integer, nonnegative, positive, real, real_array
 from skfem_affine.lab.scenes import beam_mesh
 
 
@@ -95,7 +96,10 @@ def test_real_array():
 
 def test_check_bodies():
     body = sa.ElasticBody(beam_mesh(1), sa.StVK(E=1e5, nu=0.3))
-    assert check_bodies(body) == [body] and check_bodies((body, body)) == [body, body]
+    other = sa.ElasticBody(beam_mesh(1), sa.StVK(E=1e5, nu=0.3))
+    assert check_bodies(body) == [body] and check_bodies((body, other)) == [body, other]
+    with pytest.raises(ValueError, match=r"bodies\[0\] and bodies\[2\] are the same ElasticBody"):
+        check_bodies([body, other, body])
     assert check_bodies(b for b in [body]) == [body]
     with pytest.raises(TypeError, match="^bodies must be an ElasticBody.*None"):
         check_bodies(None)

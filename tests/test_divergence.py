@@ -239,3 +239,37 @@ def test_a_sliver_the_linearized_step_gets_wrong_is_warned_naming_it():
                 pass
         drops.append((x0 - state.x[:, 2].mean()) / (1e-4 * 9.81 * 20 * 21 / 2))
     assert abs(drops[0] - 1) > 0.05 and abs(drops[1] - 1) < 1e-6 and abs(drops[2] - 1) < 1e-5
+
+
+REFUSED_STEP_SCENES = {
+    "bdf2": lambda: scenes.cantilever(resolution=1, E=1e5, integrator="bdf2"),
+    "bdf2-subspace": lambda: scenes.cantilever(resolution=1, E=1e5, integrator="bdf2", reducer=sa.AdaptiveSubspace(
+        basis=sa.SkinningEigenmodes(n=4, cache=False), subdomains=8, eps_nodal=0.05, eps_modal=0.05)),
+    "affinification": lambda: scenes.cantilever(resolution=2, E=1e5, reducer=sa.Affinification(0.05, 0.1)),
+    "rigidification-pgs": lambda: scenes.drop(resolution=1, shape="box", height=0.02,
+                                              reducer=sa.Rigidification(0.05, 0.1, warmup_frames=1)),
+}
+
+
+@pytest.mark.parametrize("scene", sorted(REFUSED_STEP_SCENES))
+def test_a_run_continued_after_a_refused_step_equals_one_that_never_failed(scene, monkeypatch):
+    make, frames, fail_at = REFUSED_STEP_SCENES[scene], 6, 4
+    ref = make()
+    expected = [s.x for s in ref.run(frames)]
+    sim = make()
+    list(sim.run(fail_at - 1))
+    check = sim.monitor.check
+
+    def refuse_once(frame, *args):  # the divergence policy refuses the step after everything ran
+        from skfem_affine.monitor import Diverged
+        monkeypatch.setattr(sim.monitor, "check", check)
+        check(frame, *args)
+        raise Diverged("energy grew (injected)")
+
+    monkeypatch.setattr(sim.monitor, "check", refuse_once)
+    with pytest.raises(sa.SimulationDiverged, match=f"at frame {fail_at}"):
+        sim.step()
+    assert sim.state.frame == fail_at - 1 and len(sim.stats) == fail_at - 1
+    got = [s.x for s in sim.run(frames - fail_at + 1)]
+    for a, b in zip(got, expected[fail_at - 1:]):
+        assert np.array_equal(a, b)

@@ -269,3 +269,140 @@ def test_random_colliders_give_unit_normals_at_random_points(points, which, cent
     for near in (surface, surface + hair * n, surface + hair * np.roll(n, 1, axis=1)):
         d2, n2 = col.query(near)
         assert np.all(np.isfinite(d2)) and np.allclose(np.linalg.norm(n2, axis=1), 1.0, atol=1e-12)
+
+
+# ----------------------------------------------------------------- the input policy, every public constructor
+# docs/reliability.md, "Numbers, switches and options": a bool is no number, a string no switch,
+# an integer option is never truncated, a bad value is a TypeError/ValueError naming the argument.
+def _with_bool(values):
+    """A list of numbers with one bool put in (np.asarray would turn it into 1.0 silently)."""
+    return st.tuples(st.integers(0, len(values)), st.booleans()).map(lambda ib: values[:ib[0]] + [ib[1]] + values[ib[0]:])
+
+
+numbers_with_a_bool = st.lists(st.floats(0.1, 10.0), min_size=1, max_size=3).flatmap(_with_bool)
+BAD = {
+    "real": lambda: st.one_of(not_a_number, non_finite),
+    "positive": lambda: st.one_of(not_a_number, non_finite, not_positive),
+    "nonnegative": lambda: st.one_of(not_a_number, non_finite, st.floats(max_value=-1e-6, allow_infinity=False)),
+    # a threshold: >= 0, inf allowed (it switches a test off)
+    "threshold": lambda: st.one_of(not_a_number, st.just(np.nan), st.floats(max_value=-1e-6)),
+    "fraction": lambda: st.one_of(not_a_number, non_finite, st.floats(max_value=-1e-6, allow_infinity=False),
+                                  st.floats(min_value=1.000001, allow_infinity=False)),
+    "count": lambda: st.one_of(not_a_number, non_finite, st.integers(max_value=0),
+                               st.floats(0.01, 1e3).filter(lambda x: x != int(x))),
+    "flag": lambda: st.one_of(st.text(max_size=5), st.sampled_from(["False", "True", "0"]), st.none(),
+                              st.integers().filter(lambda k: k not in (0, 1)), st.floats(0.01, 0.99),
+                              st.builds(object)),
+    "choice": lambda: st.one_of(st.text(max_size=6), st.integers(), st.booleans(), st.builds(object)),
+    "vector": lambda: st.one_of(_vector_bad(), st.lists(st.floats(-1.0, 1.0), min_size=2, max_size=2).flatmap(_with_bool)),
+    "numbers": lambda: st.one_of(not_a_number, numbers_with_a_bool),
+    "vertices": lambda: st.one_of(st.text(min_size=1, max_size=3), st.floats(0.1, 5.5).filter(lambda x: x != int(x)),
+                                  st.lists(st.integers(), min_size=1, max_size=4).filter(lambda v: min(v) < 0 or max(v) >= N)),
+    # before a body is known (their range is checked where they are bound): not indices
+    "indices": lambda: st.one_of(st.text(min_size=1, max_size=3), st.floats(0.1, 5.5).filter(lambda x: x != int(x)),
+                                 st.lists(st.integers(0, 9), min_size=2, max_size=4).map(lambda v: v + v[:1])),
+    "count0": lambda: st.one_of(not_a_number, non_finite, st.integers(max_value=-1),
+                                st.floats(0.01, 1e3).filter(lambda x: x != int(x))),
+    "callable": lambda: st.one_of(not_a_number, st.integers(), st.lists(st.integers(), max_size=2)),
+    "object": lambda: st.one_of(not_a_number.filter(lambda v: v is not None), st.integers(), st.just(MESH)),
+}
+FLAGS = ("flag",)
+_BODY = sa.ElasticBody(MESH, MAT)
+_PATH = lambda t, X: X  # noqa: E731
+BASE = {  # the valid arguments each constructor is called with, beside the bad one
+    sa.ElasticBody: dict(mesh=MESH, material=MAT), sa.Simulation: dict(bodies=_BODY),
+    sa.Prescribed: dict(vertices=[0], path=_PATH), sa.VertexForce: dict(vertices=[0], force=lambda t, x, v: x * 0),
+    sa.StVK: dict(E=1e5, nu=0.3), sa.Corotational: dict(E=1e5, nu=0.3), sa.NeoHookean: dict(E=1e5, nu=0.3),
+    sa.Bowl: dict(radius=1.0),
+}
+# (class, argument, kind, None allowed): every argument of every public constructor that takes a value
+POLICY = [
+    (sa.ElasticBody, "density", "positive", False), (sa.ElasticBody, "density", "numbers", False),
+    (sa.ElasticBody, "velocity", "vector", True), (sa.ElasticBody, "fixed", "vertices", True),
+    (sa.ElasticBody, "prescribed", "object", True), (sa.ElasticBody, "material", "object", False),
+    (sa.Prescribed, "vertices", "indices", False), (sa.Prescribed, "path", "callable", False),
+    (sa.VertexForce, "vertices", "indices", False), (sa.VertexForce, "force", "callable", False),
+    (sa.Simulation, "dt", "positive", False), (sa.Simulation, "gravity", "vector", False),
+    (sa.Simulation, "damping", "object", True), (sa.Simulation, "reducer", "object", True),
+    (sa.Simulation, "newton_iters", "count", True), (sa.Simulation, "newton_tol", "positive", True),
+    (sa.Simulation, "project_hessian", "flag", False), (sa.Simulation, "mass", "choice", False),
+    (sa.Simulation, "integrator", "choice", True), (sa.Simulation, "on_inverted", "choice", False),
+    (sa.Simulation, "on_nonconvergence", "choice", False), (sa.Simulation, "check_energy", "flag", False),
+    (sa.Simulation, "colliders", "object", True), (sa.Simulation, "forces", "object", True),
+    (sa.Simulation, "bodies", "object", False), (sa.Simulation, "solver", "choice", False),
+    (sa.Rayleigh, "alpha", "nonnegative", False), (sa.Rayleigh, "beta", "nonnegative", False),
+    *[(cls, "E", kind, False) for cls in MATERIALS for kind in ("positive", "numbers")],
+    *[(cls, "nu", "real", False) for cls in MATERIALS],
+    *[(cls, arg, kind, True) for cls in (sa.Affinification, sa.Rigidification) for arg, kind in (
+        ("target_error", "fraction"), ("time_budget", "positive"), ("never_slower", "flag"), ("min_fraction", "fraction"),
+        ("seed", "count0"))],
+    *[(cls, arg, kind, False) for cls in (sa.Affinification, sa.Rigidification) for arg, kind in (
+        ("seeding", "choice"), ("preconditioner", "choice"), ("shadow_every", "count"), ("memory", "positive"),
+        ("refresh_tol", "nonnegative"), ("refresh_background", "flag"), ("refresh", "choice"))],
+    (sa.Affinification, "tau_a", "nonnegative", True), (sa.Affinification, "min_body_elements", "count", False),
+    (sa.Affinification, "pinned_bodies", "flag", False), (sa.Affinification, "min_affine_fraction", "fraction", True),
+    (sa.Rigidification, "tau_r", "nonnegative", True), (sa.Rigidification, "warmup_frames", "count0", False),
+    (sa.Rigidification, "min_rigid_fraction", "fraction", True),
+    *[(sa.AdaptiveSubspace, arg, kind, none) for arg, kind, none in (
+        ("eps_nodal", "threshold", True), ("eps_modal", "threshold", True), ("eps_progress", "threshold", False),
+        ("eps_down", "threshold", False), ("subdomains", "count", False), ("newton_tol", "positive", True),
+        ("max_newton", "count", True), ("pcg_tol", "positive", False), ("pcg_maxiter", "count", False),
+        ("record_residual", "flag", False), ("hessian_init", "choice", False), ("blas_threads", "count", True),
+        ("fallback", "fraction", True), ("target_error", "fraction", True), ("time_budget", "positive", True),
+        ("never_slower", "flag", True), ("shadow_every", "count", False), ("memory", "positive", False),
+        ("basis", "object", True))],
+    *[(cls, "cache", "flag", False) for cls in (sa.AffineModes, sa.LinearModes, sa.SkinningEigenmodes)],
+    *[(cls, "n", "count", False) for cls in (sa.LinearModes, sa.SkinningEigenmodes)],
+    (sa.SDFCollider, "fn", "callable", False),
+    *[(sa.PGS, arg, kind, none) for arg, kind, none in (
+        ("friction", "nonnegative", False), ("iterations", "count", False), ("tolerance", "nonnegative", False),
+        ("erp", "fraction", False), ("margin", "nonnegative", True), ("push_limit", "positive", True),
+        ("warm_start", "flag", False), ("body_contact", "flag", False), ("block", "count", False),
+        ("edge_contact", "flag", False))],
+    *[(sa.IPC, arg, kind, none) for arg, kind, none in (
+        ("dhat", "positive", True), ("kappa", "positive", True), ("friction", "nonnegative", False),
+        ("epsv", "positive", True), ("self_contact", "flag", False), ("body_contact", "flag", False),
+        ("ccd", "choice", False), ("ccd_tolerance", "positive", False), ("ccd_max_iterations", "count", False),
+        ("ccd_rescaling", "fraction", False))],
+]
+# the colliders' arguments: COLLIDER_ARGS above; data containers and errors take no user settings
+NOT_CONSTRUCTORS = {sa.State, sa.Stats, sa.SimulationDiverged, sa.SimulationWarning, sa.Material}
+VALID_CHOICES = {"solver": ("auto", "direct", "cg", "amg", "pardiso", "superlu", "cholmod")}
+
+
+def test_every_public_class_has_its_input_policy_tested():
+    classes = {getattr(sa, name) for name in sa.__all__ if isinstance(getattr(sa, name), type)}
+    covered = {cls for cls, *_ in POLICY} | {cls for cls, *_ in COLLIDER_ARGS.values()} | NOT_CONSTRUCTORS
+    assert classes <= covered, f"no input-policy test for {sorted(c.__name__ for c in classes - covered)}"
+
+
+@pytest.mark.parametrize("cls, arg, kind, none_ok", POLICY,
+                         ids=[f"{c.__name__}-{a}-{k}" for c, a, k, _ in POLICY])
+@settings(max_examples=12, deadline=None, database=None, suppress_health_check=[HealthCheck.too_slow])
+@given(data=st.data())
+def test_bad_arguments_of_public_constructors_raise_naming_them(cls, arg, kind, none_ok, data):
+    bad = data.draw(BAD[kind]().filter(lambda v: not (none_ok and v is None)))
+    if kind == "choice" and isinstance(bad, str):
+        assume(bad not in VALID_CHOICES.get(arg, ()) and bad.strip())
+    if arg == "refresh":  # a switch, or the kind of refresh
+        assume(not (isinstance(bad, (bool, int)) and bad in (0, 1)))
+    if arg == "fallback":
+        assume(bad != "nnz")
+    kwargs = dict(BASE.get(cls, {}), **{arg: bad})
+    if cls is sa.Affinification and arg == "tau_e":
+        kwargs["tau_a"] = 0.1
+    _raises_naming(lambda: cls(**kwargs), arg)
+
+
+@pytest.mark.parametrize("make, name", [
+    (lambda: sa.Simulation(_BODY, gravity=[0, 0, True]), "gravity"),
+    (lambda: sa.NeoHookean(E=[1e5, True], nu=0.3), "E"),
+    (lambda: sa.ElasticBody(MESH, MAT, velocity=[0, 0, True]), "velocity"),
+    (lambda: sa.Affinification(never_slower="False"), "never_slower"),
+    (lambda: sa.Rigidification(never_slower="False"), "never_slower"),
+    (lambda: sa.IPC(ccd_max_iterations=True), "ccd_max_iterations"),
+    (lambda: sa.IPC(friction="0.3"), "friction"),
+])
+def test_the_reported_silent_accepts_are_refused(make, name):
+    with pytest.raises(TypeError, match=name):
+        make()

@@ -214,3 +214,40 @@ def test_pills_from_the_papers_pill(shared_meshes):
     a, b = sim.bodies[0], sim.bodies[4]  # the second layer lies crosswise
     assert a.n_elements == 4976 and np.ptp(a.mesh.p, axis=1).argmax() == 0 and np.ptp(b.mesh.p, axis=1).argmax() == 1
     assert np.ptp(a.mesh.p[0]) == pytest.approx(2 * (0.12 + 0.1))
+
+
+@pytest.mark.parametrize("make, name", [
+    (lambda: scenes.box_mesh(1.0, 2.5), "cells"),
+    (lambda: scenes.box_mesh(1.0, 0), "cells"),
+    (lambda: scenes.box_mesh(1.0, (2, 2)), "cells"),
+    (lambda: scenes.box_mesh((1.0, -1.0, 1.0), 2), "size"),
+    (lambda: scenes.box_mesh(1.0, 2, center=(0, 0, "1")), "center"),
+    (lambda: scenes.drop(size=-0.5), "size"),
+    (lambda: scenes.drop(height=-0.5), "height"),
+    (lambda: scenes.stacked_beams(gap=-0.5), "gap"),
+    (lambda: scenes.stacked_beams(width=0.0), "width"),
+    (lambda: scenes.capsule_mesh(0.0, 0.1, 1), "radius"),
+    (lambda: scenes.capsule_mesh(0.1, -0.1, 1), "half_length"),
+    (lambda: scenes.ball_mesh(np.nan, 1), "radius"),
+    (lambda: scenes.beam_mesh(1, length=-4.0), "length"),
+    (lambda: scenes.cantilever(resolution=1, width=0), "width"),
+    (lambda: scenes.free_body(resolution=1, size=-1.0), "size"),
+    (lambda: scenes.pills(n=1, radius=0.0), "radius"),
+    (lambda: scenes.pills(n=1, bowl_radius=-1.0), "bowl_radius"),
+    (lambda: scenes.bowling(n=1, radius=-0.1), "radius"),
+    (lambda: scenes.bowling(n=2, heights=(0.1, -0.2)), "heights"),
+    (lambda: scenes.bowling(n=1, mattress=(2.0, 0.0, 0.2)), "mattress"),
+    (lambda: scenes.toothbrush_mesh(cell=0.0), "cell"),
+    (lambda: scenes.wheel_mesh(radius=-0.4), "radius"),
+    (lambda: scenes.wheel(height=-1.0), "height"),
+    (lambda: scenes.octopus_mesh(arm_length=-0.1), "arm_length"),
+    (lambda: scenes.octopus(height=-1.0), "height"),
+    (lambda: scenes.blob_mesh(radius=0.0), "radius"),
+    (lambda: scenes.blob_mesh(bumps=1.5), "bumps"),
+    (lambda: scenes.armadillo(size=0.0), "size"),
+    (lambda: scenes.twisting_beam_setup(length=0.0), "length"),
+    (lambda: scenes.paper_beam(length="6"), "length"),
+])
+def test_scene_helpers_refuse_bad_geometry_naming_it(make, name):
+    with pytest.raises((TypeError, ValueError), match=rf"(?<![a-z_]){name}(?![a-z_])"):
+        make()

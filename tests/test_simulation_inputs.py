@@ -83,9 +83,52 @@ def test_valid_values_are_stored_as_plain_numbers():
 
 def test_barrier_arguments(body):
     sim = sa.Simulation(body, integrator="implicit_euler")
-    with pytest.raises(TypeError, match="collider 0 is the class Plane"):
+    with pytest.raises(TypeError, match=r"colliders\[0\] is the class Plane"):
         Barrier(sim.model, [sa.Plane])
     with pytest.raises(ValueError, match="dhat"):
         Barrier(sim.model, [sa.Plane()], dhat=0.0)
     with pytest.raises(TypeError, match="kappa"):
         Barrier(sim.model, [sa.Plane()], kappa="1e3")
+
+
+def test_one_reducer_in_two_simulations_is_refused(body):
+    red = sa.Affinification(0.01, 0.02)
+    sa.Simulation(body, reducer=red)
+    with pytest.raises(ValueError, match="reducer .*already runs in another simulation"):
+        sa.Simulation(body, reducer=red)
+    sub = sa.AdaptiveSubspace(basis=sa.AffineModes(), eps_nodal=0.5)
+    sa.Simulation(body, reducer=sub, integrator="implicit_euler")
+    with pytest.raises(ValueError, match="reducer"):
+        sa.Simulation(body, reducer=sub, integrator="implicit_euler")
+
+
+def test_the_same_body_listed_twice_is_refused(body):
+    with pytest.raises(ValueError, match=r"bodies\[0\] and bodies\[1\] are the same ElasticBody"):
+        sa.Simulation([body, body])
+
+
+def test_states_and_arrays_given_to_the_simulation_are_checked(body):
+    sim = sa.Simulation(body, gravity=(0, 0, -9.81))
+    n = sim.system.n
+    with pytest.raises(TypeError, match="state"):
+        sim.energy(3)
+    with pytest.raises(ValueError, match=rf"state.x must have shape \({n}, 3\)"):
+        sim.energy(sa.State(np.zeros((3, 3)), np.zeros((3, 3))))
+    with pytest.raises(ValueError, match="state.v"):
+        sim.energy(sa.State(sim.state.x, np.zeros((n, 2))))
+    with pytest.raises(ValueError, match=rf"x must have shape \({n}, 3\)"):
+        sim.max_penetration(np.zeros((4, 3)))
+    with pytest.raises(TypeError, match="x"):
+        sim.max_penetration("x")
+    with pytest.raises(ValueError, match=rf"x must hold one row per vertex \({n}\)"):
+        sim.split(np.zeros(5))
+    assert [a.shape for a in sim.split(sim.state.x)] == [(n, 3)]
+    sim.state.x = np.zeros((4, 3))
+    with pytest.raises(ValueError, match=rf"sim.state.x must have shape \({n}, 3\)"):
+        sim.step()
+    sim.state = sa.State(sim.system.p0.copy(), np.zeros((n, 3)))
+    sim.state.v = [[0.0, 0.0, 0.0]] * n  # a list: not an array of the state
+    with pytest.raises(TypeError, match="sim.state.v"):
+        sim.step()
+    sim.state.v = np.zeros((n, 3))
+    assert sim.energy()["total"] == 0.0 and sim.step().frame == 1

@@ -330,3 +330,19 @@ def test_a_stiff_spinning_cube_whose_modal_block_turns_indefinite_runs_on():
     for _ in range(4):
         s, f = sim.step(), full.step()
         assert np.abs(s.x - f.x).max() <= 1e-4 * sim.size
+
+
+def test_a_body_with_too_few_free_vertices_for_skinning_modes_is_refused_by_name():
+    mesh = sa.scenes.box_mesh(1.0, 1)
+    n = mesh.p.shape[1]
+    one_free = sa.ElasticBody(mesh, sa.NeoHookean(E=1e5, nu=0.3), fixed=np.arange(n - 1), name="block")
+    with pytest.raises(ValueError, match=r"SkinningEigenmodes.*body 0 \('block'\) has 1 free vertex"):
+        sa.Simulation(one_free, integrator="implicit_euler", reducer=sa.AdaptiveSubspace())
+    # linear modes of its 3 free DOFs, and the affine modes, run (and agree with full space)
+    for basis in (sa.LinearModes(cache=False), sa.AffineModes()):
+        sim = sa.Simulation(one_free, integrator="implicit_euler", gravity=(0, 0, -9.81),
+                            reducer=sa.AdaptiveSubspace(basis=basis, eps_nodal=0.0, eps_progress=np.inf))
+        full = sa.Simulation(one_free, integrator="implicit_euler", gravity=(0, 0, -9.81))
+        for _ in range(2):
+            sim.step(), full.step()
+        np.testing.assert_allclose(sim.state.x, full.state.x, atol=1e-6)

@@ -289,8 +289,8 @@ def check_colliders(colliders):
     out = list(colliders)
     for i, c in enumerate(out):
         if isinstance(c, type):
-            raise TypeError(f"collider {i} is the class {c.__name__}, not a collider: "
+            raise TypeError(f"colliders[{i}] is the class {c.__name__}, not a collider: "
                             f"write {c.__name__}(...) with its parameters")
         if not callable(getattr(c, "query", None)):
-            raise TypeError(f"collider {i} ({type(c).__name__}) has no query(points) -> (distance, normal); {hint}")
+            raise TypeError(f"colliders[{i}] ({type(c).__name__}) has no query(points) -> (distance, normal); {hint}")
     return out

@@ -48,15 +48,9 @@ import ipctk
 import numpy as np
 import scipy.sparse as sp
 
+from skfem_affine.checks import choice, flag, integer, nonnegative, positive, real
 from skfem_affine.contact.colliders import Plane, check_colliders
 from skfem_affine.contact.geometry import boundary_surface
-
-
-def _number(value, name, low=0.0, strict=False):
-    ok = isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool)
-    if ok and np.isfinite(value) and (value > low if strict else value >= low):
-        return float(value)
-    raise ValueError(f"IPC {name} must be a finite number {'>' if strict else '>='} {low}, got {value!r}")
 
 
 @dataclass(frozen=True)
@@ -106,20 +100,17 @@ class IPC:
     ccd_rescaling: float = 0.9
 
     def __post_init__(self):
+        put = object.__setattr__  # frozen: store the checked values
         for name in ("dhat", "kappa", "epsv"):
             if getattr(self, name) is not None:
-                _number(getattr(self, name), name, strict=True)
-        _number(self.friction, "friction")
-        _number(self.ccd_tolerance, "ccd_tolerance", strict=True)
-        if not 0.0 < _number(self.ccd_rescaling, "ccd_rescaling", strict=True) <= 1.0:
-            raise ValueError(f"IPC ccd_rescaling must lie in (0, 1], got {self.ccd_rescaling!r}")
-        if not isinstance(self.ccd_max_iterations, (int, np.integer)) or self.ccd_max_iterations < 1:
-            raise ValueError(f"IPC ccd_max_iterations must be an integer >= 1, got {self.ccd_max_iterations!r}")
-        if self.ccd not in ("additive", "tight_inclusion"):
-            raise ValueError(f"IPC ccd must be 'additive' or 'tight_inclusion', got {self.ccd!r}")
+                put(self, name, positive(getattr(self, name), f"IPC {name}"))
+        put(self, "friction", nonnegative(self.friction, "IPC friction"))
+        put(self, "ccd_tolerance", positive(self.ccd_tolerance, "IPC ccd_tolerance"))
+        put(self, "ccd_rescaling", real(self.ccd_rescaling, "IPC ccd_rescaling", low=0.0, high=1.0, include_low=False))
+        put(self, "ccd_max_iterations", integer(self.ccd_max_iterations, "IPC ccd_max_iterations", low=1))
+        put(self, "ccd", choice(self.ccd, "IPC ccd", ("additive", "tight_inclusion")))
         for name in ("self_contact", "body_contact"):
-            if not isinstance(getattr(self, name), (bool, np.bool_)):
-                raise ValueError(f"IPC {name} must be True or False, got {getattr(self, name)!r}")
+            put(self, name, flag(getattr(self, name), f"IPC {name}"))
 
 
 # ---------------------------------------------------------------------------- scalar functions

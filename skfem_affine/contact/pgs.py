@@ -259,7 +259,7 @@ class Contact:
 
     def load_state_dict(self, state):
         self.previous = ((np.asarray(state["previous_keys"]).copy(), np.asarray(state["previous_world"]).copy())
-                         if state["previous"] else None)
+                         if flag(state["previous"], "previous") else None)
         self.block_solvers = {}
         for i, key in enumerate(state["blocks"]):
             key = tuple(int(k) for k in key)

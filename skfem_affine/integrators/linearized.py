@@ -38,6 +38,9 @@ class LinearizedEuler:
     """
 
     name = "linearized"
+    barrier = None  # contact is PGS after the solve, not a barrier in a potential
+    uncorrected = None  # x_{t+1} before contact's split-impulse correction (set by each step with one)
+    last_motion = None  # the step's prescribed targets and vertex forces (for the energy check)
 
     def __init__(self, model, reducer, solver, contact=None, newton_iters=1, newton_tol=1e-9):
         self.model, self.reducer, self.solver, self.contact = model, reducer, solver, contact

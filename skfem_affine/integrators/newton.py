@@ -202,13 +202,15 @@ def resolve_newton_settings(sim_tol, sim_iters, reducer=None):
     (tol, max_iters), each None when nobody set it.
     """
     out = []
-    for sim_value, key, default, sim_name in ((sim_tol, "newton_tol", "default_newton_tol", "newton_tol"),
-                                              (sim_iters, "max_newton", "default_max_newton", "newton_iters")):
-        red_value = getattr(reducer, key, None)
+    own = (None, None) if reducer is None else (reducer.newton_tol, reducer.max_newton)
+    default = (None, None) if reducer is None else (reducer.default_newton_tol, reducer.default_max_newton)
+    for sim_value, key, red_value, red_default, sim_name in (
+            (sim_tol, "newton_tol", own[0], default[0], "newton_tol"),
+            (sim_iters, "max_newton", own[1], default[1], "newton_iters")):
         if sim_value is not None and red_value is not None and sim_value != red_value:
             raise ValueError(f"Simulation({sim_name}={sim_value!r}) and {type(reducer).__name__}({key}={red_value!r}) "
                              f"disagree; give the Newton settings once, as Simulation({sim_name}=...)")
-        for value in (sim_value, red_value, getattr(reducer, default, None)):
+        for value in (sim_value, red_value, red_default):
             if value is not None:
                 out.append(value)
                 break

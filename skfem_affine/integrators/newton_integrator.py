@@ -11,6 +11,7 @@ import time
 
 import numpy as np
 
+from skfem_affine.checks import flag, integer
 from skfem_affine.integrators.newton import newton_solve
 from skfem_affine.integrators.potential import SCHEMES, IncrementalPotential
 from skfem_affine.integrators.problem import StepResult, merge_stats
@@ -41,6 +42,8 @@ class NewtonIntegrator:
     changed from outside) starts with an implicit Euler step.
     """
 
+    uncorrected = None  # positions are never corrected after the solve (contact is in the potential)
+    last_motion = None  # the step's prescribed targets and vertex forces (for the energy check)
     #: Lagged friction (IPC contact, full space): the step is solved again with the normal forces of
     #: its solution while they differ by more than FRICTION_TOL (relative) from those it used, at
     #: most FRICTION_ITERATIONS times.
@@ -62,8 +65,15 @@ class NewtonIntegrator:
         return {"history": True, "frame": int(frame), "x_prev": x.copy(), "v_prev": v.copy()}
 
     def load_state_dict(self, state):
-        self.history = ((int(state["frame"]), np.array(state["x_prev"]), np.array(state["v_prev"]))
-                        if state["history"] else None)
+        if not flag(state["history"], "history"):
+            self.history = None
+            return
+        shape = (self.model.system.n, 3)
+        for key in ("x_prev", "v_prev"):
+            if np.shape(state[key]) != shape:
+                raise ValueError(f"{key} must have shape {shape}, got {np.shape(state[key])}")
+        frame = integer(state["frame"], "frame", low=0)
+        self.history = (frame, np.array(state["x_prev"], float), np.array(state["v_prev"], float))
 
     def potential(self, state):
         """The :class:`IncrementalPotential` of one step from ``state``."""

@@ -21,7 +21,7 @@ import numpy as np
 import skfem
 
 from skfem_affine.body import ElasticBody
-from skfem_affine.checks import integer
+from skfem_affine.checks import integer, real, real_array
 from skfem_affine.contact.colliders import Bowl, Plane
 from skfem_affine.contact.pgs import PGS
 from skfem_affine.lab.io import load_mesh
@@ -50,9 +50,34 @@ def _material(material, E, nu):
     return MATERIALS[material](E=E, nu=nu)
 
 
+def _lengths(**values):
+    """Each value (a number or an array of them) finite and > 0, or an error naming it; returns
+    them in the order given (arrays as float arrays, numbers as floats)."""
+    out = [real_array(v, name, low=0.0, include_low=False) for name, v in values.items()]
+    out = [float(a) if a.ndim == 0 else a for a in out]
+    return out[0] if len(out) == 1 else out
+
+
+def _heights(**values):
+    """Each value (a number or an array of them) finite and >= 0 (a gap, a height above the
+    ground: a negative one starts the bodies inside it), or an error naming it."""
+    out = [real_array(v, name, low=0.0) for name, v in values.items()]
+    out = [float(a) if a.ndim == 0 else a for a in out]
+    return out[0] if len(out) == 1 else out
+
+
+def _vector(value, name):
+    """A (3,) array from a number or 3 numbers (``box_mesh``'s size and cells)."""
+    a = np.asarray(value)
+    if a.shape not in ((), (3,)):
+        raise ValueError(f"{name} must be a number or 3 numbers, got shape {a.shape}")
+    return [value] * 3 if a.ndim == 0 else value
+
+
 def beam_mesh(resolution, length=4.0, width=1.0):
     """A length x width x width box with ``resolution`` cells across: 24 k^3 tets (length 4)."""
     k = integer(resolution, "resolution", low=1)
+    length, width = _lengths(length=length, width=width)
     nx = max(1, int(round(k * length / width)))
     return skfem.MeshTet.init_tensor(np.linspace(0, length, nx + 1), np.linspace(0, width, k + 1),
                                      np.linspace(0, width, k + 1))
@@ -109,6 +134,7 @@ def paper_beam(mesh=None, resolution=2, length=6.854, width=2.0, material="neoho
     sim_kw["damping"] = Rayleigh(*damping) if isinstance(damping, (tuple, list)) else damping
     if mesh is None:
         k = integer(resolution, "resolution", low=1)
+        length, width = _lengths(length=length, width=width)
         nz = max(1, int(round(k * length / width)))
         m = skfem.MeshTet.init_tensor(np.linspace(-width / 2, width / 2, k + 1),
                                       np.linspace(-width / 2, width / 2, k + 1), np.linspace(0.0, length, nz + 1))
@@ -148,6 +174,7 @@ def free_body(resolution=3, shape="cube", size=1.0, spin=(0.0, 0.0, 2.0), veloci
     sim_kw, body_kw = _split(dict(kwargs))
     sim_kw.setdefault("dt", 0.01)
     k = integer(resolution, "resolution", low=1)
+    size = _lengths(size=size)
     if shape == "cube":
         mesh = skfem.MeshTet.init_tensor(*[np.linspace(-size / 2, size / 2, k + 1)] * 3)
     elif shape == "ball":
@@ -175,14 +202,16 @@ def _resolution(resolution):
 
 def box_mesh(size, cells, center=(0.0, 0.0, 0.0)):
     """A box of ``size`` (3,) with ``cells`` (3,) tensor cells (6 tets each) centred at ``center``."""
-    size, center = np.broadcast_to(np.asarray(size, float), (3,)), np.asarray(center, float)
-    cells = np.broadcast_to(np.asarray(cells, int), (3,))
+    size = _lengths(size=_vector(size, "size"))
+    center = real_array(center, "center", shape=(3,))
+    cells = [integer(c, "cells", low=1) for c in _vector(cells, "cells")]
     axes = [np.linspace(c - s / 2, c + s / 2, n + 1) for c, s, n in zip(center, size, cells)]
     return skfem.MeshTet.init_tensor(*axes)
 
 
 def ball_mesh(radius, resolution, center=(0.0, 0.0, 0.0)):
     """scikit-fem's ball, refined ``resolution`` times (8 * 8^k tets), scaled and moved."""
+    radius = _lengths(radius=radius)
     return skfem.MeshTet.init_ball(nrefs=_resolution(resolution)).scaled(radius).translated(center)
 
 
@@ -194,6 +223,7 @@ def capsule_mesh(radius, half_length, resolution, center=(0.0, 0.0, 0.0), axis=0
     faces onto the capsule's cylinder and hemispherical caps.
     """
     k = _resolution(resolution)
+    radius, half_length = _lengths(radius=radius), _heights(half_length=half_length)
     across = 2 * k
     along = max(across, int(round(across * (half_length + radius) / radius)))
     mesh = box_mesh((2 * (half_length + radius), 2 * radius, 2 * radius), (along, across, across))
@@ -234,6 +264,7 @@ def drop(resolution=2, shape="ball", size=0.5, height=0.3, frames=150, **kwargs)
     """
     sim_kw, body_kw = _contact_scene_kwargs(kwargs, 0.5, Plane((0.0, 0.0, 0.0), (0.0, 0.0, 1.0)))
     k = _resolution(resolution)
+    size, height = _lengths(size=size), _heights(height=height)
     centre = (0.0, 0.0, height + size / 2)
     if shape == "ball":
         mesh = ball_mesh(size / 2, k, centre)
@@ -255,6 +286,8 @@ def stacked_beams(resolution=2, n=2, length=2.0, width=0.4, gap=0.02, frames=200
     sim_kw, body_kw = _contact_scene_kwargs(kwargs, 0.5, Plane())
     k = _resolution(resolution)
     n = _count(n)
+    length, width = _lengths(length=length, width=width)
+    gap = _heights(gap=gap)
     along = max(1, int(round(k * length / width)))
     body_kw.setdefault("material", NeoHookean(E=1e6, nu=0.35))
     body_kw.setdefault("density", 1000.0)
@@ -277,6 +310,7 @@ def pills(n=8, resolution=1, radius=0.1, half_length=0.12, bowl_radius=0.6, fram
     procedural capsule: its longest extent is laid along the pill's axis and scaled to
     ``2 (half_length + radius)``.
     """
+    radius, half_length, bowl_radius = _lengths(radius=radius, half_length=half_length, bowl_radius=bowl_radius)
     bowl = Bowl(center=(0.0, 0.0, bowl_radius), radius=bowl_radius)
     sim_kw, body_kw = _contact_scene_kwargs(kwargs, 0.3, bowl)
     n = _count(n)
@@ -317,7 +351,8 @@ def bowling(n=3, resolution=1, radius=0.15, heights=None, mattress=(2.0, 0.8, 0.
     sim_kw, body_kw = _contact_scene_kwargs(kwargs, 0.5, Plane())
     k = _resolution(resolution)
     n = _count(n)
-    heights = np.linspace(0.1, 0.6, n) if heights is None else np.broadcast_to(np.asarray(heights, float), (n,))
+    radius, mattress = _lengths(radius=radius, mattress=real_array(mattress, "mattress", shape=(3,)))
+    heights = np.linspace(0.1, 0.6, n) if heights is None else np.broadcast_to(_heights(heights=heights), (n,))
     ball_mat = body_kw.pop("ball_material", NeoHookean(E=1e7, nu=0.3))
     mat_mat = body_kw.pop("mattress_material", NeoHookean(E=2e4, nu=0.3))
     L, W, T = mattress
@@ -337,8 +372,9 @@ def toothbrush_mesh(resolution=1, cell=0.02, handle=(0.40, 0.08, 0.04), bristle_
     ``(mesh, is_bristle)``, the second a boolean per element.
     """
     k = _resolution(resolution)
+    cell, bristle_height, head_length = _lengths(cell=cell, bristle_height=bristle_height, head_length=head_length)
     c = cell / k
-    L, W, T = handle
+    L, W, T = _lengths(handle=real_array(handle, "handle", shape=(3,)))
     nx, ny = int(round(L / c)), int(round(W / c))
     nb, nt = int(round(bristle_height / c)), int(round(T / c))
     mesh = skfem.MeshTet.init_tensor(np.linspace(0, L, nx + 1), np.linspace(-W / 2, W / 2, ny + 1),
@@ -403,6 +439,7 @@ def wheel_mesh(resolution=1, radius=0.4, width=0.16, hub_fraction=0.75):
     ``hub_fraction * radius`` of the axle.
     """
     k = _resolution(resolution)
+    radius, width = _lengths(radius=radius, width=width)
     across = 8 * k
     thick = max(1, int(round(across * width / (2 * radius))))
     box = box_mesh((2.0, width, 2.0), (across, thick, across))
@@ -440,6 +477,8 @@ def wheel(resolution=1, mesh=None, radius=None, width=0.16, hub_fraction=0.75, h
     number or a (hub, tyre) pair.
     """
     kwargs.setdefault("dt", 0.005)
+    height = _heights(height=height)
+    radius = None if radius is None else _lengths(radius=radius)
     sim_kw, body_kw = _contact_scene_kwargs(kwargs, 0.5, Plane())
     if mesh is None:
         m, hub = wheel_mesh(resolution, 0.4 if radius is None else radius, width, hub_fraction)
@@ -471,8 +510,9 @@ def octopus_mesh(resolution=1, cell=0.05, head=(0.2, 0.2, 0.2), arm_length=0.15,
     layer (``arm_width`` thick) of the arms. Returns the mesh; z = 0 is its bottom.
     """
     k = _resolution(resolution)
+    cell, arm_length, arm_width = _lengths(cell=cell, arm_length=arm_length, arm_width=arm_width)
     c = cell / k
-    hx, hy, hz = head
+    hx, hy, hz = _lengths(head=real_array(head, "head", shape=(3,)))
     reach = max(hx, hy) / 2 + arm_length
     n = int(round(2 * reach / c))
     axis = np.linspace(-reach, reach, n + 1)
@@ -513,6 +553,8 @@ def octopus(resolution=1, mesh=None, height=0.25, bowl_radius=0.5, size=None, up
     Neo-Hookean E = 5e4, nu = 0.34, density 1000, h = 0.01, friction 0.3 (the paper
     lists E = 4e3, nu = 0.34).
     """
+    height, bowl_radius = _heights(height=height), _lengths(bowl_radius=bowl_radius)
+    size = None if size is None else _lengths(size=size)
     bowl = Bowl(center=(0.0, 0.0, bowl_radius), radius=bowl_radius)
     sim_kw, body_kw = _contact_scene_kwargs(kwargs, 0.3, bowl)
     if mesh is None:
@@ -554,6 +596,8 @@ def blob_mesh(resolution=2, radius=0.3, bumps=0.25):
     built from low-order spherical harmonics, so the surface has head-, leg- and
     tail-like lobes); centred at the origin.
     """
+    radius = _lengths(radius=radius)
+    bumps = real(bumps, "bumps", low=0.0, high=1.0, include_high=False)  # 1: the surface reaches the centre
     ball = skfem.MeshTet.init_ball(nrefs=_resolution(resolution))
     p = ball.p
     r = np.linalg.norm(p, axis=0)
@@ -578,6 +622,7 @@ def armadillo(resolution=2, mesh=None, size=0.6, speed=3.0, min_affine_fraction=
     1000, h = 0.005 (as the paper), friction 0.5 (the paper lists E = 1.2e2).
     """
     kwargs.setdefault("dt", 0.005)
+    size, speed = _lengths(size=size), _heights(speed=speed)
     sim_kw, body_kw = _contact_scene_kwargs(kwargs, 0.5, Plane())
     if "reducer" not in sim_kw:
         sim_kw["reducer"] = Affinification(tau_a=4e-13, tau_e=6e-12, min_affine_fraction=min_affine_fraction)

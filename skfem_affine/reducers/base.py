@@ -45,6 +45,14 @@ class Reducer(abc.ABC):
         Newton solve of implicit Euler); only the full space does.
     setup_time : float
         Seconds spent in :meth:`attach` (set by it).
+    model : Model or None
+        The run the reducer is attached to (set by :meth:`attach`); a reducer serves one
+        simulation, and a second one refuses it.
+    newton_tol, max_newton : float or int, optional
+        A reducer's own Newton settings (None: the Simulation's); a Simulation given others refuses
+        the pair (:func:`~skfem_affine.integrators.newton.resolve_newton_settings`).
+    default_newton_tol, default_max_newton : float or int, optional
+        The Newton settings a reducer recommends when nobody gives any (None: the integrator's).
     _state_keys : tuple of str
         Attributes that carry state from one frame to the next (arrays, numbers, None, or
         JSON-like values); :meth:`state_dict` saves them for a checkpoint
@@ -55,6 +63,8 @@ class Reducer(abc.ABC):
     integrators = ("linearized",)
     iterates_linearized = False
     setup_time = 0.0
+    model = None
+    newton_tol = max_newton = default_newton_tol = default_max_newton = None
     _state_keys = ()
 
     def state_dict(self):
@@ -68,8 +78,16 @@ class Reducer(abc.ABC):
         if missing:
             raise ValueError(f"{type(self).__name__} state is missing {missing}")
         for key in self._state_keys:
-            value = state[key]
-            setattr(self, key, value.copy() if isinstance(value, np.ndarray) else copy.deepcopy(value))
+            value, current = state[key], getattr(self, key, None)
+            if isinstance(current, np.ndarray) and isinstance(value, np.ndarray) and value.shape != current.shape \
+                    and current.shape[:1] in ((self.model.system.n,), (self.model.system.m,)):
+                raise ValueError(f"{type(self).__name__} {key} must have shape {current.shape} (one entry per "
+                                 f"{'vertex' if current.shape[0] == self.model.system.n else 'element'}), "
+                                 f"got {value.shape}")
+            try:  # a property may check or rebuild from the value
+                setattr(self, key, value.copy() if isinstance(value, np.ndarray) else copy.deepcopy(value))
+            except Exception as err:
+                raise ValueError(f"{type(self).__name__} {key}: {type(err).__name__}: {err}") from None
 
     def attach(self, model):
         """Rest-state set-up, once per run, before the first frame.

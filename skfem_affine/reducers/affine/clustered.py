@@ -29,7 +29,7 @@ import time
 
 import numpy as np
 
-from skfem_affine.checks import choice, integer, positive, real
+from skfem_affine.checks import choice, flag, integer, positive, real, real_array
 from skfem_affine.threads import serial_blas
 from skfem_affine.integrators.problem import Operator, StepResult
 from skfem_affine.reducers import budget as budgets
@@ -200,7 +200,7 @@ class ClusteringReducer(Reducer):
                                                      kind=self.preconditioner_kind)
             self.precond_pose = None
         else:
-            self.precond_pose = np.array(pose, dtype=float)
+            self.precond_pose = real_array(pose, "precond_pose_state", shape=(self.model.system.n, 3))
             self.precond = self._build(self.precond_pose)
 
     @property
@@ -236,7 +236,7 @@ class ClusteringReducer(Reducer):
         self.time_budget = None if time_budget is None else positive(time_budget, "time_budget")
         # a time budget bounds the frames itself; falling back to full space would miss any budget under a full frame
         default = target_error is not None and self.time_budget is None
-        self.never_slower = default if never_slower is None else bool(never_slower)
+        self.never_slower = default if never_slower is None else flag(never_slower, "never_slower")
         self.shadow_every = integer(shadow_every, "shadow_every", low=1)
         self.memory = positive(memory, "memory")
         self.controlled = target_error is not None or self.time_budget is not None or self.never_slower
@@ -245,20 +245,17 @@ class ClusteringReducer(Reducer):
         self.seeding = choice(seeding, "seeding", SEEDINGS)
         self.seed = None if seed is None else integer(seed, "seed", low=0)
         self.solver_spec = solver
-        if refresh is True:
-            refresh = "laplacian"
-        if refresh not in (False, None, "laplacian", "tangent"):
-            raise ValueError(f"refresh must be False, True, 'laplacian' or 'tangent', got {refresh!r}")
+        if isinstance(refresh, str):
+            refresh = choice(refresh, "refresh", ("laplacian", "tangent"))
+        elif refresh is not None:  # True: the Laplacian refresh
+            refresh = "laplacian" if flag(refresh, "refresh (False, True, 'laplacian' or 'tangent')") else False
         self.refresh = refresh or False
         self.refresh_tol = check_threshold(refresh_tol, "refresh_tol")
-        if not isinstance(refresh_background, (bool, np.bool_)):
-            raise TypeError(f"refresh_background must be True or False, got {refresh_background!r}")
-        self.refresh_background = bool(refresh_background)
-        if not isinstance(pinned_bodies, (bool, np.bool_)):
-            raise TypeError(f"pinned_bodies must be True or False, got {pinned_bodies!r}")
+        self.refresh_background = flag(refresh_background, "refresh_background")
+        pinned_bodies = flag(pinned_bodies, "pinned_bodies")
         if pinned_bodies and getattr(self, "kind", None) is not reduction.AFFINE:
             raise ValueError("pinned_bodies needs affine bodies (Affinification)")
-        self.pinned_bodies = bool(pinned_bodies)
+        self.pinned_bodies = pinned_bodies
 
     def _setup(self, model):
         sysm = model.system

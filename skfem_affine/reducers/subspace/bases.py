@@ -210,8 +210,13 @@ class SkinningEigenmodes(_Basis):
         H = _rest_stiffness(system)
         L = (H[0::3, 0::3] + H[1::3, 1::3] + H[2::3, 2::3]) / 3.0
         out = []
-        for verts in _body_vertices(system):
+        for b, verts in enumerate(_body_vertices(system)):
             inner = verts[~system.fixed[verts]]
+            if inner.size < 2:  # the eigenproblem of a weight needs 2 or more vertices
+                raise ValueError(f"SkinningEigenmodes need 2 or more free vertices in every body; body {b} "
+                                 f"({system.bodies[b].name!r}) has {inner.size} free "
+                                 f"{'vertex' if inner.size == 1 else 'vertices'}. Use basis=sa.LinearModes() or "
+                                 f"sa.AffineModes(), or no reducer")
             Lb = L[inner][:, inner].tocsc()
             Mb = sp.diags(system.lumped_mass[inner]).tocsc()
             k = min(self.n, inner.size - 1)

@@ -223,7 +223,7 @@ class AdaptiveSubspace(Reducer):
     @property
     def controllers(self):
         """The budgets' state and the thresholds as plain numbers (checkpoints)."""
-        state = {} if self.control is None else self.control.state()
+        state = {} if self.control is None else self.control.controller_state()
         state["thresholds"] = {"eps_nodal": float(self.eps_nodal), "eps_modal": float(self.eps_modal)}
         return state
 
@@ -236,7 +236,7 @@ class AdaptiveSubspace(Reducer):
         if state:
             if self.control is None:
                 raise ValueError(f"this reducer has no controllers {sorted(state)} to restore")
-            self.control.restore(state)
+            self.control.restore_controller_state(state)
 
     # ------------------------------------------------------------------ set-up
     def attach(self, model):
@@ -244,7 +244,7 @@ class AdaptiveSubspace(Reducer):
         the METIS subdomains and, with ``hessian_init="rest"``, the rest subspace Hessians."""
         t0 = time.perf_counter()
         sysm = model.system
-        self.system, self.project_hessian = sysm, bool(model.project_hessian)
+        self.model, self.system, self.project_hessian = model, sysm, bool(model.project_hessian)
         self.basis = self.basis_spec.build(sysm)
         self.U = self.basis.U[sysm.free]  # (nfree, r)
         self.queries = so.ModalQueries(self.basis.U, self.basis.blocks)
@@ -312,27 +312,44 @@ class AdaptiveSubspace(Reducer):
     def _controlled(self, ip, rec):
         """Plan the step (full, reduced, or reduced with a shadow), solve it, feed the controllers
         (:mod:`~skfem_affine.reducers.subspace.control`)."""
-        c, h, size, free = self.control, ip.h, ip.model.size, ip.free
-        eb, pays, n = c.error_budget, c.pays, self.system.n
-        # the budget's unit (m) this step: the response so far, the scene size, or a metre
-        unit = eb.scale(size, budgets.largest_displacement(ip.x_t, self.system.p0)) if eb is not None else size
+        c = self.control
+        if c.error_budget is not None:  # the budget's unit this step: the response so far, the scene size, or a metre
+            c.error_budget.scale(ip.model.size, budgets.largest_displacement(ip.x_t, self.system.p0))
+        forced = self._cap_enrichment(c)
+        mode = c.plan()
+        if mode == "full":
+            x = self._planned_full_step(ip, rec)
+        else:
+            x = self._reduced_step(ip, rec, mode)
+        self._record(rec, forced)
+        return x
+
+    def _cap_enrichment(self, c):
+        """The time budget's forced fraction and the cap on enriched vertices it implies."""
         forced = 0.0 if c.timer is None else c.timer.fraction
         self.max_enriched = None if c.timer is None else int((1.0 - forced) * self.free_vertex.sum())
         if self.max_enriched is not None and self.enriched.sum() > self.max_enriched:
             self.enriched[:] = False  # over the cap: the oracle chooses again within it, largest errors first
-        mode = c.plan()
-        if mode == "full":
-            x, seconds = self._full_step(ip, rec)
-            if pays is not None:
-                pays.full_solved(seconds, rec.get("newton_iters", 1))
-            if eb is not None:
-                eb.decay(h)
-            rec.update(reduced=False, shadow=False, dofs=int(free.size), solver=self.fallback_solver.name,
-                       full_solve=seconds)
-            self._record(rec, forced)
-            return x
-        if eb is not None:
-            self.eps_nodal, self.eps_modal = eb.tau, control.MODAL_RATIO * eb.tau
+        return forced
+
+    def _planned_full_step(self, ip, rec):
+        """A step the fall-back solves in full space: its cost and the error estimate's decay."""
+        c = self.control
+        x, seconds = self._full_step(ip, rec)
+        if c.pays is not None:
+            c.pays.full_solved(seconds, rec.get("newton_iters", 1))
+        if c.error_budget is not None:
+            c.error_budget.decay(ip.h)
+        rec.update(reduced=False, shadow=False, dofs=int(ip.free.size), solver=self.fallback_solver.name,
+                   full_solve=seconds)
+        return x
+
+    def _reduced_step(self, ip, rec, mode):
+        """A reduced step (with a shadow full solve when due, or a full one when it ran out of time);
+        returns the step's positions after feeding the error budget and the fall-back."""
+        c, free = self.control, ip.free
+        if c.error_budget is not None:
+            self.eps_nodal, self.eps_modal = c.error_budget.tau, control.MODAL_RATIO * c.error_budget.tau
         shadow = c.shadow_due(mode)
         t0 = self.clock()
         with threads.blas_threads(self.blas_threads):
@@ -340,54 +357,75 @@ class AdaptiveSubspace(Reducer):
         reduced_seconds = self.clock() - t0
         went_full = x_red is None or step.full  # the result (if any) is a converged full-space one
         rec["reduced_dofs"] = rec.get("dofs", int(free.size))
-        measured = None
-        x = x_red
+        x, measured = x_red, None
         if shadow or x_red is None:  # a shadow, or a reduced step out of time: full-space Newton from x_t
-            part = {}
-            x, seconds = self._full_step(ip, part)
-            if pays is not None:
-                iterations = part.get("newton_iters", 1)
-                pays.shadow_solved(seconds, iterations) if shadow else pays.full_solved(seconds, iterations)
-            for key in ("assembly", "line_search", "factorization", "solve"):
-                rec[key] = rec.get(key, 0.0) + part.get(key, 0.0)
-            if x_red is not None:
-                measured = budgets.vertex_max_norm((x_red - x)[free], free, n) / h
-                rec["local_error_measured"] = measured / unit
-            rec.update(dofs=int(free.size), solver=self.fallback_solver.name, full_solve=seconds,
-                       full_newton_iters=part.get("newton_iters", 0))
+            x, measured = self._shadow_step(ip, rec, x_red, shadow)
         rec["shadow"] = bool(shadow)
         rec["reduced"] = bool(not shadow and not went_full)
-        if eb is not None:
-            if x_red is None and rec.get("over_deadline"):
-                # out of time: nothing measured; eps grows while the estimate is under the goal (a
-                # larger eps enriches less, which is what makes a reduced step cheaper)
-                eb.advance(0.0, h, size, introduced=False)
-                if eb.estimate <= eb.goal:
-                    eb.adapt()
-            else:
-                estimate = 0.0 if went_full else control.proxy(step.last_g, step.diagonal(), free, n, h)
-                if measured is not None and measured > control.NOISE * ip.tol * size:
-                    delta = eb.local(estimate, measured)  # calibrates the proxy
-                    c.shadows.settled(eb.stable and eb.estimate < eb.goal)
-                else:  # no shadow, or a measured error at the Newton tolerance's level: nothing to calibrate by
-                    delta = eb.local(estimate) if measured is None else measured
-                eb.advance(delta, h, size, introduced=rec["reduced"])
-                rec["local_error"] = delta / unit
-                # the smallest space (no enrichment, the permanent modes only): a larger eps gains nothing
-                smallest = not went_full and not self.step_enriched.any() and rec["active_modes"] <= self.permanent_columns
-                # a step solved in full space says nothing about eps's error: eps may grow while the
-                # estimate is under the goal (so that steps reduce again), and holds over it
-                if not went_full or eb.estimate <= eb.goal:
-                    eb.adapt(saturated=smallest)
-        if pays is not None:
-            c.reduced_measured(reduced_seconds, shadow)
-            pays.reduced_solved(reduced_seconds, rec["reduced_dofs"] / max(free.size, 1), fresh=mode == "probe",
-                                iterations=max(rec.get("newton_iters", 1), 1))
-            pays.decide(c.shadow_period(), probed=mode == "probe")
-            if shadow and eb is None and c.shadows is not None:
-                c.shadows.settled(not pays.in_full)  # the fall-back's shadows space out while reduction pays
-        self._record(rec, forced)
+        if c.error_budget is not None:
+            self._feed_error_budget(ip, rec, x_red, step, went_full, measured)
+        if c.pays is not None:
+            self._feed_fall_back(rec, mode, shadow, reduced_seconds, free.size)
         return x
+
+    def _shadow_step(self, ip, rec, x_red, shadow):
+        """Full-space Newton from x_t beside (or instead of) the reduced step; returns its positions
+        and the measured local error of the reduced step (None without one)."""
+        c, free = self.control, ip.free
+        part = {}
+        x, seconds = self._full_step(ip, part)
+        if c.pays is not None:
+            iterations = part.get("newton_iters", 1)
+            c.pays.shadow_solved(seconds, iterations) if shadow else c.pays.full_solved(seconds, iterations)
+        for key in ("assembly", "line_search", "factorization", "solve"):
+            rec[key] = rec.get(key, 0.0) + part.get(key, 0.0)
+        measured = None
+        if x_red is not None:
+            measured = budgets.vertex_max_norm((x_red - x)[free], free, self.system.n) / ip.h
+            rec["local_error_measured"] = measured / self._error_unit(ip)
+        rec.update(dofs=int(free.size), solver=self.fallback_solver.name, full_solve=seconds,
+                   full_newton_iters=part.get("newton_iters", 0))
+        return x, measured
+
+    def _feed_error_budget(self, ip, rec, x_red, step, went_full, measured):
+        """The error budget's estimate after the step, and eps adapted to it."""
+        c, eb, h, size = self.control, self.control.error_budget, ip.h, ip.model.size
+        if x_red is None and rec.get("over_deadline"):
+            # out of time: nothing measured; eps grows while the estimate is under the goal (a
+            # larger eps enriches less, which is what makes a reduced step cheaper)
+            eb.advance(0.0, h, size, introduced=False)
+            if eb.estimate <= eb.goal:
+                eb.adapt()
+            return
+        estimate = 0.0 if went_full else control.proxy(step.last_g, step.diagonal(), ip.free, self.system.n, h)
+        if measured is not None and measured > control.NOISE * ip.tol * size:
+            delta = eb.local(estimate, measured)  # calibrates the proxy
+            c.shadows.settled(eb.stable and eb.estimate < eb.goal)
+        else:  # no shadow, or a measured error at the Newton tolerance's level: nothing to calibrate by
+            delta = eb.local(estimate) if measured is None else measured
+        eb.advance(delta, h, size, introduced=rec["reduced"])
+        rec["local_error"] = delta / self._error_unit(ip)
+        # the smallest space (no enrichment, the permanent modes only): a larger eps gains nothing
+        smallest = not went_full and not self.step_enriched.any() and rec["active_modes"] <= self.permanent_columns
+        # a step solved in full space says nothing about eps's error: eps may grow while the
+        # estimate is under the goal (so that steps reduce again), and holds over it
+        if not went_full or eb.estimate <= eb.goal:
+            eb.adapt(saturated=smallest)
+
+    def _error_unit(self, ip):
+        """The budget's unit (m) this step (set by :meth:`_controlled`), or the scene size without a budget."""
+        eb = self.control.error_budget
+        return ip.model.size if eb is None else eb.unit
+
+    def _feed_fall_back(self, rec, mode, shadow, reduced_seconds, free_dofs):
+        """The never-slower fall-back's measurements of the step, and its decision."""
+        c, pays = self.control, self.control.pays
+        c.reduced_measured(reduced_seconds, shadow)
+        pays.reduced_solved(reduced_seconds, rec["reduced_dofs"] / max(free_dofs, 1), fresh=mode == "probe",
+                            iterations=max(rec.get("newton_iters", 1), 1))
+        pays.decide(c.shadow_period(), probed=mode == "probe")
+        if shadow and c.error_budget is None and c.shadows is not None:
+            c.shadows.settled(not pays.in_full)  # the fall-back's shadows space out while reduction pays
 
     def _record(self, rec, forced):
         """The controllers' state in the step's statistics."""
