@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from skfem_affine.checks import real_array
-from skfem_affine.vertex_sets import vertices_of
+from skfem_affine.vertex_sets import needs_mesh, vertices_of
 
 __all__ = ["Prescribed", "VertexForce", "Motion", "Targets", "coupling", "work"]
 
@@ -76,7 +76,8 @@ class Prescribed:
     def __init__(self, vertices, path):
         if not callable(path):
             raise TypeError(f"path must be a callable path(t, X) -> (k, 3) positions, got {type(path).__name__}")
-        vertex_indices(vertices, None, "vertices")  # their kind now, their range when bound to a body
+        if not needs_mesh(vertices):  # their kind now; their range, names and DofsViews when bound to a body
+            vertex_indices(vertices, None, "vertices")
         self.vertices = vertices
         self.path = path
 
@@ -138,7 +139,8 @@ class VertexForce:
                 raise ValueError(f"force must be a callable force(t, x, v) or a finite (3,) vector, got shape "
                                  f"{value.shape}")
             force = _Constant(value)
-        vertex_indices(vertices, None, "vertices")  # their kind now, their range in the simulation
+        if not needs_mesh(vertices):  # their kind now; their range, names and DofsViews in the simulation
+            vertex_indices(vertices, None, "VertexForce vertices")
         self.vertices, self.force, self.body = vertices, force, body
 
     def __repr__(self):

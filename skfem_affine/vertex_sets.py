@@ -104,6 +104,17 @@ def _integers(value, name):
     return a.ravel().astype(np.int64)
 
 
+def is_name(selection):
+    """Whether ``selection`` names boundaries (a str or a list of them), resolved with a mesh."""
+    return isinstance(selection, str) or (isinstance(selection, (list, tuple)) and bool(selection)
+                                          and all(isinstance(s, str) for s in selection))
+
+
+def needs_mesh(selection):
+    """Whether ``selection`` is resolved only with its mesh (boundary names, a DofsView)."""
+    return is_name(selection) or _is_dofs_view(selection)
+
+
 def vertices_of(mesh, selection=None, *, facets=None, dofs=None, n=None, name="vertices"):
     """Vertex indices (k,) of ``mesh`` from a selection (see the module docstring).
 
@@ -161,8 +172,7 @@ def vertices_of(mesh, selection=None, *, facets=None, dofs=None, n=None, name="v
         return _from_dofs(dofs, n, name)
     if _is_dofs_view(selection):
         return _from_dofs_view(selection, mesh, n, name)
-    if isinstance(selection, str) or (isinstance(selection, (list, tuple)) and selection
-                                      and all(isinstance(s, str) for s in selection)):
+    if is_name(selection):
         need_mesh("a boundary name")
         return _from_names([selection] if isinstance(selection, str) else selection, mesh, name)
     if isinstance(selection, bytes) or callable(selection) or isinstance(selection, dict):
@@ -197,7 +207,9 @@ def vertices_of(mesh, selection=None, *, facets=None, dofs=None, n=None, name="v
                 kinds.append("facet indices: sa.vertices_of(mesh, facets=...), or the boundary's name")
             if kinds:
                 hint = "; they look like " + "; or ".join(kinds)
-        raise ValueError(f"{name} vertex indices out of range [0, {n if n is not None else 'inf'}): min {a.min()}, max {a.max()}{hint}")
+        if n is None:
+            raise ValueError(f"{name}: vertex indices must be >= 0, got min {a.min()}")
+        raise ValueError(f"{name} vertex indices out of range [0, {n}): min {a.min()}, max {a.max()}{hint}")
     return a
 
 

@@ -188,8 +188,10 @@ def test_bad_motion_input_is_refused_with_a_named_error():
         sa.Simulation(body, forces="gravity")
     with pytest.raises(TypeError, match="forces\\[0\\]"):
         sa.Simulation(body, forces=[lambda t, x, v: x])
+    with pytest.raises(ValueError, match="VertexForce vertices: vertex indices must be >= 0"):
+        sa.VertexForce([-1], (0, 0, 1.0))
     with pytest.raises(ValueError, match="forces\\[0\\] vertices"):
-        sa.Simulation(body, forces=[sa.VertexForce([-1], (0, 0, 1.0))])
+        sa.Simulation(body, forces=[sa.VertexForce([10 ** 6], (0, 0, 1.0))])
     with pytest.raises(ValueError, match="force"):
         sa.VertexForce([0], (0.0, 1.0))
     sim = sa.Simulation(body, forces=[sa.VertexForce([0, 1], lambda t, x, v: np.zeros((3, 3)))])

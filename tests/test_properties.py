@@ -298,8 +298,9 @@ BAD = {
     "numbers": lambda: st.one_of(not_a_number, numbers_with_a_bool),
     "vertices": lambda: st.one_of(st.text(min_size=1, max_size=3), st.floats(0.1, 5.5).filter(lambda x: x != int(x)),
                                   st.lists(st.integers(), min_size=1, max_size=4).filter(lambda v: min(v) < 0 or max(v) >= N)),
-    # before a body is known (their range is checked where they are bound): not indices
-    "indices": lambda: st.one_of(st.text(min_size=1, max_size=3), st.floats(0.1, 5.5).filter(lambda x: x != int(x)),
+    # before a body is known (their range is checked where they are bound; a str is a boundary
+    # name, resolved there too): not indices
+    "indices": lambda: st.one_of(st.binary(min_size=1, max_size=3), st.floats(0.1, 5.5).filter(lambda x: x != int(x)),
                                  st.lists(st.integers(0, 9), min_size=2, max_size=4).map(lambda v: v + v[:1])),
     "count0": lambda: st.one_of(not_a_number, non_finite, st.integers(max_value=-1),
                                 st.floats(0.01, 1e3).filter(lambda x: x != int(x))),
