@@ -220,8 +220,10 @@ class PardisoSchur(Pardiso):
             self._pattern = (indptr, indices, keep.copy())
         self._threads = 1 if n < PARDISO_THREADED_MIN else self._lib.max_threads
         self._arrays = (np.ascontiguousarray(data, dtype=float), indptr, indices, n)
-        marks = np.zeros(n, dtype=np.int32)
-        marks[keep] = 1  # Pardiso overwrites perm with its ordering: marks are given afresh
+        marks = None
+        if not same:  # the Schur unknowns are marked for the analysis; Pardiso then keeps (and writes) that array
+            marks = np.zeros(n, dtype=np.int32)
+            marks[keep] = 1
         try:
             with threads.mkl_threads(self._threads):
                 x = self._lib.schur(22 if same else 12, self._arrays, marks, k)
@@ -229,6 +231,15 @@ class PardisoSchur(Pardiso):
             self._pattern = None
             raise SolverError(f"Pardiso Schur complement failed ({err}); is the system positive definite?") from err
         return x.reshape(k, k)
+
+    def analysed(self, A, upper=False):
+        """The unknowns kept by the current analysis when it is of A's pattern, else None: a
+        complement on them costs a numeric factorisation only."""
+        pat = self._pattern
+        if pat is None:
+            return None
+        indptr, indices, _ = self._upper(A, upper)
+        return pat[2] if _same(pat[0], indptr) and _same(pat[1], indices) else None
 
     def factorize(self, A, upper=False, order=None):
         raise TypeError("PardisoSchur computes Schur complements (complement), it does not solve")
@@ -281,10 +292,12 @@ class _PardisoLibrary:
 
     def schur(self, phase, arrays, marks, k):
         """Factorise (``phase`` 12 or 22) with the unknowns marked 1 in ``marks`` eliminated last;
-        returns their dense Schur complement (k * k, row-major)."""
+        returns their dense Schur complement (k * k, row-major). ``marks`` (int32, n) is given for an
+        analysis (12) and then held here until the next one: Pardiso keeps using that array."""
         self._ps.set_iparm(5, 0)
         self._ps.set_iparm(36, 1)
-        self._ps.perm = marks
+        if marks is not None:
+            self._ps.perm = marks
         n = arrays[3]
         return self.call(phase, arrays, np.zeros((max(n, k * k), 1)), rhs=1)[:k * k, 0]
 

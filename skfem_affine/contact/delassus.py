@@ -55,9 +55,9 @@ class Resolvent:
     ``W = J_C (A^-1)_CC J_C^T``. A contact on an affine (rigid) body touches its 12 (6) unknowns
     through G, so a body with hundreds of contacts adds 12 (6) unknowns to C, not 3 per contact.
     With ``schur`` (:class:`~skfem_affine.solvers.PardisoSchur`), ``(A^-1)_CC = S^-1`` from the
-    Schur complement S of A on C (one factorisation, no solve per column); without, the
-    frame's solver solves the unit columns of C, ``block`` at a time. A does not couple bodies:
-    S^-1 is then factorised per body (connected component of A) touched by contacts.
+    Schur complement S of A on C or a superset of it (one factorisation, no solve per column;
+    :meth:`_kept`); without, the frame's solver solves the unit columns of C, ``block`` at a
+    time. A does not couple bodies: S is block diagonal, and W is built block by block.
     """
 
     def __init__(self, operator, block=64, schur=None):
@@ -81,6 +81,28 @@ class Resolvent:
             Z[:, cols] = self._solve(E)[C]
         return Z
 
+    def _kept(self, C):
+        """The unknowns W is built on (C or a superset) and whether by the Schur complement.
+
+        The Schur complement's analysis is kept while the contacts touch a subset of its unknowns
+        at most twice their number (a body at rest, contacts that come and go), and the set grows
+        by the new ones while that bound holds, so that a numeric factorisation suffices. A new
+        analysis costs about twice a factorisation: then, for at most ``block`` unknowns, solves
+        with the frame's factorisation are cheaper.
+        """
+        if self.schur is None:
+            return C, False
+        last = self.schur.analysed(self.A)
+        if last is not None:
+            if last.size <= 2 * C.size and np.isin(C, last).all():
+                return last, True
+            grown = np.union1d(last, C)
+            if grown.size <= 2 * C.size:
+                return grown, True
+        if C.size <= self.block and not self.iterative:
+            return C, False
+        return C, True
+
     def delassus(self, J):
         """W = J A^-1 J^T (dense, symmetric), A^-1 ~ G A_r^-1 G^T in a reduced frame."""
         Jr = sp.csr_matrix(J @ self.G) if self.G is not None else sp.csr_matrix(J)
@@ -91,8 +113,9 @@ class Resolvent:
         W = np.zeros((k, k))
         if not C.size:
             return W
-        Jc = Jr[:, C].tocsc()
-        M = self._inverse_on(C) if self.schur is None else self.schur.complement(self.A, C)
+        keep, schur = self._kept(C)
+        Jc = Jr[:, keep].tocsc()
+        M = self.schur.complement(self.A, keep) if schur else self._inverse_on(keep)
         # M is block diagonal over the bodies (A does not couple them): one block per component
         # of its own pattern, so that W = sum_b J_b M_b^-1 J_b^T (Schur) or J_b M_b J_b^T
         nz = np.nonzero(M)
@@ -104,8 +127,10 @@ class Resolvent:
                 part = order[s:e]
                 Jb = Jc[:, part].tocsr()
                 rows = np.flatnonzero(np.diff(Jb.indptr))
+                if not rows.size:  # kept unknowns no contact touches this frame
+                    continue
                 Jb, Mb = Jb[rows], M[np.ix_(part, part)]
-                if self.schur is None:  # M = (A^-1)_CC
+                if not schur:  # M = (A^-1)_CC
                     W[np.ix_(rows, rows)] += Jb @ (Jb @ (0.5 * (Mb + Mb.T))).T
                     continue
                 X = solve_triangular(cholesky(Mb, lower=True), Jb.T.toarray(), lower=True)  # W_b = X^T X
