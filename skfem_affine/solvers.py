@@ -216,7 +216,7 @@ class PardisoSchur(Pardiso):
         same = (pat is not None and _same(pat[0], indptr) and _same(pat[1], indices) and _same(pat[2], keep))
         if not same:
             if pat is not None:  # a new analysis on live factors gave wrong complements in a probe: release first
-                self._lib.release()
+                self._lib.release(self._arrays)
             self._pattern = (indptr, indices, keep.copy())
         self._threads = 1 if n < PARDISO_THREADED_MIN else self._lib.max_threads
         self._arrays = (np.ascontiguousarray(data, dtype=float), indptr, indices, n)
@@ -240,6 +240,13 @@ class PardisoSchur(Pardiso):
             return None
         indptr, indices, _ = self._upper(A, upper)
         return pat[2] if _same(pat[0], indptr) and _same(pat[1], indices) else None
+
+    def __del__(self):
+        try:
+            if self._pattern is not None:
+                self._lib.release(self._arrays)
+        except Exception:
+            pass
 
     def factorize(self, A, upper=False, order=None):
         raise TypeError("PardisoSchur computes Schur complements (complement), it does not solve")
@@ -286,9 +293,13 @@ class _PardisoLibrary:
         """The permutation array handed to Pardiso (the given order, when one was)."""
         return self._ps.perm
 
-    def release(self):
-        """Free the factors and the analysis."""
-        self._ps.free_memory(everything=True)
+    def release(self, arrays=None):
+        """Free the factors and the analysis (``arrays``: those of the last call, given when it
+        computed a Schur complement; pypardiso's own release of an empty matrix hung in that mode)."""
+        if arrays is None:
+            self._ps.free_memory(everything=True)
+            return
+        self.call(-1, arrays, np.zeros((arrays[3], 1)))
 
     def schur(self, phase, arrays, marks, k):
         """Factorise (``phase`` 12 or 22) with the unknowns marked 1 in ``marks`` eliminated last;

@@ -17,6 +17,12 @@ from skfem_affine.solvers import PardisoSchur, has_pardiso
 from skfem_affine.threads import serial_blas
 
 
+# Below this many touched unknowns, and without a kept Schur analysis, W comes from solves with the
+# frame's factorisation: one solve cost 1/40 to 1/100 of a factorisation on the paper's wheel and
+# octopus, and a new Schur analysis with its factorisation about two factorisations.
+SCHUR_MIN = 128
+
+
 def jacobian(contacts, n_vertices, free):
     """J (3k x n_free): row 3i + r is frame row r of contact i on w_a v_a - sum_k w_k v_k (w_a the
     contact's ``own`` weight, 1 for a vertex; fixed DOFs dropped)."""
@@ -87,7 +93,7 @@ class Resolvent:
         The Schur complement's analysis is kept while the contacts touch a subset of its unknowns
         at most twice their number (a body at rest, contacts that come and go), and the set grows
         by the new ones while that bound holds, so that a numeric factorisation suffices. A new
-        analysis costs about twice a factorisation: then, for at most ``block`` unknowns, solves
+        analysis costs about twice a factorisation: then, below :data:`SCHUR_MIN` unknowns, solves
         with the frame's factorisation are cheaper.
         """
         if self.schur is None:
@@ -99,7 +105,7 @@ class Resolvent:
             grown = np.union1d(last, C)
             if grown.size <= 2 * C.size:
                 return grown, True
-        if C.size <= self.block and not self.iterative:
+        if C.size < SCHUR_MIN and not self.iterative:
             return C, False
         return C, True
 
