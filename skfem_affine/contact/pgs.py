@@ -92,7 +92,8 @@ class PGS:
         Detect contact between different bodies (vertices vs boundary triangles, sharp edges
         vs sharp edges).
     block : int
-        Columns of J^T solved at once when building the Delassus operator (memory bound).
+        Columns solved at once when the Delassus operator comes from solves with the frame's
+        factorisation (few touched unknowns, or no Pardiso; a memory bound).
     edge_contact : bool
         Edge-edge contacts between sharp surface edges of different bodies
         (:mod:`~skfem_affine.contact.edges`), so that edges cannot cross where no vertex meets a
