@@ -192,69 +192,6 @@ class Pardiso:
         return np.ascontiguousarray(x).reshape(b.shape)
 
 
-class PardisoSchur(Pardiso):
-    """The dense Schur complement of a symmetric positive-definite matrix on chosen unknowns (MKL
-    Pardiso, ``iparm(36)``): ``S = A_CC - A_CR A_RR^-1 A_RC``, so that ``(A^-1)_CC = S^-1``.
-
-    :meth:`complement` factorises A with the unknowns C eliminated last and returns S (C in
-    increasing order). The analysis (ordering with C last) is redone only when the pattern or
-    C changes, the numeric factorisation every call. One instance holds one factorisation at a
-    time (released at a new analysis), however many patterns and sets it sees.
-    """
-
-    name = "pardiso-schur"
-
-    def complement(self, A, keep, upper=False):
-        """S (|keep| x |keep|, dense) of A (full symmetric CSR, or its upper triangle with
-        ``upper=True``) on the sorted, distinct unknowns ``keep``."""
-        indptr, indices, data = self._upper(A, upper)
-        n, keep = indptr.size - 1, np.asarray(keep, dtype=np.int64)
-        k = keep.size
-        if k == 0 or k > n or (k > 1 and np.any(np.diff(keep) <= 0)) or keep[0] < 0 or keep[-1] >= n:
-            raise ValueError(f"keep must be sorted distinct unknowns of the {n} (got {k})")
-        pat = self._pattern
-        same = (pat is not None and _same(pat[0], indptr) and _same(pat[1], indices) and _same(pat[2], keep))
-        if not same:
-            if pat is not None:  # a new analysis on live factors gave wrong complements in a probe: release first
-                self._lib.release(self._arrays)
-            self._pattern = (indptr, indices, keep.copy())
-        self._threads = 1 if n < PARDISO_THREADED_MIN else self._lib.max_threads
-        self._arrays = (np.ascontiguousarray(data, dtype=float), indptr, indices, n)
-        marks = None
-        if not same:  # the Schur unknowns are marked for the analysis; Pardiso then keeps (and writes) that array
-            marks = np.zeros(n, dtype=np.int32)
-            marks[keep] = 1
-        try:
-            with threads.mkl_threads(self._threads):
-                x = self._lib.schur(22 if same else 12, self._arrays, marks, k)
-        except Exception as err:
-            self._pattern = None
-            raise SolverError(f"Pardiso Schur complement failed ({err}); is the system positive definite?") from err
-        return x.reshape(k, k)
-
-    def analysed(self, A, upper=False):
-        """The unknowns kept by the current analysis when it is of A's pattern, else None: a
-        complement on them costs a numeric factorisation only."""
-        pat = self._pattern
-        if pat is None:
-            return None
-        indptr, indices, _ = self._upper(A, upper)
-        return pat[2] if _same(pat[0], indptr) and _same(pat[1], indices) else None
-
-    def __del__(self):
-        try:
-            if self._pattern is not None:
-                self._lib.release(self._arrays)
-        except Exception:
-            pass
-
-    def factorize(self, A, upper=False, order=None):
-        raise TypeError("PardisoSchur computes Schur complements (complement), it does not solve")
-
-    def solve(self, b):
-        raise TypeError("PardisoSchur computes Schur complements (complement), it does not solve")
-
-
 class _PardisoLibrary:
     """The one adapter to MKL Pardiso through pypardiso's private parts (ctypes, ``_mkl_pardiso``, iparm).
 
@@ -293,28 +230,12 @@ class _PardisoLibrary:
         """The permutation array handed to Pardiso (the given order, when one was)."""
         return self._ps.perm
 
-    def release(self, arrays=None):
-        """Free the factors and the analysis (``arrays``: those of the last call, given when it
-        computed a Schur complement; pypardiso's own release of an empty matrix hung in that mode)."""
-        if arrays is None:
-            self._ps.free_memory(everything=True)
-            return
-        self.call(-1, arrays, np.zeros((arrays[3], 1)))
+    def release(self):
+        """Free the factors and the analysis."""
+        self._ps.free_memory(everything=True)
 
-    def schur(self, phase, arrays, marks, k):
-        """Factorise (``phase`` 12 or 22) with the unknowns marked 1 in ``marks`` eliminated last;
-        returns their dense Schur complement (k * k, row-major). ``marks`` (int32, n) is given for an
-        analysis (12) and then held here until the next one: Pardiso keeps using that array."""
-        self._ps.set_iparm(5, 0)
-        self._ps.set_iparm(36, 1)
-        if marks is not None:
-            self._ps.perm = marks
-        n = arrays[3]
-        return self.call(phase, arrays, np.zeros((max(n, k * k), 1)), rhs=1)[:k * k, 0]
-
-    def call(self, phase, arrays, b, rhs=None):
-        """One ``pardiso`` call on the upper triangle ``arrays = (data, indptr, indices, n)``; returns x
-        (``rhs`` right-hand sides, default b's columns)."""
+    def call(self, phase, arrays, b):
+        """One ``pardiso`` call on the upper triangle ``arrays = (data, indptr, indices, n)``; returns x."""
         import ctypes
         ps = self._ps
         data, indptr, indices, n = arrays
@@ -325,7 +246,7 @@ class _PardisoLibrary:
                         ctypes.byref(ctypes.c_int32(1)), ctypes.byref(ctypes.c_int32(self.MTYPE)),
                         ctypes.byref(ctypes.c_int32(phase)), ctypes.byref(ctypes.c_int32(n)),
                         data.ctypes.data_as(f64), indptr.ctypes.data_as(i32), indices.ctypes.data_as(i32),
-                        ps.perm.ctypes.data_as(i32), ctypes.byref(ctypes.c_int32(b.shape[1] if rhs is None else rhs)),
+                        ps.perm.ctypes.data_as(i32), ctypes.byref(ctypes.c_int32(b.shape[1])),
                         ps.iparm.ctypes.data_as(i32), ctypes.byref(ctypes.c_int32(0)),
                         b.ctypes.data_as(f64), x.ctypes.data_as(f64), ctypes.byref(error))
         threads.no_spin_wait()  # after a call, MKL has loaded its OpenMP runtime if it uses one

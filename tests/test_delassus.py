@@ -1,17 +1,14 @@
-"""The Delassus operator W = J A^-1 J^T from the unknowns contacts touch (Schur complement or solves of
-their unit columns), against the plain path of 3 solves per contact, in full and reduced space."""
-import gc
-
+"""The Delassus operator W = J A^-1 J^T (per body, through G when reduced) against the plain path of
+3 solves per contact on the frame's factorisation, and its per-block solver cache stays bounded."""
 import numpy as np
 import pytest
 import scipy.sparse as sp
 
 import skfem_affine as sa
-from skfem_affine import solvers
 from skfem_affine.contact import delassus
 from skfem_affine.contact.pgs import projected_gauss_seidel
-
-needs_pardiso = pytest.mark.skipif(not solvers.has_pardiso(), reason="pypardiso not installed")
+from skfem_affine.integrators.problem import Operator
+from skfem_affine.solvers import SuperLU
 
 
 def plain_delassus(operator, J):
@@ -54,51 +51,22 @@ SCENES = {"drop": dict(resolution=1, shape="box"), "stacked_beams": dict(resolut
 
 @pytest.mark.parametrize("reducer", list(REDUCERS))
 @pytest.mark.parametrize("scene", list(SCENES))
-def test_delassus_equals_the_plain_path(scene, reducer, monkeypatch):
-    monkeypatch.setattr(delassus, "SCHUR_MIN", 1)  # the Schur complement however few the unknowns
+def test_delassus_equals_the_plain_path(scene, reducer):
     sim = sa.scenes.SCENES[scene](**SCENES[scene], reducer=REDUCERS[reducer]())
-    schur = delassus.schur_solver()
 
     def check(op, J):
         ref, Jr, Y = plain_delassus(op, J)
         scale = np.abs(ref).max()
-        for path in ([schur, None] if schur is not None else [None]):
-            res = delassus.Resolvent(op, block=7, schur=path)
-            W = res.delassus(J)
-            assert np.abs(W - ref).max() <= 1e-9 * scale, (path, np.abs(W - ref).max() / scale)
-            lam = np.random.default_rng(1).normal(size=J.shape[0])
-            dv = res.apply(lam)
-            want = Y @ lam
-            want = op.G @ want if op.G is not None else want
-            assert np.abs(dv - want).max() <= 1e-9 * np.abs(want).max()
-            half = 3 * max(1, J.shape[0] // 6)  # fewer contacts: the Schur analysis of all of them is kept
-            ref2 = plain_delassus(op, J[:half])[0]
-            W2 = delassus.Resolvent(op, block=7, schur=path).delassus(J[:half])
-            assert np.abs(W2 - ref2).max() <= 1e-9 * np.abs(ref2).max()
+        res = delassus.Resolvent(op, block=7, cache={})
+        W = res.delassus(J)
+        assert np.abs(W - ref).max() <= 1e-9 * scale, np.abs(W - ref).max() / scale
+        lam = np.random.default_rng(1).normal(size=J.shape[0])
+        dv = res.apply(lam)
+        want = Y @ lam
+        want = op.G @ want if op.G is not None else want
+        assert np.abs(dv - want).max() <= 1e-9 * np.abs(want).max()
 
     assert frames_with_contact(sim, 120, check) == 3
-
-
-@needs_pardiso
-def test_schur_complement_is_the_inverse_on_the_kept_unknowns():
-    rng = np.random.default_rng(0)
-    n = 60
-    B = sp.random(n, n, density=0.05, random_state=1)
-    A = sp.csr_matrix(B @ B.T + sp.eye(n) * 2.0)
-    Ainv = np.linalg.inv(A.toarray())
-    sc = solvers.PardisoSchur()
-    for keep in (np.arange(0, n, 3), np.arange(0, n, 3), np.sort(rng.choice(n, 17, replace=False)), [5]):
-        keep = np.asarray(keep)
-        S = sc.complement(A, keep)
-        assert np.allclose(np.linalg.inv(S), Ainv[np.ix_(keep, keep)], rtol=1e-10, atol=1e-13)
-    A2 = sp.csr_matrix(A * 3.0)  # same pattern and set: a numeric factorisation only
-    S = sc.complement(A2, np.array([5]))
-    assert np.isclose(1.0 / S[0, 0], Ainv[5, 5] / 3.0)
-    S = sc.complement(sp.triu(A2, format="csr"), np.array([1, 4]), upper=True)
-    assert np.allclose(np.linalg.inv(S), Ainv[np.ix_([1, 4], [1, 4])] / 3.0)
-    for bad in ([], [3, 3], [4, 2], [n]):
-        with pytest.raises(ValueError, match="keep"):
-            sc.complement(A, np.asarray(bad, dtype=int))
 
 
 def _rigid_box_on_plane():
@@ -109,8 +77,7 @@ def _rigid_box_on_plane():
                          reducer=sa.Rigidification(tau_r=10.0))
 
 
-def test_body_block_contacts_equal_vertex_contacts_on_a_rigid_body(monkeypatch):
-    monkeypatch.setattr(delassus, "SCHUR_MIN", 1)
+def test_contacts_on_a_rigid_body_touch_its_six_dofs_and_match_the_plain_path():
     sim = _rigid_box_on_plane()
 
     def check(op, J):
@@ -118,35 +85,43 @@ def test_body_block_contacts_equal_vertex_contacts_on_a_rigid_body(monkeypatch):
         k = J.shape[0] // 3
         assert k >= 9  # a face of vertices touches
         ref, Jr, Y = plain_delassus(op, J)  # 3 solves per vertex contact
-        for path in [delassus.schur_solver(), None][int(not solvers.has_pardiso()):]:
-            res = delassus.Resolvent(op, schur=path)
-            W = res.delassus(J)
-            assert np.unique(res.Jr.indices).size == 6  # the contacts touch the body's 6 DOFs only
-            assert np.abs(W - ref).max() <= 1e-10 * np.abs(ref).max()
-            u0 = J @ np.tile([1.0, 0.0, -0.5], J.shape[1] // 3)  # sliding into the plane
-            lam, lam_ref = np.zeros(3 * k), np.zeros(3 * k)
-            projected_gauss_seidel(W, u0, lam, 0.5, 200, 1e-12)
-            projected_gauss_seidel(ref, u0, lam_ref, 0.5, 200, 1e-12)
-            assert np.allclose(lam, lam_ref, rtol=1e-8, atol=1e-10 * np.abs(lam_ref).max())
-            dv, dv_ref = res.apply(lam), op.G @ (Y @ lam_ref)
-            assert np.allclose(dv, dv_ref, atol=1e-9 * np.abs(dv_ref).max())
+        res = delassus.Resolvent(op, cache={})
+        W = res.delassus(J)
+        assert np.unique(res.Jr.indices).size == 6  # the contacts touch the body's 6 DOFs only
+        assert np.abs(W - ref).max() <= 1e-10 * np.abs(ref).max()
+        u0 = J @ np.tile([1.0, 0.0, -0.5], J.shape[1] // 3)  # sliding into the plane
+        lam, lam_ref = np.zeros(3 * k), np.zeros(3 * k)
+        projected_gauss_seidel(W, u0, lam, 0.5, 200, 1e-12)
+        projected_gauss_seidel(ref, u0, lam_ref, 0.5, 200, 1e-12)
+        assert np.allclose(lam, lam_ref, rtol=1e-8, atol=1e-10 * np.abs(lam_ref).max())
+        dv, dv_ref = res.apply(lam), op.G @ (Y @ lam_ref)
+        assert np.allclose(dv, dv_ref, atol=1e-9 * np.abs(dv_ref).max())
 
     assert frames_with_contact(sim, 30, check, want=1) == 1
 
 
-def _factorisations():
-    return sum(isinstance(o, (solvers.Pardiso, solvers.SuperLU)) for o in gc.get_objects())
+def _laplacian(m):
+    """An SPD chain of m unknowns (one component)."""
+    return sp.diags([-np.ones(m - 1), 3.0 * np.ones(m), -np.ones(m - 1)], [-1, 0, 1], format="csr")
 
 
-def test_factorisations_held_for_contact_stay_bounded():
-    """Over many frames with changing contact sets, the contact keeps no growing set of factorisations."""
-    sim = sa.scenes.pills(n=2, resolution=1, reducer=sa.Affinification(tau_a=1.0, tau_e=2.0))
-    counts, sizes = [], set()
-    for i, _ in enumerate(sim.run(40)):
-        if sim.contact.current is not None:
-            sizes.add(sim.contact.current.key.tobytes())
-        if i in (10, 39):
-            gc.collect()
-            counts.append(_factorisations())
-    assert len(sizes) > 5  # the contact sets did change
-    assert counts[1] <= counts[0] <= 4
+def test_block_solver_cache_holds_one_frames_blocks():
+    """Components (bodies, or a reduced frame's clusters) change from frame to frame: the cache of
+    per-block solvers keeps only the blocks of the current frame, however many frames pass."""
+    rng = np.random.default_rng(0)
+    cache = {}
+    for frame in range(12):
+        sizes = rng.integers(delassus.BLOCK_DENSE_MAX + 1, delassus.BLOCK_DENSE_MAX + 60, size=3)
+        A = sp.block_diag([_laplacian(int(m)) for m in sizes], format="csr")
+        solver = SuperLU()
+        solver.factorize(A)
+        n = A.shape[0]
+        cols = rng.choice(n, 6, replace=False)
+        J = sp.csr_matrix((np.ones(6), (np.arange(6), cols)), shape=(6, n))
+        res = delassus.Resolvent(Operator(solver, A), cache=cache)
+        W = res.delassus(J)
+        E = np.zeros((n, 6))
+        E[cols, np.arange(6)] = 1.0
+        assert np.allclose(W, solver.solve(E)[cols], atol=1e-12)
+        touched = len({int(np.searchsorted(np.cumsum(sizes), c, side="right")) for c in cols})
+        assert len(cache) == touched <= 3

@@ -3,24 +3,25 @@ r"""The Delassus operator W = J A^-1 J^T of a frame's contacts (paper sec. 3.3).
 The Jacobian J (3 rows n, t1, t2 per contact) maps free-DOF velocities to the relative
 velocity of each contact vertex against its closest point. W is applied through the frame's
 factorisation and, for a reduced frame, through G: ``A^-1 ~ G (G^T A G)^-1 G^T``, so
-``W = (J G) A_r^-1 (J G)^T``. Only the unknowns that contacts touch matter: W comes from
-the Schur complement of the system on them (:class:`Resolvent`), without a solve per contact
-row. What it needs of the frame comes in the reducer's
+``W = (J G) A_r^-1 (J G)^T`` costs solves of the small reduced system
+(:class:`Resolvent`). What it needs of the frame comes in the reducer's
 :class:`~skfem_affine.integrators.problem.Operator`.
 """
+from contextlib import nullcontext as _nothing
+
 import numpy as np
 import scipy.sparse as sp
-from scipy.linalg import cholesky, solve_triangular
+from scipy.linalg import cho_solve, cholesky, solve_triangular
 from scipy.sparse.csgraph import connected_components
 
-from skfem_affine.solvers import PardisoSchur, has_pardiso
 from skfem_affine.threads import serial_blas
+from skfem_affine.solvers import SuperLU, direct_solver
 
-
-# Below this many touched unknowns, and without a kept Schur analysis, W comes from solves with the
-# frame's factorisation: one solve cost 1/40 to 1/100 of a factorisation on the paper's wheel and
-# octopus, and a new Schur analysis with its factorisation about two factorisations.
-SCHUR_MIN = 128
+# Blocks (bodies) of the Delassus operator: up to BLOCK_DENSE_MAX unknowns a dense Cholesky
+# factor L gives W_b = X^T X, X = L^-1 J_b^T (one triangular solve); below BLOCK_DIRECT_MIN
+# SuperLU, else the direct solver (measurements in docs/contact.md).
+BLOCK_DENSE_MAX = 800
+BLOCK_DIRECT_MIN = 2000
 
 
 def jacobian(contacts, n_vertices, free):
@@ -43,10 +44,10 @@ def jacobian(contacts, n_vertices, free):
     return J
 
 
-def schur_solver():
-    """The Schur complement solver of the Delassus operator: :class:`~skfem_affine.solvers.PardisoSchur`
-    when Pardiso is installed, else None (W then comes from solves with the frame's solver)."""
-    return PardisoSchur() if has_pardiso() else None
+def block_solver(size):
+    """The solver of one body's block of ``size`` unknowns: SuperLU below :data:`BLOCK_DIRECT_MIN`,
+    else the fastest direct solver."""
+    return SuperLU() if size < BLOCK_DIRECT_MIN else direct_solver()
 
 
 class Resolvent:
@@ -55,95 +56,100 @@ class Resolvent:
     ``operator`` (:class:`~skfem_affine.integrators.problem.Operator`) holds the frame's
     system matrix (full A, or A_r = G^T A G of a reducer), the solver that has factorised it,
     and the reducer's mapping G (n_free x r), or None in full space, so that
-    ``W = (J G) A_r^-1 (J G)^T``.
-
-    W needs A^-1 only on the unknowns C that contacts touch (the non-zero columns of J G):
-    ``W = J_C (A^-1)_CC J_C^T``. A contact on an affine (rigid) body touches its 12 (6) unknowns
-    through G, so a body with hundreds of contacts adds 12 (6) unknowns to C, not 3 per contact.
-    With ``schur`` (:class:`~skfem_affine.solvers.PardisoSchur`), ``(A^-1)_CC = S^-1`` from the
-    Schur complement S of A on C or a superset of it (one factorisation, no solve per column;
-    :meth:`_kept`); without, the frame's solver solves the unit columns of C, ``block`` at a
-    time. A does not couple bodies: S is block diagonal, and W is built block by block.
+    ``W = (J G) A_r^-1 (J G)^T``. Bodies are not coupled by A, so
+    when A has several connected components (several bodies), W is built per
+    component from a factorization of that block alone (dense Cholesky up to
+    :data:`BLOCK_DENSE_MAX` unknowns, SuperLU below :data:`BLOCK_DIRECT_MIN`, else the
+    fastest direct solver), solving only the columns of contacts that touch it;
+    components without contacts cost nothing. ``cache`` (a dict kept across frames) holds the
+    block solvers by (size, first unknown); after each frame it holds only that frame's.
     """
 
-    def __init__(self, operator, block=64, schur=None):
+    def __init__(self, operator, block=64, cache=None):
         self.solver, self.A, self.G, self.block = operator.solver, operator.matrix, operator.G, int(block)
         self.iterative = operator.iterative
-        self.schur = schur
+        n_comp, labels = connected_components(self.A, directed=False)
+        self.parts = None
+        if n_comp > 1:  # renumber component by component, so that blocks are contiguous slices
+            self.order = np.argsort(labels, kind="stable")
+            self.bounds = np.concatenate([[0], np.cumsum(np.bincount(labels, minlength=n_comp))])
+            self.parts = range(n_comp)
+        self.cache = {} if cache is None else cache
+        self.used = set()
 
-    def _solve(self, R):
-        if self.iterative:  # CG takes one right-hand side at a time
-            return np.column_stack([self.solver.solve(np.ascontiguousarray(R[:, j])) for j in range(R.shape[1])])
-        return np.asarray(self.solver.solve(R)).reshape(R.shape)
+    def _solve(self, solver, R, iterative=False):
+        if iterative:  # CG takes one right-hand side at a time
+            return np.column_stack([solver.solve(np.ascontiguousarray(R[:, j])) for j in range(R.shape[1])])
+        return np.asarray(solver.solve(R)).reshape(R.shape)
 
-    def _inverse_on(self, C):
-        """(A^-1)_CC by solves of the unit columns of C, ``block`` at a time."""
-        n, k = self.A.shape[0], C.size
-        Z = np.empty((k, k))
-        for s in range(0, k, self.block):
-            cols = np.arange(s, min(s + self.block, k))
-            E = np.zeros((n, cols.size))
-            E[C[cols], np.arange(cols.size)] = 1.0
-            Z[:, cols] = self._solve(E)[C]
-        return Z
+    def _blocks(self, solver, JrT, iterative=False):
+        """A^-1 JrT (dense), ``block`` columns at a time."""
+        Y = np.empty(JrT.shape)
+        for s in range(0, JrT.shape[1], self.block):
+            cols = slice(s, min(s + self.block, JrT.shape[1]))
+            Y[:, cols] = self._solve(solver, JrT[:, cols].toarray(), iterative)
+        return Y
 
-    def _kept(self, C):
-        """The unknowns W is built on (C or a superset) and whether by the Schur complement.
+    def _block_solver(self, idx):
+        key = (idx.size, int(idx[0]))  # components keep their unknowns while the pattern is fixed
+        if key not in self.cache:
+            self.cache[key] = block_solver(idx.size)
+        self.used.add(key)
+        return self.cache[key]
 
-        The Schur complement's analysis is kept while the contacts touch a subset of its unknowns
-        at most twice their number (a body at rest, contacts that come and go), and the set grows
-        by the new ones while that bound holds, so that a numeric factorisation suffices. A new
-        analysis costs about twice a factorisation: then, below :data:`SCHUR_MIN` unknowns, solves
-        with the frame's factorisation are cheaper.
-        """
-        if self.schur is None:
-            return C, False
-        last = self.schur.analysed(self.A)
-        if last is not None:
-            if last.size <= 2 * C.size and np.isin(C, last).all():
-                return last, True
-            grown = np.union1d(last, C)
-            if grown.size <= 2 * C.size:
-                return grown, True
-        if C.size < SCHUR_MIN and not self.iterative:
-            return C, False
-        return C, True
+    def _evict(self):
+        """Drop the cached block solvers this frame did not use: a reduced frame's components change
+        with its clusters, so the keys met over a run are unbounded; the cache holds one frame's."""
+        for key in [key for key in self.cache if key not in self.used]:
+            del self.cache[key]
 
     def delassus(self, J):
         """W = J A^-1 J^T (dense, symmetric), A^-1 ~ G A_r^-1 G^T in a reduced frame."""
         Jr = sp.csr_matrix(J @ self.G) if self.G is not None else sp.csr_matrix(J)
-        Jr.eliminate_zeros()
         self.Jr = Jr
         k = J.shape[0]
-        C = np.unique(Jr.indices)
+        if self.parts is None:
+            self._evict()
+            W = Jr @ self._blocks(self.solver, Jr.T.tocsc(), self.iterative)
+            return 0.5 * (W + W.T)
         W = np.zeros((k, k))
-        if not C.size:
-            return W
-        keep, schur = self._kept(C)
-        Jc = Jr[:, keep].tocsc()
-        M = self.schur.complement(self.A, keep) if schur else self._inverse_on(keep)
-        # M is block diagonal over the bodies (A does not couple them): one block per component
-        # of its own pattern, so that W = sum_b J_b M_b^-1 J_b^T (Schur) or J_b M_b J_b^T
-        nz = np.nonzero(M)
-        _, labels = connected_components(sp.csr_matrix((np.ones(nz[0].size), nz), shape=M.shape), directed=False)
-        order = np.argsort(labels, kind="stable")
-        bounds = np.flatnonzero(np.diff(labels[order], prepend=-1, append=labels.max() + 1))
-        with serial_blas():
-            for s, e in zip(bounds[:-1], bounds[1:]):
-                part = order[s:e]
-                Jb = Jc[:, part].tocsr()
-                rows = np.flatnonzero(np.diff(Jb.indptr))
-                if not rows.size:  # kept unknowns no contact touches this frame
-                    continue
-                Jb, Mb = Jb[rows], M[np.ix_(part, part)]
-                if not schur:  # M = (A^-1)_CC
-                    W[np.ix_(rows, rows)] += Jb @ (Jb @ (0.5 * (Mb + Mb.T))).T
-                    continue
-                X = solve_triangular(cholesky(Mb, lower=True), Jb.T.toarray(), lower=True)  # W_b = X^T X
-                W[np.ix_(rows, rows)] += X.T @ X
+        Jc = Jr[:, self.order].tocsc()
+        Ap = sp.csr_matrix(self.A)[self.order][:, self.order].tocsr()
+        self.local = []
+        for c in self.parts:
+            s, e = self.bounds[c], self.bounds[c + 1]
+            Jb = Jc[:, s:e].tocsr()
+            rows = np.flatnonzero(np.diff(Jb.indptr))
+            if not rows.size:
+                continue
+            Jb = Jb[rows]
+            idx = self.order[s:e]
+            if idx.size <= BLOCK_DENSE_MAX:  # W_b = X^T X with X = L^-1 J_b^T, A_b = L L^T dense
+                with serial_blas():
+                    L = cholesky(Ap[s:e, s:e].toarray(), lower=True)
+                    X = solve_triangular(L, Jb.T.toarray(), lower=True)
+                    W[np.ix_(rows, rows)] += X.T @ X
+                self.local.append((idx, rows, Jb, L))
+                continue
+            solver = self._block_solver(idx)
+            with serial_blas() if idx.size < BLOCK_DIRECT_MIN else _nothing():
+                solver.factorize(Ap[s:e, s:e])
+                W[np.ix_(rows, rows)] += Jb @ self._blocks(solver, Jb.T.tocsc())
+            self.local.append((idx, rows, Jb, solver))
+        self._evict()
         return 0.5 * (W + W.T)
 
     def apply(self, lam):
-        """dv = A^-1 J^T lambda on the free DOFs (through G when reduced): one solve."""
-        y = self._solve((self.Jr.T @ lam)[:, None])[:, 0]
+        """dv = A^-1 J^T lambda on the free DOFs (through G when reduced)."""
+        if self.parts is None:
+            y = self._solve(self.solver, (self.Jr.T @ lam)[:, None], self.iterative)[:, 0]
+        else:
+            y = np.zeros(self.Jr.shape[1])
+            for idx, rows, Jb, solver in self.local:
+                r = Jb.T @ lam[rows]
+                if isinstance(solver, np.ndarray):  # a dense Cholesky factor
+                    y[idx] = cho_solve((solver, True), r)
+                    continue
+                with serial_blas() if idx.size < BLOCK_DIRECT_MIN else _nothing():
+                    y[idx] = self._solve(solver, r[:, None])[:, 0]
         return self.G @ y if self.G is not None else y

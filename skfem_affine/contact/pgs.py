@@ -56,7 +56,7 @@ from numba import njit
 
 from skfem_affine.checks import flag, integer, nonnegative, positive, real
 from skfem_affine.contact.colliders import check_colliders
-from skfem_affine.contact.delassus import Resolvent, jacobian, schur_solver
+from skfem_affine.contact.delassus import Resolvent, block_solver, jacobian
 from skfem_affine.contact.geometry import Detector
 
 # The contact model this module implements, as recorded in ``sim.stats`` ("contact_model").
@@ -92,8 +92,7 @@ class PGS:
         Detect contact between different bodies (vertices vs boundary triangles, sharp edges
         vs sharp edges).
     block : int
-        Columns solved at once when the Delassus operator comes from solves with the frame's
-        factorisation (few touched unknowns, or no Pardiso; a memory bound).
+        Columns of J^T solved at once when building the Delassus operator (memory bound).
     edge_contact : bool
         Edge-edge contacts between sharp surface edges of different bodies
         (:mod:`~skfem_affine.contact.edges`), so that edges cannot cross where no vertex meets a
@@ -202,7 +201,7 @@ class Contact:
         self.colliders = self.detector.colliders
         self.inv_mass = 1.0 / np.repeat(sysm.lumped_mass, 3)[sysm.free]
         self.previous = None  # (sorted keys, world impulses)
-        self.schur = schur_solver()  # the Delassus operator's one Schur complement factorisation, or None
+        self.block_solvers = {}  # per-body factorizations of the Delassus operator, reused across frames
         self.current = None
         self.prediction = None
         self.correction = None
@@ -250,12 +249,24 @@ class Contact:
         out = {"previous": self.previous is not None}
         if self.previous is not None:
             out.update(previous_keys=self.previous[0].copy(), previous_world=self.previous[1].copy())
+        # the per-body solvers of the Delassus operator (a direct solver's ordering history)
+        out["blocks"] = [list(key) for key in self.block_solvers]
+        for i, solver in enumerate(self.block_solvers.values()):
+            if hasattr(solver, "state_dict"):
+                out.update({f"block{i}.{k}": v for k, v in solver.state_dict().items()})
         return out
 
     def load_state_dict(self, state):
         self.previous = ((np.asarray(state["previous_keys"]).copy(), np.asarray(state["previous_world"]).copy())
                          if state["previous"] else None)
-        # (files of earlier versions also list per-body Delassus solvers: none is kept now)
+        self.block_solvers = {}
+        for i, key in enumerate(state["blocks"]):
+            key = tuple(int(k) for k in key)
+            solver = block_solver(key[0])
+            sub = {k[len(f"block{i}."):]: v for k, v in state.items() if k.startswith(f"block{i}.")}
+            if sub and hasattr(solver, "load_state_dict"):
+                solver.load_state_dict(sub)
+            self.block_solvers[key] = solver
 
     # -------------------------------------------------------------- frame hooks
     def detect(self, model, x, v, rec):
@@ -334,7 +345,7 @@ class Contact:
             raise TypeError("PGS contact needs the reducer's factorised operator (StepResult.operator)")
         t0 = time.perf_counter()
         st = self.settings
-        resolvent = Resolvent(result.operator, block=st.block, schur=self.schur)
+        resolvent = Resolvent(result.operator, block=st.block, cache=self.block_solvers)
         v_star = problem.v.reshape(-1)[problem.system.free] + dv
         W = resolvent.delassus(cs.J)
         t1 = time.perf_counter()
