@@ -61,7 +61,8 @@ class Resolvent:
     component from a factorization of that block alone (dense Cholesky up to
     :data:`BLOCK_DENSE_MAX` unknowns, SuperLU below :data:`BLOCK_DIRECT_MIN`, else the
     fastest direct solver), solving only the columns of contacts that touch it;
-    components without contacts cost nothing.
+    components without contacts cost nothing. ``cache`` (a dict kept across frames) holds the
+    block solvers by (size, first unknown); after each frame it holds only that frame's.
     """
 
     def __init__(self, operator, block=64, cache=None):
@@ -74,6 +75,7 @@ class Resolvent:
             self.bounds = np.concatenate([[0], np.cumsum(np.bincount(labels, minlength=n_comp))])
             self.parts = range(n_comp)
         self.cache = {} if cache is None else cache
+        self.used = set()
 
     def _solve(self, solver, R, iterative=False):
         if iterative:  # CG takes one right-hand side at a time
@@ -92,7 +94,14 @@ class Resolvent:
         key = (idx.size, int(idx[0]))  # components keep their unknowns while the pattern is fixed
         if key not in self.cache:
             self.cache[key] = block_solver(idx.size)
+        self.used.add(key)
         return self.cache[key]
+
+    def _evict(self):
+        """Drop the cached block solvers this frame did not use: a reduced frame's components change
+        with its clusters, so the keys met over a run are unbounded; the cache holds one frame's."""
+        for key in [key for key in self.cache if key not in self.used]:
+            del self.cache[key]
 
     def delassus(self, J):
         """W = J A^-1 J^T (dense, symmetric), A^-1 ~ G A_r^-1 G^T in a reduced frame."""
@@ -100,6 +109,7 @@ class Resolvent:
         self.Jr = Jr
         k = J.shape[0]
         if self.parts is None:
+            self._evict()
             W = Jr @ self._blocks(self.solver, Jr.T.tocsc(), self.iterative)
             return 0.5 * (W + W.T)
         W = np.zeros((k, k))
@@ -126,6 +136,7 @@ class Resolvent:
                 solver.factorize(Ap[s:e, s:e])
                 W[np.ix_(rows, rows)] += Jb @ self._blocks(solver, Jb.T.tocsc())
             self.local.append((idx, rows, Jb, solver))
+        self._evict()
         return 0.5 * (W + W.T)
 
     def apply(self, lam):
