@@ -48,6 +48,7 @@ triangles keeps its warm start.
 """
 
 import time
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -58,9 +59,14 @@ from skfem_affine.checks import flag, integer, nonnegative, positive, real
 from skfem_affine.contact.colliders import check_colliders
 from skfem_affine.contact.delassus import Resolvent, block_solver, jacobian
 from skfem_affine.contact.geometry import Detector
+from skfem_affine.monitor import SimulationWarning
 
 # The contact model this module implements, as recorded in ``sim.stats`` ("contact_model").
 MODEL = "pgs"
+
+# A frame's contact is unresolved (a warning, ``contact_unresolved`` in ``sim.stats``) when its
+# residual after the PGS solve is above this fraction of the velocity the contacts remove.
+UNRESOLVED = 0.05
 
 
 @dataclass(frozen=True)
@@ -74,8 +80,10 @@ class PGS:
     iterations : int
         Maximum Gauss-Seidel sweeps per frame (>= 1).
     tolerance : float
-        A sweep whose largest impulse change is below ``tolerance`` times the largest
-        impulse ends the iteration.
+        A sweep ends the iteration when the contact residual (complementarity and the friction
+        cone, in m/s; :func:`contact_residual`) is at most ``tolerance`` times the largest
+        velocity the contacts may have to remove (:func:`velocity_scale`). The residual of
+        every frame is in ``sim.stats`` (``contact_residual``).
     erp : float
         Error reduction in [0, 1]: a penetration d < 0 shrinks by ``erp |d|`` per step (a
         position correction that adds no velocity; see the module docstring).
@@ -127,6 +135,67 @@ class PGS:
         put(self, "edge_contact", flag(self.edge_contact, "PGS edge_contact"))
 
 
+@njit(cache=True, inline="always")
+def _tangent_step(W, r):
+    """The largest eigenvalue of the 2 x 2 tangent block of the contact at row r (its gradient step)."""
+    a, b, c = W[r + 1, r + 1], W[r + 1, r + 2], W[r + 2, r + 2]
+    return 0.5 * (a + c) + np.sqrt(0.25 * (a - c) ** 2 + b * b)
+
+
+@njit(cache=True, inline="always")
+def _disk(t1, t2, bound):
+    """(t1, t2) projected onto the disk of radius ``bound``."""
+    norm = np.sqrt(t1 * t1 + t2 * t2)
+    if norm > bound:
+        scale = bound / norm
+        return t1 * scale, t2 * scale
+    return t1, t2
+
+
+@njit(cache=True, inline="always")
+def _contact_error(W, u, lam, mu, r):
+    """(complementarity, cone) residual of the contact at row r, in velocity units (m/s).
+
+    Complementarity ``|min(u_n, W_nn lam_n)|``: zero exactly when ``0 <= lam_n _|_ u_n >= 0``.
+    Cone: ``step |lam_t - P(lam_t - u_t / step)|`` with P the projection onto the disk of radius
+    ``mu lam_n`` and step the tangent block's largest eigenvalue: zero exactly when lam_t lies in
+    the cone and is Coulomb's maximal dissipation (the fixed point of the PGS tangent step).
+    """
+    rn = abs(min(u[r], W[r, r] * lam[r]))
+    step = _tangent_step(W, r)
+    if step <= 0.0:
+        return rn, 0.0
+    t1, t2 = _disk(lam[r + 1] - u[r + 1] / step, lam[r + 2] - u[r + 2] / step, mu * max(lam[r], 0.0))
+    return rn, step * np.sqrt((t1 - lam[r + 1]) ** 2 + (t2 - lam[r + 2]) ** 2)
+
+
+@njit(cache=True)
+def velocity_scale(u0):
+    """The velocity the contacts may have to remove: the largest approach ``-u0_n`` or tangential
+    ``|u0_t|`` of the free velocities u0 (3 rows per contact), the unit of the PGS tolerance."""
+    s = 0.0
+    for r in range(0, u0.size, 3):
+        s = max(s, -u0[r], np.sqrt(u0[r + 1] ** 2 + u0[r + 2] ** 2))
+    return s
+
+
+@njit(cache=True)
+def contact_residual(W, u0, lam, mu):
+    """(complementarity, cone) of the impulses lam: the largest residuals over the contacts, m/s.
+
+    See :func:`_contact_error`; both are zero exactly at a solution of the frictional contact
+    problem that :func:`projected_gauss_seidel` solves.
+    """
+    u = u0 + W @ lam
+    rn = rt = 0.0
+    for r in range(0, lam.size, 3):
+        if W[r, r] <= 0.0:  # a contact no impulse can act on (its vertices fixed): the solver skips it
+            continue
+        a, b = _contact_error(W, u, lam, mu, r)
+        rn, rt = max(rn, a), max(rt, b)
+    return rn, rt
+
+
 @njit(cache=True)
 def projected_gauss_seidel(W, u0, lam, mu, iterations, tolerance):
     """PGS on 0 <= lam_n _|_ u_n >= 0, ||lam_t|| <= mu lam_n with u = u0 + W lam (3 rows per contact).
@@ -134,7 +203,9 @@ def projected_gauss_seidel(W, u0, lam, mu, iterations, tolerance):
     ``lam`` (3k,) holds the warm start and is updated in place. Per contact: the
     normal row by a projected Gauss-Seidel step, then both tangent rows, projected
     jointly onto the disk of radius mu lam_n (Euclidean projection after a gradient step of
-    the 2 x 2 tangent block's largest eigenvalue). Returns the sweeps done.
+    the 2 x 2 tangent block's largest eigenvalue). A sweep ends the iteration when the contact
+    residual (:func:`contact_residual`, from the velocities the sweep kept up to date) is at most
+    ``tolerance`` times :func:`velocity_scale` of u0. Returns the sweeps done.
     """
     m = lam.size
     k = m // 3
@@ -143,9 +214,8 @@ def projected_gauss_seidel(W, u0, lam, mu, iterations, tolerance):
         if lam[i] != 0.0:
             for j in range(m):
                 u[j] += W[i, j] * lam[i]
+    goal = tolerance * velocity_scale(u0)
     for sweep in range(iterations):
-        change = 0.0
-        largest = 0.0
         for c in range(k):
             r = 3 * c
             if W[r, r] <= 0.0:
@@ -158,26 +228,21 @@ def projected_gauss_seidel(W, u0, lam, mu, iterations, tolerance):
                     u[j] += W[r, j] * dn
             # one projected gradient step on both tangents with the largest eigenvalue of their
             # 2 x 2 block: its fixed point is exactly Coulomb's maximal dissipation
-            a, b, c2 = W[r + 1, r + 1], W[r + 1, r + 2], W[r + 2, r + 2]
-            step = 0.5 * (a + c2) + np.sqrt(0.25 * (a - c2) ** 2 + b * b)
+            step = _tangent_step(W, r)
             if step <= 0.0:
                 continue
-            t1 = lam[r + 1] - u[r + 1] / step
-            t2 = lam[r + 2] - u[r + 2] / step
-            bound = mu * lam[r]
-            norm = np.sqrt(t1 * t1 + t2 * t2)
-            if norm > bound:
-                scale = bound / norm
-                t1 *= scale
-                t2 *= scale
+            t1, t2 = _disk(lam[r + 1] - u[r + 1] / step, lam[r + 2] - u[r + 2] / step, mu * lam[r])
             d1, d2 = t1 - lam[r + 1], t2 - lam[r + 2]
             if d1 != 0.0 or d2 != 0.0:
                 lam[r + 1], lam[r + 2] = t1, t2
                 for j in range(m):
                     u[j] += W[r + 1, j] * d1 + W[r + 2, j] * d2
-            change = max(change, abs(dn), abs(d1), abs(d2))
-            largest = max(largest, lam[r], abs(t1), abs(t2))
-        if change <= tolerance * largest or largest == 0.0:
+        worst = 0.0
+        for c in range(k):
+            if W[3 * c, 3 * c] > 0.0:
+                a, b = _contact_error(W, u, lam, mu, 3 * c)
+                worst = max(worst, a, b)
+        if worst <= goal:
             return sweep + 1
     return iterations
 
@@ -205,6 +270,7 @@ class Contact:
         self.current = None
         self.prediction = None
         self.correction = None
+        self.warned = False  # the unresolved-contact warning, once per run
         self.push_limit = self.detector.mean_edge if self.settings.push_limit is None else self.settings.push_limit
         self._rigid_setup(sysm)
 
@@ -246,7 +312,7 @@ class Contact:
     # -------------------------------------------------------------- checkpoint
     def state_dict(self):
         """The warm start carried to the next frame: impulses (world frame) by contact identity."""
-        out = {"previous": self.previous is not None}
+        out = {"previous": self.previous is not None, "warned": self.warned}
         if self.previous is not None:
             out.update(previous_keys=self.previous[0].copy(), previous_world=self.previous[1].copy())
         # the per-body solvers of the Delassus operator (a direct solver's ordering history)
@@ -259,6 +325,7 @@ class Contact:
     def load_state_dict(self, state):
         self.previous = ((np.asarray(state["previous_keys"]).copy(), np.asarray(state["previous_world"]).copy())
                          if state["previous"] else None)
+        self.warned = bool(state.get("warned", False))  # files written before the warning existed lack it
         self.block_solvers = {}
         for i, key in enumerate(state["blocks"]):
             key = tuple(int(k) for k in key)
@@ -352,6 +419,7 @@ class Contact:
         lam = self.lam0.copy()
         u0 = cs.J @ v_star + self.bias
         sweeps = projected_gauss_seidel(W, u0, lam, float(st.friction), int(st.iterations), float(st.tolerance))
+        self._report(W, u0, lam, sweeps, problem.frame, rec)
         dvc = resolvent.apply(lam)
         d = cs.distance
         if np.any(d < 0) and self.rigid[3]:  # split impulse: push penetrations out through x, rigidly
@@ -374,6 +442,30 @@ class Contact:
         rec.update(pgs_iterations=int(sweeps), delassus=t1 - t0, pgs=t2 - t1)
         rec["contact"] = rec.get("contact", 0.0) + t2 - t0
         return dvc
+
+    def _report(self, W, u0, lam, sweeps, frame, rec):
+        """The frame's contact residual into ``rec``; a warning (once per run) when it is unresolved.
+
+        ``contact_complementarity`` and ``contact_cone`` (m/s, :func:`contact_residual`), their
+        maximum ``contact_residual``, ``contact_scale`` (:func:`velocity_scale`), ``pgs_converged``
+        (the tolerance was reached within the sweep cap) and ``contact_unresolved``: the residual
+        is above :data:`UNRESOLVED` times the scale, so that contact visibly fails (a vertex
+        keeps that fraction of its approach: bodies sink into each other or slide out).
+        """
+        st = self.settings
+        normal, cone = contact_residual(W, u0, lam, float(st.friction))
+        scale = float(velocity_scale(u0))
+        residual = max(normal, cone)
+        unresolved = residual > UNRESOLVED * scale
+        rec.update(contact_complementarity=float(normal), contact_cone=float(cone), contact_residual=float(residual),
+                   contact_scale=scale, pgs_converged=bool(residual <= st.tolerance * scale),
+                   contact_unresolved=bool(unresolved))
+        if unresolved and not self.warned:
+            self.warned = True
+            warnings.warn(f"contact unresolved at frame {frame}: after {sweeps} PGS sweeps the contact residual is "
+                          f"{residual:.3g} m/s, {residual / scale:.2g} of the {scale:.3g} m/s the contacts remove "
+                          f"(bodies may sink into each other; raise PGS(iterations=...); further frames are counted "
+                          f"in sim.stats['contact_unresolved'], not warned)", SimulationWarning, stacklevel=5)
 
 
 def make_contact(model, colliders, settings):

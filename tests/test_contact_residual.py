@@ -1,0 +1,77 @@
+"""The contact residual of the PGS solve: its definition, the stopping rule, and the report of
+a contact the solve leaves unresolved (a heavy stiff body on a light one)."""
+import warnings
+
+import numpy as np
+import pytest
+
+import skfem_affine as sa
+from skfem_affine.contact import pgs
+from skfem_affine.lab.scenes import box_mesh
+from skfem_affine.monitor import SimulationWarning
+
+
+def _lcp(k=6, seed=3):
+    rng = np.random.default_rng(seed)
+    B = rng.normal(size=(3 * k, 3 * k))
+    return B @ B.T + 3 * k * np.eye(3 * k), rng.normal(size=3 * k)
+
+
+def test_residual_of_one_contact_in_closed_form():
+    W = np.diag([2.0, 4.0, 4.0])
+    u0 = np.array([-1.0, -3.0, 0.0])
+    # no impulse: the approach -1 m/s is the complementarity residual; the tangent step
+    # (0.75, 0) projected onto the disk of radius 0 gives 0: no cone residual
+    assert pgs.contact_residual(W, u0, np.zeros(3), 0.5) == pytest.approx((1.0, 0.0))
+    # the solution: lam_n = 0.5 (u_n = 0), lam_t on the cone's rim against the slip
+    lam = np.array([0.5, 0.25, 0.0])
+    assert pgs.contact_residual(W, u0, lam, 0.5) == pytest.approx((0.0, 0.0), abs=1e-15)
+    # a tangent impulse inside the cone while the contact slides: u_t = -2, step 4, lam_t - u_t / step
+    # = 0.1 + 0.5 = 0.6 projected to 0.25: residual 4 * 0.15
+    assert pgs.contact_residual(W, u0, np.array([0.5, 0.1, 0.0]), 0.5)[1] == pytest.approx(0.6)
+    assert pgs.velocity_scale(u0) == 3.0     # the tangential slip is the largest velocity to remove
+
+
+def test_pgs_stops_at_the_residual_tolerance():
+    W, u0 = _lcp()
+    scale = pgs.velocity_scale(u0)
+    for tol in (1e-3, 1e-8):
+        lam = np.zeros_like(u0)
+        sweeps = pgs.projected_gauss_seidel(W, u0, lam, 0.4, 500, tol)
+        assert sweeps < 500 and max(pgs.contact_residual(W, u0, lam, 0.4)) <= tol * scale
+        if sweeps > 1:  # one sweep fewer had not reached it
+            lam = np.zeros_like(u0)
+            pgs.projected_gauss_seidel(W, u0, lam, 0.4, sweeps - 1, 0.0)
+            assert max(pgs.contact_residual(W, u0, lam, 0.4)) > tol * scale
+
+
+def test_frames_record_the_contact_residual():
+    body = sa.ElasticBody(box_mesh(0.2, 2, (0, 0, 0.1)), sa.NeoHookean(E=1e6, nu=0.3), density=1000.0)
+    sim = sa.Simulation(body, dt=0.01, gravity=(0, 0, -9.81), colliders=[sa.Plane()])
+    for _ in sim.run(5):
+        pass
+    rec = sim.stats[-1]
+    assert rec["n_contacts"] > 0 and rec["pgs_converged"] and not rec["contact_unresolved"]
+    assert rec["contact_residual"] == max(rec["contact_complementarity"], rec["contact_cone"])
+    assert rec["contact_residual"] <= sa.PGS().tolerance * rec["contact_scale"]
+    assert rec["contact_scale"] == pytest.approx(9.81 * 0.01, rel=0.5)  # at rest: one step of gravity
+
+
+def _heavy_on_light(ratio, **contact):
+    """A stiff box (E = 1e9) ``ratio`` times denser than the soft box it lands on."""
+    light = sa.ElasticBody(box_mesh(0.2, 2, (0, 0, 0.1)), sa.NeoHookean(E=1e6, nu=0.3), density=10.0)
+    heavy = sa.ElasticBody(box_mesh(0.2, 2, (0, 0, 0.302)), sa.NeoHookean(E=1e9, nu=0.3), density=10.0 * ratio)
+    return sa.Simulation([light, heavy], dt=0.01, gravity=(0, 0, -9.81), colliders=[sa.Plane()],
+                         contact=sa.PGS(**contact))
+
+
+def test_an_unresolved_contact_is_reported_naming_the_frame():
+    sim = _heavy_on_light(1e4, iterations=20)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        for _ in sim.run(4):
+            pass
+    said = [str(w.message) for w in caught if issubclass(w.category, SimulationWarning)]
+    assert len(said) == 1 and "contact unresolved at frame 2" in said[0]  # once per run
+    assert [r["contact_unresolved"] for r in sim.stats] == [False, True, True, True]
+    assert sim.stats.problems()["unresolved_contact_frames"] == 3
