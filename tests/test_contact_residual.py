@@ -4,6 +4,7 @@ import warnings
 
 import numpy as np
 import pytest
+import scipy.sparse as sp
 
 import skfem_affine as sa
 from skfem_affine.contact import pgs
@@ -75,3 +76,34 @@ def test_an_unresolved_contact_is_reported_naming_the_frame():
     assert len(said) == 1 and "contact unresolved at frame 2" in said[0]  # once per run
     assert [r["contact_unresolved"] for r in sim.stats] == [False, True, True, True]
     assert sim.stats.problems()["unresolved_contact_frames"] == 3
+
+
+# ---------------------------------------------------------------------------- split impulse
+def test_low_rank_split_impulse_equals_the_dense_solve():
+    """B B^T never formed: the same velocities as PGS on the dense W_r = B B^T (rank 12 here)."""
+    rng = np.random.default_rng(5)
+    k, r = 40, 12
+    B = np.where(rng.random((k, r)) < 0.5, rng.normal(size=(k, r)), 0.0)
+    # a solvable problem: lam* >= 0 on half the rows, the others separating by s >= 0
+    on = rng.random(k) < 0.5
+    u0 = -B @ (B.T @ np.where(on, rng.random(k), 0.0)) + np.where(on, 0.0, rng.random(k))
+    lam = np.zeros(k)
+    Bs = sp.csr_matrix(B)
+    w = pgs.projected_gauss_seidel_lowrank(Bs.indptr, Bs.indices, Bs.data, r, u0, lam, 5000, 1e-12)
+    assert np.allclose(w, B.T @ lam)
+    u = u0 + B @ w
+    assert np.all(lam >= 0) and np.all(u >= -1e-10) and np.abs(lam * u).max() < 1e-10
+    dense = np.zeros(3 * k)  # the dense path, with two zero tangent rows per contact and no friction
+    W = np.zeros((3 * k, 3 * k))
+    W[0::3, 0::3] = B @ B.T
+    u03 = np.zeros(3 * k)
+    u03[0::3] = u0
+    pgs.projected_gauss_seidel(W, u03, dense, 0.0, 5000, 1e-12)
+    assert np.allclose(B.T @ dense[0::3], w, atol=1e-8)  # B^T lam is unique, lam need not be
+
+
+def test_rigid_motions_factor_the_inverse_of_their_mass():
+    sim = _heavy_on_light(10.0)
+    G, C = sim.contact._rigid_motions(sim.state.x)
+    MG = (G.T @ (sim.system.Mff @ G)).toarray()
+    assert np.allclose((C @ C.T).toarray() @ MG, np.eye(12), atol=1e-9)

@@ -37,7 +37,10 @@ One frame, in the order of Algorithm 1:
    no kinetic energy (Baumgarte on the velocities launched bodies out of a penetration) and,
    being rigid, no strain energy (which would make the body spring off): a penetration shrinks
    by the fraction ``erp`` per step, by at most ``push_limit`` (default one mean surface edge),
-   and stops when it is resolved. Bodies with fixed vertices are held by them and are not
+   and stops when it is resolved. Its operator ``J_n G M_G^-1 G^T J_n^T = B B^T`` has rank at
+   most 6 per body and is never formed: ``B = J_n G C`` with ``C C^T = M_G^-1`` (C block
+   diagonal, 6 x 6 per body), and the PGS sweep keeps ``B^T mu``
+   (:func:`projected_gauss_seidel_lowrank`). Bodies with fixed vertices are held by them and are not
    moved by the correction (their penetrations may not deepen, by the velocity constraint).
 
 Friction is the isotropic Coulomb *cone*: each PGS step projects the tangential
@@ -247,6 +250,50 @@ def projected_gauss_seidel(W, u0, lam, mu, iterations, tolerance):
     return iterations
 
 
+@njit(cache=True)
+def projected_gauss_seidel_lowrank(indptr, indices, data, ncols, u0, lam, iterations, tolerance):
+    """Frictionless PGS on 0 <= lam _|_ u = u0 + B B^T lam >= 0 with the rows of B as CSR.
+
+    W = B B^T is never formed: the sweep keeps w = B^T lam (one entry per column of B, e.g.
+    6 per rigid body), so row i costs its own nonzeros, u_i = u0_i + B_i w and W_ii = |B_i|^2.
+    Stops when ``|min(u_i, W_ii lam_i)|`` is at most ``tolerance`` times the largest approach
+    ``-u0_i`` (as :func:`projected_gauss_seidel`). ``lam`` is updated in place; returns w (ncols,).
+    """
+    k = lam.size
+    w = np.zeros(ncols)
+    diag = np.zeros(k)
+    scale = 0.0
+    for i in range(k):
+        scale = max(scale, -u0[i])
+        for p in range(indptr[i], indptr[i + 1]):
+            diag[i] += data[p] * data[p]
+            w[indices[p]] += data[p] * lam[i]
+    goal = tolerance * scale
+    for sweep in range(iterations):
+        worst = 0.0
+        for i in range(k):
+            if diag[i] <= 0.0:
+                continue
+            u = u0[i]
+            for p in range(indptr[i], indptr[i + 1]):
+                u += data[p] * w[indices[p]]
+            new = max(0.0, lam[i] - u / diag[i])
+            d = new - lam[i]
+            if d != 0.0:
+                lam[i] = new
+                for p in range(indptr[i], indptr[i + 1]):
+                    w[indices[p]] += data[p] * d
+        for i in range(k):
+            if diag[i] > 0.0:
+                u = u0[i]
+                for p in range(indptr[i], indptr[i + 1]):
+                    u += data[p] * w[indices[p]]
+                worst = max(worst, abs(min(u, diag[i] * lam[i])))
+        if worst <= goal:
+            break
+    return w
+
+
 class Contact:
     """Contact state of one run: detection, warm start and the PGS solve of each frame.
 
@@ -289,7 +336,8 @@ class Contact:
 
     def _rigid_motions(self, x):
         """G (n_free x 6B, sparse): v_i = c_b + omega_b x (x_i - x_b) for the B movable bodies
-        (x_b their centres of mass at x), and M_G^-1 (6B x 6B) with M_G = G^T M G."""
+        (x_b their centres of mass at x), and C (6B x 6B, sparse block diagonal) with
+        C C^T = M_G^-1, M_G = G^T M G (C = L^-T for the Cholesky factor L of each body's 6 x 6 block)."""
         movable, body, rows, nb, sysm = self.rigid
         m = sysm.lumped_mass[movable]
         mass = np.bincount(body, m, nb)
@@ -306,8 +354,14 @@ class Contact:
         G = sp.csr_matrix((vals.ravel(), (np.broadcast_to(rows[:, :, None], vals.shape).ravel(),
                                           np.broadcast_to(cols, vals.shape).ravel())),
                           shape=(sysm.free.size, 6 * nb))
-        MG = (G.T @ (sysm.Mff @ G)).toarray()
-        return G, np.linalg.inv(MG)
+        # the bodies' 6 x 6 blocks of M_G, sum over their vertices of m_i vals_i^T vals_i
+        blocks = np.zeros((nb, 6, 6))
+        np.add.at(blocks, body, m[:, None, None] * np.einsum("kri,krj->kij", vals, vals))
+        C = np.linalg.inv(np.linalg.cholesky(blocks)).transpose(0, 2, 1)  # L^-T, upper triangular
+        idx = 6 * np.arange(nb)[:, None, None] + np.arange(6)
+        C = sp.csr_matrix((C.ravel(), (np.broadcast_to(idx.transpose(0, 2, 1), C.shape).ravel(),
+                                       np.broadcast_to(idx, C.shape).ravel())), shape=(6 * nb, 6 * nb))
+        return G, C
 
     # -------------------------------------------------------------- checkpoint
     def state_dict(self):
@@ -424,15 +478,15 @@ class Contact:
         d = cs.distance
         if np.any(d < 0) and self.rigid[3]:  # split impulse: push penetrations out through x, rigidly
             h = problem.model.dt
-            b = np.zeros(3 * cs.size)
-            b[0::3] = np.where(d < 0, np.maximum(st.erp * d, -self.push_limit), d) / h
-            u1 = cs.J @ (v_star + dvc) + b
-            G, MGinv = self._rigid_motions(problem.x)
-            JG = np.asarray((cs.J @ G).todense())
-            Wr = JG @ MGinv @ JG.T
-            mu = np.zeros(3 * cs.size)
-            projected_gauss_seidel(0.5 * (Wr + Wr.T), u1, mu, 0.0, int(st.iterations), float(st.tolerance))
-            self.correction = G @ (MGinv @ (JG.T @ mu))
+            bn = np.where(d < 0, np.maximum(st.erp * d, -self.push_limit), d) / h
+            u1 = cs.J[0::3] @ (v_star + dvc) + bn
+            G, C = self._rigid_motions(problem.x)
+            B = sp.csr_matrix(cs.J[0::3] @ G @ C)  # frictionless: the normal rows; W_r = B B^T, rank <= 6 per body
+            B.sort_indices()
+            mu = np.zeros(cs.size)
+            w = projected_gauss_seidel_lowrank(B.indptr, B.indices, B.data, B.shape[1], u1, mu,
+                                               int(st.iterations), float(st.tolerance))
+            self.correction = G @ (C @ w)
         local = lam.reshape(-1, 3)
         world = np.einsum("kij,ki->kj", cs.frames(), local)
         order = np.argsort(cs.key)
