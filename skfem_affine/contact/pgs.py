@@ -401,8 +401,9 @@ class Contact:
             cs.J = jacobian(cs, sysm.n, sysm.free)
             self.lam0 = self._warm_start(cs)
             self.bias = self._bias(cs, h)
-            vg = v.reshape(-1)[sysm.free] + h * np.tile(model.gravity, sysm.n)[sysm.free]
-            self.prediction = cs.J.T @ self._predicted_impulses(cs, vg)
+            vf = v.reshape(-1)[sysm.free]
+            self.prediction = cs.J.T @ self._predicted_impulses(cs, vf + h * np.tile(model.gravity, sysm.n)[sysm.free])
+            cs.impact = self._impacts(cs, vf, model)
         rec["n_contacts"] = 0 if cs is None else cs.size
         # penetrations between bodies at x_t (every penetrating pair is a contact): the frame's record
         # reports them without a second detection at x_{t+1}
@@ -436,15 +437,29 @@ class Contact:
         return local.ravel()
 
     def _predicted_impulses(self, cs, v_free):
-        """Warm-started impulses, and for new contacts one Jacobi step on the bilateral J_n v = -b_n
-        with the lumped-mass Delassus (sec. 3.4): lambda_n = max(0, -(J_n v + b_n)) / (J_n M^-1 J_n^T)."""
+        """Warm-started impulses, and for contacts without one (new, or carrying none last frame) one
+        Jacobi step on the bilateral J_n v = -b_n with the lumped-mass Delassus (sec. 3.4):
+        lambda_n = max(0, -(J_n v + b_n)) / (J_n M^-1 J_n^T)."""
         lam = self.lam0.copy()
         Jn = cs.J[0::3]
         un = Jn @ v_free + self.bias[0::3]
         wnn = np.asarray(Jn.multiply(Jn) @ self.inv_mass).ravel()
-        new = ~self.matched & (wnn > 0)
+        new = (self.lam0[0::3] == 0) & (wnn > 0)
         lam[0::3][new] = np.maximum(0.0, -un[new]) / wnn[new]
         return lam
+
+    def _impacts(self, cs, v_free, model):
+        """(k,) bool: the contacts that carried no impulse last frame and close their gap at more than
+        one step of gravity, ``-(J_n v_t + b_n) > |g| h`` (the velocities before gravity's step).
+
+        The support of a body at rest is not an impact: its contacts keep their warm-started
+        impulses, and a resting vertex without one approaches at no more than gravity's step.
+        A reducer under an error budget solves a frame with an impact in full space.
+        """
+        un = cs.J[0::3] @ v_free + self.bias[0::3]
+        h = model.dt
+        speed = max(float(np.linalg.norm(model.gravity)) * h, 1e-6 * model.size / h)
+        return (self.lam0[0::3] == 0) & (un < -speed)
 
     def prediction_impulse(self):
         """J^T lambda_pred on the free DOFs for the oracle's right-hand side (eq. 13), or 0."""

@@ -1,0 +1,48 @@
+"""Bodies at rest in contact: their steady, warm-started support is part of equilibrium, so they
+become affine under the error budget and stay at rest."""
+import numpy as np
+
+import skfem_affine as sa
+from skfem_affine.lab.scenes import box_mesh
+
+
+def _stack(reducer):
+    """A soft box on the ground and a smaller one resting on it, off centre (its bottom vertices
+    inside the lower box's top face)."""
+    mat = sa.NeoHookean(E=1e6, nu=0.3)
+    bodies = [sa.ElasticBody(box_mesh(0.2, 2, (0.0, 0.0, 0.1)), mat, density=1000.0),
+              sa.ElasticBody(box_mesh(0.12, 2, (0.02, 0.01, 0.26)), mat, density=1000.0)]
+    return sa.Simulation(bodies, dt=0.01, gravity=(0.0, 0.0, -9.81), colliders=[sa.Plane()], reducer=reducer)
+
+
+def _centres(sim):
+    x, n = sim.state.x, sim.bodies[0].mesh.p.shape[1]
+    return np.array([x[:n].mean(axis=0), x[n:].mean(axis=0)])
+
+
+def test_a_resting_stack_turns_affine_under_the_error_budget_and_stays_at_rest():
+    full, reduced = _stack(None), _stack(sa.Affinification(never_slower=False))  # the default 1 % budget
+    for _ in range(40):
+        full.step()
+        reduced.step()
+    settled = _centres(reduced)
+    for _ in range(20):
+        full.step()
+        reduced.step()
+    rest = reduced.stats[-20:]
+    # no frame is taken for an impact, and both boxes are affine bodies, whole
+    assert not any(r.get("impact") for r in rest) and all(r["reduced"] or r["shadow"] for r in rest)
+    assert all(r["n_clusters"] >= 2 and r["reduced_fraction"] == 1.0 for r in rest if r["reduced"])
+    # at rest: no sinking or drifting, and where the full-space stack rests (to 1e-5 of the size)
+    assert np.abs(_centres(reduced) - settled).max() < 1e-6
+    assert reduced.state.x[:, 2].min() > -1e-6
+    assert np.abs(_centres(reduced) - _centres(full)).max() < 2e-6
+
+
+def test_a_landing_is_still_an_impact():
+    sim = sa.scenes.drop(resolution=1, shape="box", height=0.05, reducer=sa.Affinification(never_slower=False))
+    for _ in sim.run(20):
+        pass
+    impacts = [r["frame"] for r in sim.stats if r.get("impact")]
+    assert impacts and len(impacts) <= 3     # the frame(s) of the landing, not the rest on the ground
+    assert sim.stats[-1]["reduced"] or sim.stats[-1]["shadow"]
