@@ -67,7 +67,7 @@ def _heavy_on_light(ratio, **contact):
 
 
 def test_an_unresolved_contact_is_reported_naming_the_frame():
-    sim = _heavy_on_light(1e4, iterations=20)
+    sim = _heavy_on_light(1e4, iterations=20, max_iterations=20)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         for _ in sim.run(4):
@@ -76,6 +76,26 @@ def test_an_unresolved_contact_is_reported_naming_the_frame():
     assert len(said) == 1 and "contact unresolved at frame 2" in said[0]  # once per run
     assert [r["contact_unresolved"] for r in sim.stats] == [False, True, True, True]
     assert sim.stats.problems()["unresolved_contact_frames"] == 3
+
+
+def test_sweeps_go_on_while_contact_is_unresolved():
+    """The same heavy box: the extra sweeps (default 40 x the cap) keep the light box on the floor."""
+    sim = _heavy_on_light(1e4)
+    n = sim.bodies[0].mesh.p.shape[1]
+    for _ in sim.run(12):
+        pass
+    assert not any(r["contact_unresolved"] for r in sim.stats)
+    assert max(r["pgs_iterations"] for r in sim.stats) > sa.PGS().iterations
+    assert sim.state.x[:n, 2].min() > -1e-2                 # at most 1 cm into the floor (measured 5 mm; 9 cm without)
+    light = sim.state.x[:n].mean(axis=0)
+    assert np.hypot(light[0], light[1]) < 5e-3              # not squeezed out sideways
+    assert sim.state.x[n:, 2].min() > 0.1                   # the heavy box still on top of it
+
+
+def test_max_iterations_is_checked():
+    with pytest.raises(ValueError, match="max_iterations"):
+        sa.PGS(iterations=50, max_iterations=10)
+    assert sa.PGS(iterations=30).sweep_limit == 1200 and sa.PGS(max_iterations=50).sweep_limit == 50
 
 
 # ---------------------------------------------------------------------------- split impulse

@@ -81,7 +81,11 @@ class PGS:
     friction : float
         Coulomb coefficient mu >= 0 (the cone ||lambda_t|| <= mu lambda_n).
     iterations : int
-        Maximum Gauss-Seidel sweeps per frame (>= 1).
+        Gauss-Seidel sweeps per frame (>= 1) before the solve stops short of ``tolerance``.
+    max_iterations : int, optional
+        Sweeps allowed while contact is still unresolved after ``iterations`` (residual above
+        :data:`UNRESOLVED` times the velocity to remove, e.g. a heavy stiff body on a light one);
+        default 40 times ``iterations``; ``iterations`` turns the extra sweeps off.
     tolerance : float
         A sweep ends the iteration when the contact residual (complementarity and the friction
         cone, in m/s; :func:`contact_residual`) is at most ``tolerance`` times the largest
@@ -121,6 +125,7 @@ class PGS:
     body_contact: bool = True
     block: int = 64
     edge_contact: bool = True
+    max_iterations: int = None
 
     def __post_init__(self):
         put = object.__setattr__  # frozen: store the checked values
@@ -136,6 +141,13 @@ class PGS:
         put(self, "body_contact", flag(self.body_contact, "PGS body_contact"))
         put(self, "block", integer(self.block, "PGS block", low=1))
         put(self, "edge_contact", flag(self.edge_contact, "PGS edge_contact"))
+        if self.max_iterations is not None:
+            put(self, "max_iterations", integer(self.max_iterations, "PGS max_iterations", low=self.iterations))
+
+    @property
+    def sweep_limit(self):
+        """The most sweeps of a frame: ``max_iterations``, default 40 ``iterations``."""
+        return 40 * self.iterations if self.max_iterations is None else self.max_iterations
 
 
 @njit(cache=True, inline="always")
@@ -200,7 +212,7 @@ def contact_residual(W, u0, lam, mu):
 
 
 @njit(cache=True)
-def projected_gauss_seidel(W, u0, lam, mu, iterations, tolerance):
+def projected_gauss_seidel(W, u0, lam, mu, iterations, tolerance, max_iterations=0, loose=0.0):
     """PGS on 0 <= lam_n _|_ u_n >= 0, ||lam_t|| <= mu lam_n with u = u0 + W lam (3 rows per contact).
 
     ``lam`` (3k,) holds the warm start and is updated in place. Per contact: the
@@ -208,7 +220,9 @@ def projected_gauss_seidel(W, u0, lam, mu, iterations, tolerance):
     jointly onto the disk of radius mu lam_n (Euclidean projection after a gradient step of
     the 2 x 2 tangent block's largest eigenvalue). A sweep ends the iteration when the contact
     residual (:func:`contact_residual`, from the velocities the sweep kept up to date) is at most
-    ``tolerance`` times :func:`velocity_scale` of u0. Returns the sweeps done.
+    ``tolerance`` times :func:`velocity_scale` of u0, or after ``iterations`` sweeps; beyond them,
+    up to ``max_iterations``, sweeps go on while the residual is above ``loose`` times the scale
+    (contact still visibly unresolved). Returns the sweeps done.
     """
     m = lam.size
     k = m // 3
@@ -217,8 +231,9 @@ def projected_gauss_seidel(W, u0, lam, mu, iterations, tolerance):
         if lam[i] != 0.0:
             for j in range(m):
                 u[j] += W[i, j] * lam[i]
-    goal = tolerance * velocity_scale(u0)
-    for sweep in range(iterations):
+    scale = velocity_scale(u0)
+    goal = tolerance * scale
+    for sweep in range(max(iterations, max_iterations)):
         for c in range(k):
             r = 3 * c
             if W[r, r] <= 0.0:
@@ -245,9 +260,9 @@ def projected_gauss_seidel(W, u0, lam, mu, iterations, tolerance):
             if W[3 * c, 3 * c] > 0.0:
                 a, b = _contact_error(W, u, lam, mu, 3 * c)
                 worst = max(worst, a, b)
-        if worst <= goal:
+        if worst <= goal or (sweep + 1 >= iterations and worst <= loose * scale):
             return sweep + 1
-    return iterations
+    return max(iterations, max_iterations)
 
 
 @njit(cache=True)
@@ -487,7 +502,8 @@ class Contact:
         t1 = time.perf_counter()
         lam = self.lam0.copy()
         u0 = cs.J @ v_star + self.bias
-        sweeps = projected_gauss_seidel(W, u0, lam, float(st.friction), int(st.iterations), float(st.tolerance))
+        sweeps = projected_gauss_seidel(W, u0, lam, float(st.friction), int(st.iterations), float(st.tolerance),
+                                        st.sweep_limit, UNRESOLVED)
         self._report(W, u0, lam, sweeps, problem.frame, rec)
         dvc = resolvent.apply(lam)
         d = cs.distance
@@ -533,7 +549,7 @@ class Contact:
             self.warned = True
             warnings.warn(f"contact unresolved at frame {frame}: after {sweeps} PGS sweeps the contact residual is "
                           f"{residual:.3g} m/s, {residual / scale:.2g} of the {scale:.3g} m/s the contacts remove "
-                          f"(bodies may sink into each other; raise PGS(iterations=...); further frames are counted "
+                          f"(bodies may sink into each other; raise PGS(max_iterations=...); further frames are counted "
                           f"in sim.stats['contact_unresolved'], not warned)", SimulationWarning, stacklevel=5)
 
 
