@@ -39,6 +39,15 @@ def test_a_resting_stack_turns_affine_under_the_error_budget_and_stays_at_rest()
     assert np.abs(_centres(reduced) - _centres(full)).max() < 2e-6
 
 
+def test_a_resting_stack_turns_affine_at_the_papers_thresholds():
+    sim = _stack(sa.Affinification(1e-4, 2e-4))
+    for _ in sim.run(60):
+        pass
+    settled = sim.stats[40:]
+    assert np.mean([r["reduced_fraction"] for r in settled]) > 0.8   # measured 0.95-1.0
+    assert all(r["n_clusters"] >= 2 for r in settled)
+
+
 def test_a_landing_is_still_an_impact():
     sim = sa.scenes.drop(resolution=1, shape="box", height=0.05, reducer=sa.Affinification(never_slower=False))
     for _ in sim.run(20):
