@@ -78,7 +78,7 @@ def main(argv=None):
     gap = [0.0]
 
     def on_frame(frame, running):
-        if len(running) == 2:
+        if all(n in running for n in names):
             a, b = (running[n] for n in names)
             gap[0] = max(gap[0], metrics.distance_error(a.state.x, b.state.x, a.size))
 
