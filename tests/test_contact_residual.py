@@ -127,3 +127,13 @@ def test_rigid_motions_factor_the_inverse_of_their_mass():
     G, C = sim.contact._rigid_motions(sim.state.x)
     MG = (G.T @ (sim.system.Mff @ G)).toarray()
     assert np.allclose((C @ C.T).toarray() @ MG, np.eye(12), atol=1e-9)
+
+
+def test_bodies_touching_at_rest_without_gravity_take_no_extra_sweeps():
+    mat = sa.NeoHookean(E=1e6, nu=0.3)
+    bodies = [sa.ElasticBody(box_mesh(0.2, 2, (0, 0, 0.1)), mat, density=1000.0),
+              sa.ElasticBody(box_mesh(0.12, 2, (0.02, 0.0, 0.26)), mat, density=1000.0)]
+    sim = sa.Simulation(bodies, dt=0.01, colliders=[sa.Plane()])
+    for _ in sim.run(4):
+        pass
+    assert all(r["pgs_iterations"] <= sa.PGS().iterations and r["pgs_converged"] for r in sim.stats)

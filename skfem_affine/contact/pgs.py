@@ -212,7 +212,7 @@ def contact_residual(W, u0, lam, mu):
 
 
 @njit(cache=True)
-def projected_gauss_seidel(W, u0, lam, mu, iterations, tolerance, max_iterations=0, loose=0.0):
+def projected_gauss_seidel(W, u0, lam, mu, iterations, tolerance, max_iterations=0, loose=0.0, floor=0.0):
     """PGS on 0 <= lam_n _|_ u_n >= 0, ||lam_t|| <= mu lam_n with u = u0 + W lam (3 rows per contact).
 
     ``lam`` (3k,) holds the warm start and is updated in place. Per contact: the
@@ -220,7 +220,7 @@ def projected_gauss_seidel(W, u0, lam, mu, iterations, tolerance, max_iterations
     jointly onto the disk of radius mu lam_n (Euclidean projection after a gradient step of
     the 2 x 2 tangent block's largest eigenvalue). A sweep ends the iteration when the contact
     residual (:func:`contact_residual`, from the velocities the sweep kept up to date) is at most
-    ``tolerance`` times :func:`velocity_scale` of u0, or after ``iterations`` sweeps; beyond them,
+    ``tolerance`` times :func:`velocity_scale` of u0 (at least ``floor``), or after ``iterations`` sweeps; beyond them,
     up to ``max_iterations``, sweeps go on while the residual is above ``loose`` times the scale
     (contact still visibly unresolved). Returns the sweeps done.
     """
@@ -231,7 +231,7 @@ def projected_gauss_seidel(W, u0, lam, mu, iterations, tolerance, max_iterations
         if lam[i] != 0.0:
             for j in range(m):
                 u[j] += W[i, j] * lam[i]
-    scale = velocity_scale(u0)
+    scale = max(velocity_scale(u0), floor)
     goal = tolerance * scale
     for sweep in range(max(iterations, max_iterations)):
         for c in range(k):
@@ -502,9 +502,12 @@ class Contact:
         t1 = time.perf_counter()
         lam = self.lam0.copy()
         u0 = cs.J @ v_star + self.bias
+        # velocities below a billionth of the scene per step count as rest (bodies touching at rest
+        # without gravity have no velocity to remove: no tolerance relative to it could be met)
+        floor = 1e-9 * problem.model.size / problem.model.dt
         sweeps = projected_gauss_seidel(W, u0, lam, float(st.friction), int(st.iterations), float(st.tolerance),
-                                        st.sweep_limit, UNRESOLVED)
-        self._report(W, u0, lam, sweeps, problem.frame, rec)
+                                        st.sweep_limit, UNRESOLVED, floor)
+        self._report(W, u0, lam, sweeps, problem.frame, floor, rec)
         dvc = resolvent.apply(lam)
         d = cs.distance
         if np.any(d < 0) and self.rigid[3]:  # split impulse: push penetrations out through x, rigidly
@@ -528,7 +531,7 @@ class Contact:
         rec["contact"] = rec.get("contact", 0.0) + t2 - t0
         return dvc
 
-    def _report(self, W, u0, lam, sweeps, frame, rec):
+    def _report(self, W, u0, lam, sweeps, frame, floor, rec):
         """The frame's contact residual into ``rec``; a warning (once per run) when it is unresolved.
 
         ``contact_complementarity`` and ``contact_cone`` (m/s, :func:`contact_residual`), their
@@ -539,7 +542,7 @@ class Contact:
         """
         st = self.settings
         normal, cone = contact_residual(W, u0, lam, float(st.friction))
-        scale = float(velocity_scale(u0))
+        scale = max(float(velocity_scale(u0)), floor)
         residual = max(normal, cone)
         unresolved = residual > UNRESOLVED * scale
         rec.update(contact_complementarity=float(normal), contact_cone=float(cone), contact_residual=float(residual),
