@@ -69,7 +69,7 @@ MODEL = "pgs"
 
 # A frame's contact is unresolved (a warning, ``contact_unresolved`` in ``sim.stats``) when its
 # residual after the PGS solve is above this fraction of the velocity the contacts remove.
-UNRESOLVED = 0.05
+UNRESOLVED = 0.01
 
 
 @dataclass(frozen=True)
