@@ -270,7 +270,7 @@ def projected_gauss_seidel_lowrank(indptr, indices, data, ncols, u0, lam, iterat
     """Frictionless PGS on 0 <= lam _|_ u = u0 + B B^T lam >= 0 with the rows of B as CSR.
 
     W = B B^T is never formed: the sweep keeps w = B^T lam (one entry per column of B, e.g.
-    6 per rigid body), so row i costs its own nonzeros, u_i = u0_i + B_i w and W_ii = |B_i|^2.
+    6 per rigid body), so row i costs its own nonzeros, ``u_i = u0_i + B_i w`` and ``W_ii = |B_i|^2``.
     Stops when ``|min(u_i, W_ii lam_i)|`` is at most ``tolerance`` times the largest approach
     ``-u0_i`` (as :func:`projected_gauss_seidel`). ``lam`` is updated in place; returns w (ncols,).
     """
