@@ -15,11 +15,16 @@ process (``runners.interleaved``), errors against the full-space run stepped wit
 3. ``--never-slower``: default ``sa.Affinification()`` against full space at each scene;
 4. ``--tables estimate``: the largest error estimate against the measured error, per budget.
 
+The contact scene ``--pile`` (four boxes coming to rest; ``--rest`` frames excluded from the
+speedups, so that they are those of the rest phase) measures the default budget on bodies at rest.
+
 Usage (the tables of docs/budget.md; run on a quiet machine)::
 
     python benchmarks/budget.py --meshes MESH_DIR/beam1264.mesh MESH_DIR/beam5232.mesh \\
         --resolution 6 --frames 200
     python benchmarks/budget.py --tiny     # a seconds-long check that the script runs
+    python benchmarks/budget.py --resolution 0 --drop 0 --pile 5 --frames 200 --rest 100 --budgets 0.01 \
+        --taus 1e-4 1e-3 0.01 0.03 0.1 --tables budgets never-slower      # docs/affinification.md
     python benchmarks/budget.py --tables estimate --resolution 4 --drop 2 --frames 150   # docs/budget.md
 """
 import argparse
@@ -50,11 +55,26 @@ def scene_factories(args):
     if args.drop:
         out[f"drop{args.drop}"] = lambda reducer: sa.scenes.drop(resolution=args.drop, solver="direct",
                                                                   reducer=reducer)
+    if args.pile:
+        out[f"pile{args.pile}"] = lambda reducer: pile(args.pile, reducer)
     return out
 
 
-def measured(factory, reducers, frames):
-    """Full space and each reducer interleaved: name -> (max distance error, speedup, runs record list)."""
+def pile(cells, reducer=None):
+    """Four soft boxes (E = 1e6) coming to rest on the ground: two side by side, a third across
+    both, a fourth on top, off centre (no vertex on another box's edge); ``cells`` per box edge."""
+    mat = sa.NeoHookean(E=1e6, nu=0.35)
+    boxes = [(0.3, (-0.16, 0.0, 0.152)), (0.3, (0.16, 0.0, 0.152)), (0.24, (0.0, 0.01, 0.424)),
+             (0.18, (0.02, -0.01, 0.636))]
+    bodies = [sa.ElasticBody(sa.scenes.box_mesh(size, cells, centre), mat, density=1000.0, name=f"box{i}")
+              for i, (size, centre) in enumerate(boxes)]
+    return sa.Simulation(bodies, dt=0.01, gravity=(0.0, 0.0, -9.81), colliders=[sa.Plane()], solver="direct",
+                         reducer=reducer)
+
+
+def measured(factory, reducers, frames, rest=0):
+    """Full space and each reducer interleaved: name -> (max distance error, speedup, runs record list);
+    with ``rest``, the speedup of the frames after that one."""
     sims = {"full": factory(None), **{name: factory(red) for name, red in reducers.items()}}
     full = sims["full"]
     errors = {name: 0.0 for name in reducers}
@@ -66,7 +86,14 @@ def measured(factory, reducers, frames):
                                                                         full.size))
 
     runs = runners.interleaved(sims, frames, on_frame=on_frame)
-    return {name: (errors[name], runs[name].summary.get("speedup"), runs[name].records) for name in reducers}, runs
+
+    def speedup(name):
+        if not rest:
+            return runs[name].summary.get("speedup")
+        wall = [sum(r["wall"] for r in runs[n].records[rest:]) for n in ("full", name)]
+        return wall[0] / wall[1] if wall[1] else None
+
+    return {name: (errors[name], speedup(name), runs[name].records) for name in reducers}, runs
 
 
 def warm(factory, most=400):
@@ -89,7 +116,7 @@ def budget_table(args, scenes):
         reducers = {f"budget {b:g}": sa.Affinification(target_error=b, relative_to="size")
                     for b in args.budgets}
         reducers.update({f"fixed {t:g}": sa.Affinification(t, 2 * t) for t in args.taus})
-        res, _ = measured(factory, reducers, args.frames)
+        res, _ = measured(factory, reducers, args.frames, args.rest)
         for b in args.budgets:
             err, speed, recs = res[f"budget {b:g}"]
             ok = [(s, t) for t in args.taus for e, s, _ in [res[f"fixed {t:g}"]] if e <= b and s is not None]
@@ -159,7 +186,7 @@ def never_slower_table(args, scenes):
     rows = []
     for scene, factory in scenes.items():
         warm(factory)
-        res, runs = measured(factory, {"default": sa.Affinification(relative_to="size")}, args.frames)
+        res, runs = measured(factory, {"default": sa.Affinification(relative_to="size")}, args.frames, args.rest)
         err, speed, recs = res["default"]
         rows.append({"scene": scene, "elements": int(runs["full"].sim.system.m), "ratio": speed, "error": err,
                      "reduced_frames": float(np.mean([bool(r.get("reduced")) for r in recs]))})
@@ -172,6 +199,8 @@ def main(argv=None):
     p.add_argument("--meshes", nargs="*", default=[], help="MEDIT meshes of the paper's beam scene")
     p.add_argument("--resolution", type=int, default=6, help="our cantilever's resolution (0: none)")
     p.add_argument("--drop", type=int, default=2, help="the contact scene drop's resolution (0: none)")
+    p.add_argument("--pile", type=int, default=0, help="cells per box of the resting pile of four boxes (0: none)")
+    p.add_argument("--rest", type=int, default=0, help="speedups over the frames after this one (the rest phase)")
     p.add_argument("--frames", type=int, default=200)
     p.add_argument("--warm", type=int, default=20, help="frames before the time budget is judged")
     p.add_argument("--repeat", type=int, default=1, help="runs of the time-budget table")
@@ -184,6 +213,7 @@ def main(argv=None):
     args = p.parse_args(argv)
     if args.tiny:
         args.meshes, args.resolution, args.drop, args.frames, args.warm = [], 2, 1, 12, 4
+        args.pile = 1 if args.pile else 0
         args.taus = [0.1, 1.0]
     scenes = scene_factories(args)
     out = {}

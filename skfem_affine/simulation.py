@@ -128,9 +128,12 @@ class Stats(list):
     def problems(self):
         """Frames accepted with a defect the divergence policy warns about: ``{"inverted_frames":
         frames with inverted elements, "unconverged_frames": frames whose Newton solve stopped
-        before its tolerance, "max_penetration": the largest penetration (m) recorded}``."""
+        before its tolerance, "unresolved_contact_frames": frames whose PGS contact solve left a
+        large residual (``contact_unresolved``), "max_penetration": the largest penetration (m)
+        recorded}``."""
         return {"inverted_frames": sum(1 for r in self if r.get("inverted_elements")),
                 "unconverged_frames": sum(1 for r in self if "newton_converged" in r and not r["newton_converged"]),
+                "unresolved_contact_frames": sum(1 for r in self if r.get("contact_unresolved")),
                 "max_penetration": max((r.get("max_penetration", 0.0) for r in self), default=0.0)}
 
     def phase_totals(self):

@@ -68,6 +68,8 @@ def test_bodies_and_frames(body):
     (lambda: sa.PGS(warm_start="False"), TypeError, "PGS warm_start"),
     (lambda: sa.PGS(body_contact=2), TypeError, "PGS body_contact"),
     (lambda: sa.PGS(block=0), ValueError, "PGS block"),
+    (lambda: sa.PGS(iterations=20, max_iterations=10), ValueError, "PGS max_iterations"),
+    (lambda: sa.PGS(max_iterations=True), TypeError, "PGS max_iterations"),
 ])
 def test_component_arguments(make, error, match):
     with pytest.raises(error, match=match):

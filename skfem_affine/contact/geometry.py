@@ -134,6 +134,7 @@ class ContactSet:
     own: np.ndarray = None   # (k,) weight of ``vertex`` in the contact point (None: all 1); an edge-edge
     #                          contact is the point (1 - s) a0 + s a1: vertex a0, own 1 - s, others
     #                          (a1, b0, b1) with weights (-s, 1 - t, t)
+    impact: np.ndarray = None  # (k,) bool: set by the contact solver, contacts that start an impact
 
     @property
     def size(self):

@@ -37,7 +37,10 @@ One frame, in the order of Algorithm 1:
    no kinetic energy (Baumgarte on the velocities launched bodies out of a penetration) and,
    being rigid, no strain energy (which would make the body spring off): a penetration shrinks
    by the fraction ``erp`` per step, by at most ``push_limit`` (default one mean surface edge),
-   and stops when it is resolved. Bodies with fixed vertices are held by them and are not
+   and stops when it is resolved. Its operator ``J_n G M_G^-1 G^T J_n^T = B B^T`` has rank at
+   most 6 per body and is never formed: ``B = J_n G C`` with ``C C^T = M_G^-1`` (C block
+   diagonal, 6 x 6 per body), and the PGS sweep keeps ``B^T mu``
+   (:func:`projected_gauss_seidel_lowrank`). Bodies with fixed vertices are held by them and are not
    moved by the correction (their penetrations may not deepen, by the velocity constraint).
 
 Friction is the isotropic Coulomb *cone*: each PGS step projects the tangential
@@ -48,6 +51,7 @@ triangles keeps its warm start.
 """
 
 import time
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -59,9 +63,14 @@ from skfem_affine.checks import flag, integer, nonnegative, positive, real
 from skfem_affine.contact.colliders import check_colliders
 from skfem_affine.contact.delassus import Resolvent, block_solver, jacobian
 from skfem_affine.contact.geometry import Detector
+from skfem_affine.monitor import SimulationWarning
 
 # The contact model this module implements, as recorded in ``sim.stats`` ("contact_model").
 MODEL = "pgs"
+
+# A frame's contact is unresolved (a warning, ``contact_unresolved`` in ``sim.stats``) when its
+# residual after the PGS solve is above this fraction of the velocity the contacts remove.
+UNRESOLVED = 0.01
 
 
 @dataclass(frozen=True)
@@ -73,10 +82,16 @@ class PGS:
     friction : float
         Coulomb coefficient mu >= 0 (the cone ||lambda_t|| <= mu lambda_n).
     iterations : int
-        Maximum Gauss-Seidel sweeps per frame (>= 1).
+        Gauss-Seidel sweeps per frame (>= 1) before the solve stops short of ``tolerance``.
+    max_iterations : int, optional
+        Sweeps allowed while contact is still unresolved after ``iterations`` (residual above
+        :data:`UNRESOLVED` times the velocity to remove, e.g. a heavy stiff body on a light one);
+        default 40 times ``iterations``; ``iterations`` turns the extra sweeps off.
     tolerance : float
-        A sweep whose largest impulse change is below ``tolerance`` times the largest
-        impulse ends the iteration.
+        A sweep ends the iteration when the contact residual (complementarity and the friction
+        cone, in m/s; :func:`contact_residual`) is at most ``tolerance`` times the largest
+        velocity the contacts may have to remove (:func:`velocity_scale`). The residual of
+        every frame is in ``sim.stats`` (``contact_residual``).
     erp : float
         Error reduction in [0, 1]: a penetration d < 0 shrinks by ``erp |d|`` per step (a
         position correction that adds no velocity; see the module docstring).
@@ -111,6 +126,7 @@ class PGS:
     body_contact: bool = True
     block: int = 64
     edge_contact: bool = True
+    max_iterations: int = None
 
     def __post_init__(self):
         put = object.__setattr__  # frozen: store the checked values
@@ -126,16 +142,88 @@ class PGS:
         put(self, "body_contact", flag(self.body_contact, "PGS body_contact"))
         put(self, "block", integer(self.block, "PGS block", low=1))
         put(self, "edge_contact", flag(self.edge_contact, "PGS edge_contact"))
+        if self.max_iterations is not None:
+            put(self, "max_iterations", integer(self.max_iterations, "PGS max_iterations", low=self.iterations))
+
+    @property
+    def sweep_limit(self):
+        """The most sweeps of a frame: ``max_iterations``, default 40 ``iterations``."""
+        return 40 * self.iterations if self.max_iterations is None else self.max_iterations
+
+
+@njit(cache=True, inline="always")
+def _tangent_step(W, r):
+    """The largest eigenvalue of the 2 x 2 tangent block of the contact at row r (its gradient step)."""
+    a, b, c = W[r + 1, r + 1], W[r + 1, r + 2], W[r + 2, r + 2]
+    return 0.5 * (a + c) + np.sqrt(0.25 * (a - c) ** 2 + b * b)
+
+
+@njit(cache=True, inline="always")
+def _disk(t1, t2, bound):
+    """(t1, t2) projected onto the disk of radius ``bound``."""
+    norm = np.sqrt(t1 * t1 + t2 * t2)
+    if norm > bound:
+        scale = bound / norm
+        return t1 * scale, t2 * scale
+    return t1, t2
+
+
+@njit(cache=True, inline="always")
+def _contact_error(W, u, lam, mu, r):
+    """(complementarity, cone) residual of the contact at row r, in velocity units (m/s).
+
+    Complementarity ``|min(u_n, W_nn lam_n)|``: zero exactly when ``0 <= lam_n _|_ u_n >= 0``.
+    Cone: ``step |lam_t - P(lam_t - u_t / step)|`` with P the projection onto the disk of radius
+    ``mu lam_n`` and step the tangent block's largest eigenvalue: zero exactly when lam_t lies in
+    the cone and is Coulomb's maximal dissipation (the fixed point of the PGS tangent step).
+    """
+    rn = abs(min(u[r], W[r, r] * lam[r]))
+    step = _tangent_step(W, r)
+    if step <= 0.0:
+        return rn, 0.0
+    t1, t2 = _disk(lam[r + 1] - u[r + 1] / step, lam[r + 2] - u[r + 2] / step, mu * max(lam[r], 0.0))
+    return rn, step * np.sqrt((t1 - lam[r + 1]) ** 2 + (t2 - lam[r + 2]) ** 2)
 
 
 @njit(cache=True)
-def projected_gauss_seidel(W, u0, lam, mu, iterations, tolerance):
+def velocity_scale(u0):
+    """The velocity the contacts may have to remove: the largest approach ``-u0_n`` or tangential
+    ``|u0_t|`` of the free velocities u0 (3 rows per contact), the unit of the PGS tolerance."""
+    s = 0.0
+    for r in range(0, u0.size, 3):
+        s = max(s, -u0[r], np.sqrt(u0[r + 1] ** 2 + u0[r + 2] ** 2))
+    return s
+
+
+@njit(cache=True)
+def contact_residual(W, u0, lam, mu):
+    """(complementarity, cone) of the impulses lam: the largest residuals over the contacts, m/s.
+
+    See :func:`_contact_error`; both are zero exactly at a solution of the frictional contact
+    problem that :func:`projected_gauss_seidel` solves.
+    """
+    u = u0 + W @ lam
+    rn = rt = 0.0
+    for r in range(0, lam.size, 3):
+        if W[r, r] <= 0.0:  # a contact no impulse can act on (its vertices fixed): the solver skips it
+            continue
+        a, b = _contact_error(W, u, lam, mu, r)
+        rn, rt = max(rn, a), max(rt, b)
+    return rn, rt
+
+
+@njit(cache=True)
+def projected_gauss_seidel(W, u0, lam, mu, iterations, tolerance, max_iterations=0, loose=0.0, floor=0.0):
     """PGS on 0 <= lam_n _|_ u_n >= 0, ||lam_t|| <= mu lam_n with u = u0 + W lam (3 rows per contact).
 
     ``lam`` (3k,) holds the warm start and is updated in place. Per contact: the
     normal row by a projected Gauss-Seidel step, then both tangent rows, projected
     jointly onto the disk of radius mu lam_n (Euclidean projection after a gradient step of
-    the 2 x 2 tangent block's largest eigenvalue). Returns the sweeps done.
+    the 2 x 2 tangent block's largest eigenvalue). A sweep ends the iteration when the contact
+    residual (:func:`contact_residual`, from the velocities the sweep kept up to date) is at most
+    ``tolerance`` times :func:`velocity_scale` of u0 (at least ``floor``), or after ``iterations`` sweeps; beyond them,
+    up to ``max_iterations``, sweeps go on while the residual is above ``loose`` times the scale
+    (contact still visibly unresolved). Returns the sweeps done.
     """
     m = lam.size
     k = m // 3
@@ -144,9 +232,9 @@ def projected_gauss_seidel(W, u0, lam, mu, iterations, tolerance):
         if lam[i] != 0.0:
             for j in range(m):
                 u[j] += W[i, j] * lam[i]
-    for sweep in range(iterations):
-        change = 0.0
-        largest = 0.0
+    scale = max(velocity_scale(u0), floor)
+    goal = tolerance * scale
+    for sweep in range(max(iterations, max_iterations)):
         for c in range(k):
             r = 3 * c
             if W[r, r] <= 0.0:
@@ -159,28 +247,67 @@ def projected_gauss_seidel(W, u0, lam, mu, iterations, tolerance):
                     u[j] += W[r, j] * dn
             # one projected gradient step on both tangents with the largest eigenvalue of their
             # 2 x 2 block: its fixed point is exactly Coulomb's maximal dissipation
-            a, b, c2 = W[r + 1, r + 1], W[r + 1, r + 2], W[r + 2, r + 2]
-            step = 0.5 * (a + c2) + np.sqrt(0.25 * (a - c2) ** 2 + b * b)
+            step = _tangent_step(W, r)
             if step <= 0.0:
                 continue
-            t1 = lam[r + 1] - u[r + 1] / step
-            t2 = lam[r + 2] - u[r + 2] / step
-            bound = mu * lam[r]
-            norm = np.sqrt(t1 * t1 + t2 * t2)
-            if norm > bound:
-                scale = bound / norm
-                t1 *= scale
-                t2 *= scale
+            t1, t2 = _disk(lam[r + 1] - u[r + 1] / step, lam[r + 2] - u[r + 2] / step, mu * lam[r])
             d1, d2 = t1 - lam[r + 1], t2 - lam[r + 2]
             if d1 != 0.0 or d2 != 0.0:
                 lam[r + 1], lam[r + 2] = t1, t2
                 for j in range(m):
                     u[j] += W[r + 1, j] * d1 + W[r + 2, j] * d2
-            change = max(change, abs(dn), abs(d1), abs(d2))
-            largest = max(largest, lam[r], abs(t1), abs(t2))
-        if change <= tolerance * largest or largest == 0.0:
+        worst = 0.0
+        for c in range(k):
+            if W[3 * c, 3 * c] > 0.0:
+                a, b = _contact_error(W, u, lam, mu, 3 * c)
+                worst = max(worst, a, b)
+        if worst <= goal or (sweep + 1 >= iterations and worst <= loose * scale):
             return sweep + 1
-    return iterations
+    return max(iterations, max_iterations)
+
+
+@njit(cache=True)
+def projected_gauss_seidel_lowrank(indptr, indices, data, ncols, u0, lam, iterations, tolerance):
+    """Frictionless PGS on 0 <= lam _|_ u = u0 + B B^T lam >= 0 with the rows of B as CSR.
+
+    W = B B^T is never formed: the sweep keeps w = B^T lam (one entry per column of B, e.g.
+    6 per rigid body), so row i costs its own nonzeros, ``u_i = u0_i + B_i w`` and ``W_ii = |B_i|^2``.
+    Stops when ``|min(u_i, W_ii lam_i)|`` is at most ``tolerance`` times the largest approach
+    ``-u0_i`` (as :func:`projected_gauss_seidel`). ``lam`` is updated in place; returns w (ncols,).
+    """
+    k = lam.size
+    w = np.zeros(ncols)
+    diag = np.zeros(k)
+    scale = 0.0
+    for i in range(k):
+        scale = max(scale, -u0[i])
+        for p in range(indptr[i], indptr[i + 1]):
+            diag[i] += data[p] * data[p]
+            w[indices[p]] += data[p] * lam[i]
+    goal = tolerance * scale
+    for sweep in range(iterations):
+        worst = 0.0
+        for i in range(k):
+            if diag[i] <= 0.0:
+                continue
+            u = u0[i]
+            for p in range(indptr[i], indptr[i + 1]):
+                u += data[p] * w[indices[p]]
+            new = max(0.0, lam[i] - u / diag[i])
+            d = new - lam[i]
+            if d != 0.0:
+                lam[i] = new
+                for p in range(indptr[i], indptr[i + 1]):
+                    w[indices[p]] += data[p] * d
+        for i in range(k):
+            if diag[i] > 0.0:
+                u = u0[i]
+                for p in range(indptr[i], indptr[i + 1]):
+                    u += data[p] * w[indices[p]]
+                worst = max(worst, abs(min(u, diag[i] * lam[i])))
+        if worst <= goal:
+            break
+    return w
 
 
 class Contact:
@@ -206,6 +333,7 @@ class Contact:
         self.current = None
         self.prediction = None
         self.correction = None
+        self.warned = False  # the unresolved-contact warning, once per run
         self.push_limit = self.detector.mean_edge if self.settings.push_limit is None else self.settings.push_limit
         self._rigid_setup(sysm)
 
@@ -224,7 +352,8 @@ class Contact:
 
     def _rigid_motions(self, x):
         """G (n_free x 6B, sparse): v_i = c_b + omega_b x (x_i - x_b) for the B movable bodies
-        (x_b their centres of mass at x), and M_G^-1 (6B x 6B) with M_G = G^T M G."""
+        (x_b their centres of mass at x), and C (6B x 6B, sparse block diagonal) with
+        C C^T = M_G^-1, M_G = G^T M G (C = L^-T for the Cholesky factor L of each body's 6 x 6 block)."""
         movable, body, rows, nb, sysm = self.rigid
         m = sysm.lumped_mass[movable]
         mass = np.bincount(body, m, nb)
@@ -241,13 +370,19 @@ class Contact:
         G = sp.csr_matrix((vals.ravel(), (np.broadcast_to(rows[:, :, None], vals.shape).ravel(),
                                           np.broadcast_to(cols, vals.shape).ravel())),
                           shape=(sysm.free.size, 6 * nb))
-        MG = (G.T @ (sysm.Mff @ G)).toarray()
-        return G, np.linalg.inv(MG)
+        # the bodies' 6 x 6 blocks of M_G, sum over their vertices of m_i vals_i^T vals_i
+        blocks = np.zeros((nb, 6, 6))
+        np.add.at(blocks, body, m[:, None, None] * np.einsum("kri,krj->kij", vals, vals))
+        C = np.linalg.inv(np.linalg.cholesky(blocks)).transpose(0, 2, 1)  # L^-T, upper triangular
+        idx = 6 * np.arange(nb)[:, None, None] + np.arange(6)
+        C = sp.csr_matrix((C.ravel(), (np.broadcast_to(idx.transpose(0, 2, 1), C.shape).ravel(),
+                                       np.broadcast_to(idx, C.shape).ravel())), shape=(6 * nb, 6 * nb))
+        return G, C
 
     # -------------------------------------------------------------- checkpoint
     def state_dict(self):
         """The warm start carried to the next frame: impulses (world frame) by contact identity."""
-        out = {"previous": self.previous is not None}
+        out = {"previous": self.previous is not None, "warned": self.warned}
         if self.previous is not None:
             out.update(previous_keys=self.previous[0].copy(), previous_world=self.previous[1].copy())
         # the per-body solvers of the Delassus operator (a direct solver's ordering history)
@@ -260,6 +395,7 @@ class Contact:
     def load_state_dict(self, state):
         self.previous = ((np.asarray(state["previous_keys"]).copy(), np.asarray(state["previous_world"]).copy())
                          if flag(state["previous"], "previous") else None)
+        self.warned = flag(state.get("warned", False), "warned")  # files written before the warning existed lack it
         self.block_solvers = {}
         for i, key in enumerate(state["blocks"]):
             key = tuple(int(k) for k in key)
@@ -290,8 +426,9 @@ class Contact:
             cs.J = jacobian(cs, sysm.n, sysm.free)
             self.lam0 = self._warm_start(cs)
             self.bias = self._bias(cs, h)
-            vg = w.reshape(-1)[sysm.free]
-            self.prediction = cs.J.T @ self._predicted_impulses(cs, vg)
+            vf = v.reshape(-1)[sysm.free]
+            self.prediction = cs.J.T @ self._predicted_impulses(cs, w.reshape(-1)[sysm.free])
+            cs.impact = self._impacts(cs, vf, model)
         rec["n_contacts"] = 0 if cs is None else cs.size
         # penetrations between bodies at x_t (every penetrating pair is a contact): the frame's record
         # reports them without a second detection at x_{t+1}
@@ -325,15 +462,29 @@ class Contact:
         return local.ravel()
 
     def _predicted_impulses(self, cs, v_free):
-        """Warm-started impulses, and for new contacts one Jacobi step on the bilateral J_n v = -b_n
-        with the lumped-mass Delassus (sec. 3.4): lambda_n = max(0, -(J_n v + b_n)) / (J_n M^-1 J_n^T)."""
+        """Warm-started impulses, and for contacts without one (new, or carrying none last frame) one
+        Jacobi step on the bilateral J_n v = -b_n with the lumped-mass Delassus (sec. 3.4):
+        lambda_n = max(0, -(J_n v + b_n)) / (J_n M^-1 J_n^T)."""
         lam = self.lam0.copy()
         Jn = cs.J[0::3]
         un = Jn @ v_free + self.bias[0::3]
         wnn = np.asarray(Jn.multiply(Jn) @ self.inv_mass).ravel()
-        new = ~self.matched & (wnn > 0)
+        new = (self.lam0[0::3] == 0) & (wnn > 0)
         lam[0::3][new] = np.maximum(0.0, -un[new]) / wnn[new]
         return lam
+
+    def _impacts(self, cs, v_free, model):
+        """(k,) bool: the contacts that carried no impulse last frame and close their gap at more than
+        one step of gravity, ``-(J_n v_t + b_n) > |g| h`` (the velocities before gravity's step).
+
+        The support of a body at rest is not an impact: its contacts keep their warm-started
+        impulses, and a resting vertex without one approaches at no more than gravity's step.
+        A reducer under an error budget solves a frame with an impact in full space.
+        """
+        un = cs.J[0::3] @ v_free + self.bias[0::3]
+        h = model.dt
+        speed = max(float(np.linalg.norm(model.gravity)) * h, 1e-6 * model.size / h)
+        return (self.lam0[0::3] == 0) & (un < -speed)
 
     def prediction_impulse(self):
         """J^T lambda_pred on the free DOFs for the oracle's right-hand side (eq. 13), or 0."""
@@ -361,20 +512,25 @@ class Contact:
         t1 = time.perf_counter()
         lam = self.lam0.copy()
         u0 = cs.J @ v_star + self.bias
-        sweeps = projected_gauss_seidel(W, u0, lam, float(st.friction), int(st.iterations), float(st.tolerance))
+        # velocities below a billionth of the scene per step count as rest (bodies touching at rest
+        # without gravity have no velocity to remove: no tolerance relative to it could be met)
+        floor = 1e-9 * problem.model.size / problem.model.dt
+        sweeps = projected_gauss_seidel(W, u0, lam, float(st.friction), int(st.iterations), float(st.tolerance),
+                                        st.sweep_limit, UNRESOLVED, floor)
+        self._report(W, u0, lam, sweeps, problem.frame, floor, rec)
         dvc = resolvent.apply(lam)
         d = cs.distance
         if np.any(d < 0) and self.rigid[3]:  # split impulse: push penetrations out through x, rigidly
             h = problem.model.dt
-            b = np.zeros(3 * cs.size)
-            b[0::3] = np.where(d < 0, np.maximum(st.erp * d, -self.push_limit), d) / h
-            u1 = cs.J @ (v_star + dvc) + b
-            G, MGinv = self._rigid_motions(problem.x)
-            JG = np.asarray((cs.J @ G).todense())
-            Wr = JG @ MGinv @ JG.T
-            mu = np.zeros(3 * cs.size)
-            projected_gauss_seidel(0.5 * (Wr + Wr.T), u1, mu, 0.0, int(st.iterations), float(st.tolerance))
-            self.correction = G @ (MGinv @ (JG.T @ mu))
+            bn = np.where(d < 0, np.maximum(st.erp * d, -self.push_limit), d) / h
+            u1 = cs.J[0::3] @ (v_star + dvc) + bn
+            G, C = self._rigid_motions(problem.x)
+            B = sp.csr_matrix(cs.J[0::3] @ G @ C)  # frictionless: the normal rows; W_r = B B^T, rank <= 6 per body
+            B.sort_indices()
+            mu = np.zeros(cs.size)
+            w = projected_gauss_seidel_lowrank(B.indptr, B.indices, B.data, B.shape[1], u1, mu,
+                                               int(st.iterations), float(st.tolerance))
+            self.correction = G @ (C @ w)
         local = lam.reshape(-1, 3)
         world = np.einsum("kij,ki->kj", cs.frames(), local)
         order = np.argsort(cs.key)
@@ -384,6 +540,30 @@ class Contact:
         rec.update(pgs_iterations=int(sweeps), delassus=t1 - t0, pgs=t2 - t1)
         rec["contact"] = rec.get("contact", 0.0) + t2 - t0
         return dvc
+
+    def _report(self, W, u0, lam, sweeps, frame, floor, rec):
+        """The frame's contact residual into ``rec``; a warning (once per run) when it is unresolved.
+
+        ``contact_complementarity`` and ``contact_cone`` (m/s, :func:`contact_residual`), their
+        maximum ``contact_residual``, ``contact_scale`` (:func:`velocity_scale`), ``pgs_converged``
+        (the tolerance was reached within the sweep cap) and ``contact_unresolved``: the residual
+        is above :data:`UNRESOLVED` times the scale, so that contact visibly fails (a vertex
+        keeps that fraction of its approach: bodies sink into each other or slide out).
+        """
+        st = self.settings
+        normal, cone = contact_residual(W, u0, lam, float(st.friction))
+        scale = max(float(velocity_scale(u0)), floor)
+        residual = max(normal, cone)
+        unresolved = residual > UNRESOLVED * scale
+        rec.update(contact_complementarity=float(normal), contact_cone=float(cone), contact_residual=float(residual),
+                   contact_scale=scale, pgs_converged=bool(residual <= st.tolerance * scale),
+                   contact_unresolved=bool(unresolved))
+        if unresolved and not self.warned:
+            self.warned = True
+            warnings.warn(f"contact unresolved at frame {frame}: after {sweeps} PGS sweeps the contact residual is "
+                          f"{residual:.3g} m/s, {residual / scale:.2g} of the {scale:.3g} m/s the contacts remove "
+                          f"(bodies may sink into each other; raise PGS(max_iterations=...); further frames are counted "
+                          f"in sim.stats['contact_unresolved'], not warned)", SimulationWarning, stacklevel=5)
 
 
 def make_contact(model, colliders, settings):

@@ -1,0 +1,94 @@
+"""How far the PGS contact solve converges, and what more sweeps would cost and change.
+
+Steps a contact scene in full space twice, frame by frame in turn in one process: once with
+the default sweep cap and once with a larger one, no extra sweeps in either (``max_iterations``
+= the cap), and with ``--default`` a third time with the default settings; prints for each the fraction of frames
+whose contact residual reached the tolerance (``pgs_converged``), the sweeps, the relative
+residual (``contact_residual / contact_scale``), frames with unresolved contact, the PGS kernel's
+share of the frame, the deepest penetration, and the largest vertex distance between the two
+runs relative to the scene size (what stopping at the cap changes).
+
+Usage::
+
+    python benchmarks/pgs_convergence.py --scene pills --frames 120          # 8 procedural pills
+    python benchmarks/pgs_convergence.py --scene stack --frames 40 --caps 50 3000 --default   # heavy on light
+    MESH_DIR=... python benchmarks/pgs_convergence.py --scene paper-pills --frames 100   # the paper's Pill.mesh
+"""
+import argparse
+import json
+import os
+import sys
+
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
+import numpy as np  # noqa: E402
+
+sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+import skfem_affine as sa  # noqa: E402
+from skfem_affine.lab import metrics, runners  # noqa: E402
+
+
+def scene(name, caps_contact):
+    """Factory of the scene with ``contact=caps_contact``."""
+    if name == "pills":
+        return sa.scenes.pills(n=8, resolution=1, contact=caps_contact)
+    if name == "paper-pills":
+        mesh_dir = os.environ.get("MESH_DIR") or os.environ.get("SKFEM_AFFINE_MESHES")
+        if not mesh_dir:
+            raise SystemExit("set MESH_DIR (or SKFEM_AFFINE_MESHES) to the folder of the paper's meshes")
+        mats = (sa.NeoHookean(E=1.1e3, nu=0.35), sa.NeoHookean(E=5e4, nu=0.36))
+        return sa.scenes.pills(mesh=os.path.join(mesh_dir, "Pill.mesh"), materials=mats, contact=caps_contact)
+    if name == "stack":  # a stiff box 1e4 times denser than the soft one it lands on
+        box = sa.scenes.box_mesh
+        light = sa.ElasticBody(box(0.2, 2, (0, 0, 0.1)), sa.NeoHookean(E=1e6, nu=0.3), density=10.0)
+        heavy = sa.ElasticBody(box(0.2, 2, (0, 0, 0.302)), sa.NeoHookean(E=1e9, nu=0.3), density=1e5)
+        return sa.Simulation([light, heavy], dt=0.01, gravity=(0, 0, -9.81), colliders=[sa.Plane()],
+                             contact=caps_contact)
+    raise SystemExit(f"unknown scene {name!r}")
+
+
+def summary(records):
+    rel = [r["contact_residual"] / r["contact_scale"] for r in records if r.get("contact_scale")]
+    sweeps = [r["pgs_iterations"] for r in records if r.get("n_contacts")]
+    walls = sum(r["wall"] for r in records)
+    return {"frames_with_contact": len(sweeps),
+            "converged": float(np.mean([r["pgs_converged"] for r in records if r.get("n_contacts")])) if sweeps else None,
+            "median_sweeps": float(np.median(sweeps)) if sweeps else None, "max_sweeps": max(sweeps, default=0),
+            "median_rel_residual": float(np.median(rel)) if rel else None, "max_rel_residual": max(rel, default=0.0),
+            "unresolved_frames": int(sum(bool(r.get("contact_unresolved")) for r in records)),
+            "pgs_share": sum(r.get("pgs", 0.0) for r in records) / walls if walls else None,
+            "max_penetration": max(r.get("max_penetration", 0.0) for r in records), "wall_s": walls}
+
+
+def main(argv=None):
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("--scene", default="pills", choices=["pills", "paper-pills", "stack"])
+    p.add_argument("--frames", type=int, default=120)
+    p.add_argument("--caps", type=int, nargs=2, default=[50, 400], help="the default and the larger sweep cap")
+    p.add_argument("--default", action="store_true",
+                   help="also the default settings (extra sweeps while contact is unresolved)")
+    args = p.parse_args(argv)
+    friction = 0.3 if "pills" in args.scene else 0.5
+    sims = {f"cap {c}": scene(args.scene, sa.PGS(friction=friction, iterations=c, max_iterations=c))
+            for c in args.caps}
+    names = list(sims)
+    if args.default:
+        sims["default"] = scene(args.scene, sa.PGS(friction=friction))
+    gap = [0.0]
+
+    def on_frame(frame, running):
+        if all(n in running for n in names):
+            a, b = (running[n] for n in names)
+            gap[0] = max(gap[0], metrics.distance_error(a.state.x, b.state.x, a.size))
+
+    runs = runners.interleaved(sims, args.frames, on_frame=on_frame)
+    out = {name: summary(runs[name].records) for name in sims}
+    out["distance_between_caps"] = gap[0]
+    out["scene"], out["frames"] = args.scene, args.frames
+    print(json.dumps(out, indent=1))
+    return out
+
+
+if __name__ == "__main__":
+    main()
