@@ -94,22 +94,31 @@ def test_enrichment_follows_contact_with_the_ground():
 
 def test_enrichment_follows_contact_between_bodies():
     """A cube landing on another: in the steps that start in body-body contact, most vertices of
-    the contact are enriched, far more than the body as a whole; no surface intersects; the error
-    against full-space IPC Newton stays below 1 % of the size."""
+    the contact are enriched; in the falling cube, which touches nothing else, its far half (more
+    than half its height above the contact) is enriched at most half as much as its contact; no surface
+    intersects; the error against full-space IPC Newton stays below 1 % of the size.
+
+    The whole scene is no yardstick: the lower cube touches the ground as well, so the oracle
+    rightly enriches both of its faces, and the 4-vertex subdomains that carry them reach into
+    its interior in a shape that depends on the METIS build."""
     red = subspace(subdomains=32, fallback=None)
     sim, full = two_cubes(red), two_cubes(None)
     contact = sim.integrator.barrier
+    falling = np.flatnonzero(sim.state.x[:, 2] > 0.51)  # the upper cube (the lower one spans z < 0.51)
     covered = []
     for _ in range(3):
-        near = body_contact_vertices(contact, sim.state.x)  # in contact at the start of the step
+        x = sim.state.x
+        near = body_contact_vertices(contact, x)  # in contact at the start of the step
+        far = falling[x[falling, 2] > x[falling, 2].min() + 0.25]
         s, f = sim.step(), full.step()
         assert contact.intersection_free(s.x.reshape(-1))
         assert np.abs(s.x - f.x).max() < 0.01 * sim.size
         if near.size:
-            covered.append((red.step_enriched[near].mean(), red.step_enriched.mean()))
+            e = red.step_enriched
+            covered.append((e[near].mean(), e[np.intersect1d(near, falling)].mean(), e[far].mean()))
     assert len(covered) >= 2
-    for at_contact, overall in covered[:2]:  # the impact steps (subdomains enrich in blocks)
-        assert at_contact >= 0.5 and at_contact >= 1.5 * overall, covered
+    for at_contact, falling_contact, falling_far in covered[:2]:  # the impact steps
+        assert at_contact >= 0.5 and falling_contact >= 0.3 and falling_far <= 0.5 * falling_contact, covered
 
 
 def test_falls_back_when_the_coupled_system_outgrows_the_full_one():
