@@ -33,7 +33,11 @@ def test_a_body_starting_inside_the_floor_is_pushed_out_without_launch(shape, de
 
 
 def test_overlapping_bodies_are_separated():
-    sim = scenes.stacked_beams(resolution=1, n=2, gap=-0.15)
+    # gaps of -0.15 (the scene refuses overlaps): the lower beam 0.15 into the floor, the upper 0.15 into it
+    sim = scenes.stacked_beams(resolution=1, n=2, gap=0.0)
+    n0 = sim.bodies[0].mesh.p.shape[1]
+    sim.state.x[:n0, 2] -= 0.15
+    sim.state.x[n0:, 2] -= 0.3
     tops = _bottoms(sim, 40)
     pen = [r["max_penetration"] for r in sim.stats]
     assert pen[0] > 0.05 and max(pen[30:]) < 1e-3 and pen[-1] < 1e-4
@@ -67,10 +71,12 @@ def test_fast_impacts_do_not_tunnel_through_a_plane_or_a_thin_wall(shape, speed)
 
 
 def test_the_barrier_refuses_a_start_on_or_inside_a_collider():
-    for height in (0.0, -0.1):
-        with pytest.raises(ValueError, match=r"collider 0 \(Plane\): 25 vertices on or inside it, e.g. 0 "):
-            scenes.drop(shape="box", height=height, integrator="implicit_euler", contact=None)
+    with pytest.raises(ValueError, match=r"collider 0 \(Plane\): 25 vertices on or inside it, e.g. 0 "):
+        scenes.drop(shape="box", height=0.0, integrator="implicit_euler", contact=None)
     sim = scenes.drop(shape="box", height=0.1, integrator="implicit_euler", contact=None)
+    sunk = sa.ElasticBody(sim.bodies[0].mesh.translated((0.0, 0.0, -0.2)), sa.NeoHookean(E=1e5, nu=0.3))  # 0.1 deep
+    with pytest.raises(ValueError, match=r"collider 0 \(Plane\): 25 vertices on or inside it, e.g. 0 "):
+        sa.Simulation(sunk, colliders=sim.colliders, integrator="implicit_euler")
     with pytest.raises(ValueError, match="collider 0 \\(Sphere\\)"):
         sim.colliders = [sa.Sphere(center=(0, 0, 0.35), radius=0.2)]
     list(sim.run(2))  # the valid start still runs
@@ -80,7 +86,8 @@ def test_the_barrier_refuses_a_start_on_or_inside_a_collider():
 def test_push_limit_is_checked_and_bounds_the_correction():
     with pytest.raises(ValueError, match="push_limit"):
         sa.PGS(push_limit=0.0)
-    sim = scenes.drop(shape="box", height=-0.3, contact=sa.PGS(push_limit=0.01))
+    sim = scenes.drop(shape="box", height=0.0, contact=sa.PGS(push_limit=0.01))
+    sim.state.x[:, 2] -= 0.3  # 0.3 below the floor (the scene refuses such a start)
     _bottoms(sim, 3)
     pen = [r["max_penetration"] for r in sim.stats]
     assert 0.0 < pen[0] - pen[1] <= 0.01 + 1e-9
