@@ -22,7 +22,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from skfem_affine import threads
-from skfem_affine.checks import flag, integer, positive
+from skfem_affine.checks import choice, flag, integer, positive, real_array
 
 AMG_MIN_DOFS = 5000
 AMG_MIN_DOFS_PARDISO = 30000
@@ -507,9 +507,18 @@ class AutoSolver:
 
     def load_state_dict(self, state):
         self.amg_abandoned = flag(state["amg_abandoned"], "amg_abandoned")
-        self.choice = state.get("choice")
+        chosen = state.get("choice")
+        if isinstance(chosen, np.ndarray) and chosen.ndim == 0:
+            chosen = chosen.item()
+        self.choice = None if chosen is None else choice(chosen, "choice", ("direct", "amg"))
         names = [s for s in str(state.get("trial_solvers", "")).split(",") if s]
-        self.trial = list(zip(names, np.asarray(state.get("trial_seconds", np.zeros(0)), dtype=float).tolist()))
+        for name in names:
+            choice(name, "trial_solvers", ("direct", "amg"))
+        seconds = real_array(state.get("trial_seconds", np.zeros(0)), "trial_seconds", low=0.0)
+        if seconds.shape != (len(names),) or len(names) > 4:
+            raise ValueError(f"trial_seconds must hold one time per solver on trial ({len(names)}, at most 4), "
+                             f"got shape {seconds.shape}")
+        self.trial = list(zip(names, seconds.tolist()))
         amg = {k[4:]: v for k, v in state.items() if k.startswith("amg.")}
         self._amg = None
         if amg:

@@ -39,7 +39,7 @@ import scipy.sparse as sp
 
 __all__ = ["Stresses", "FIELDS", "evaluate", "vertex_average"]
 
-# name -> (ParaView field name, what it is, unit)
+#: Each field's name -> (its ParaView field name, what it is, its unit).
 FIELDS = {
     "strain": ("green_lagrange_strain", "Green-Lagrange strain (F^T F - I)/2", "1"),
     "piola": ("first_piola_stress", "first Piola-Kirchhoff stress P", "Pa"),

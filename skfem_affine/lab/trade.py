@@ -13,6 +13,7 @@ from skfem_affine.lab.scene_spec import default_frames
 from skfem_affine.reducers.affine.affinification import Affinification
 from skfem_affine.reducers.affine.rigidification import Rigidification
 
+#: The reducers :func:`budget_runs` runs at error budgets, by the name ``method`` takes.
 REDUCERS = {"affinification": Affinification, "rigidification": Rigidification}
 
 
