@@ -168,7 +168,7 @@ def load_mesh(path, regions=None):
     FileNotFoundError
         If there is no such file.
     ImportError
-        If meshio needs an optional package for the format (``h5py`` for XDMF).
+        If meshio needs a package for the format that is missing (``h5py`` for XDMF, a dependency).
     """
     import skfem
     m = _read(path)
@@ -251,7 +251,7 @@ def _read(path):
     try:
         with contextlib.redirect_stdout(said), contextlib.redirect_stderr(said):
             return meshio.read(path)
-    except ModuleNotFoundError as err:  # meshio reads XDMF through h5py, an optional dependency
+    except ModuleNotFoundError as err:  # a reader's package missing from a broken install (h5py for XDMF)
         raise ImportError(f"reading {path} needs the package {err.name} (pip install {err.name})") from err
     except (Exception, SystemExit) as err:  # noqa: BLE001 (whatever a reader raises on a damaged file)
         reason = " ".join(said.getvalue().split()) or f"{type(err).__name__}: {err}"
