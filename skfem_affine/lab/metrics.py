@@ -29,6 +29,7 @@ is tested against a hand-computed case in ``tests/test_metrics.py``.
 import numpy as np
 
 from skfem_affine import stress
+from skfem_affine.reducers.budget import largest_displacement
 from skfem_affine.simulation import State, Stats
 
 
@@ -49,9 +50,9 @@ def distance_m(x, x_ref):
 
 def response_amplitude(positions, rest):
     """R: the largest displacement ``||x_i - X_i||`` from the rest pose ``rest`` (n, 3) over the
-    frames of ``positions`` ((frames, n, 3) or (n, 3)), in metres."""
-    d = np.asarray(positions, float) - np.asarray(rest, float)
-    return float(np.sqrt(np.max(np.einsum("...j,...j->...", d, d)))) if d.size else 0.0
+    frames of ``positions`` ((frames, n, 3) or (n, 3)), in metres (the measure the reducers' error
+    budgets use online, :func:`skfem_affine.reducers.budget.largest_displacement`)."""
+    return largest_displacement(positions, rest)
 
 
 def relative(error_m, scale):

@@ -103,9 +103,13 @@ def target_error(value, relative_to):
 
 
 def largest_displacement(x, rest):
-    """max_i ||x_i - X_i|| of positions ``x`` and ``rest`` (flat 3n or (n, 3) arrays), in metres."""
-    d = np.asarray(x, float).reshape(-1, 3) - np.asarray(rest, float).reshape(-1, 3)
-    return float(np.sqrt(np.max(np.einsum("ij,ij->i", d, d)))) if d.size else 0.0
+    """max_i ||x_i - X_i|| of positions ``x`` from ``rest`` (flat 3n or (n, 3) arrays; ``x`` may hold
+    several frames, (frames, n, 3)), in metres."""
+    rest = np.asarray(rest, float).reshape(-1, 3)
+    if not rest.size:
+        return 0.0
+    d = np.asarray(x, float).reshape(-1, rest.shape[0], 3) - rest
+    return float(np.sqrt(np.max(np.einsum("...j,...j->...", d, d))))
 
 
 def vertex_max_norm(free_values, free, n):
