@@ -1,5 +1,6 @@
-"""The Delassus operator W = J A^-1 J^T (per body, through G when reduced) against the plain path of
-3 solves per contact on the frame's factorisation, and its per-block solver cache stays bounded."""
+"""The Delassus operator W = J A^-1 J^T (per body, through G when reduced, from the unknowns the
+contacts touch) against the plain path of 3 solves per contact on the frame's factorisation, and
+its per-block solver cache stays bounded."""
 import numpy as np
 import pytest
 import scipy.sparse as sp
@@ -60,6 +61,9 @@ def test_delassus_equals_the_plain_path(scene, reducer):
         res = delassus.Resolvent(op, block=7, cache={})
         W = res.delassus(J)
         assert np.abs(W - ref).max() <= 1e-9 * scale, np.abs(W - ref).max() / scale
+        rows = delassus.Resolvent(op, block=7, cache={}, touched=False)  # per row of J, per body
+        assert np.abs(W - rows.delassus(J)).max() <= 1e-12 * scale
+        assert res.columns_solved <= rows.columns_solved
         lam = np.random.default_rng(1).normal(size=J.shape[0])
         dv = res.apply(lam)
         want = Y @ lam
@@ -69,16 +73,18 @@ def test_delassus_equals_the_plain_path(scene, reducer):
     assert frames_with_contact(sim, 120, check) == 3
 
 
-def _rigid_box_on_plane():
-    """A stiff box thrown sideways onto the plane: rigidification keeps it one rigid body."""
+def _box_on_plane(reducer, colliders=1):
+    """A stiff box thrown sideways onto the plane (``colliders`` copies of it): rigidification keeps
+    it one rigid body, affinification one affine body."""
     mesh = sa.scenes.box_mesh(0.3, 3, (0.0, 0.0, 0.16))
     body = sa.ElasticBody(mesh, sa.NeoHookean(E=1e8, nu=0.3), density=1000.0, velocity=(1.0, 0.0, -0.5))
-    return sa.Simulation([body], dt=0.01, gravity=(0, 0, -9.81), colliders=[sa.Plane((0, 0, 0), (0, 0, 1))],
-                         reducer=sa.Rigidification(tau_r=10.0))
+    return sa.Simulation([body], dt=0.01, gravity=(0, 0, -9.81),
+                         colliders=[sa.Plane((0, 0, 0), (0, 0, 1)) for _ in range(colliders)],
+                         reducer=reducer)
 
 
 def test_contacts_on_a_rigid_body_touch_its_six_dofs_and_match_the_plain_path():
-    sim = _rigid_box_on_plane()
+    sim = _box_on_plane(sa.Rigidification(tau_r=10.0))
 
     def check(op, J):
         assert op.G.shape[1] == 6  # the whole box is one rigid body
@@ -88,6 +94,7 @@ def test_contacts_on_a_rigid_body_touch_its_six_dofs_and_match_the_plain_path():
         res = delassus.Resolvent(op, cache={})
         W = res.delassus(J)
         assert np.unique(res.Jr.indices).size == 6  # the contacts touch the body's 6 DOFs only
+        assert res.columns_solved == 6              # and W solves those, not 3 per contact
         assert np.abs(W - ref).max() <= 1e-10 * np.abs(ref).max()
         u0 = J @ np.tile([1.0, 0.0, -0.5], J.shape[1] // 3)  # sliding into the plane
         lam, lam_ref = np.zeros(3 * k), np.zeros(3 * k)
@@ -98,6 +105,42 @@ def test_contacts_on_a_rigid_body_touch_its_six_dofs_and_match_the_plain_path():
         assert np.allclose(dv, dv_ref, atol=1e-9 * np.abs(dv_ref).max())
 
     assert frames_with_contact(sim, 30, check, want=1) == 1
+
+
+def test_contacts_on_an_affine_body_solve_its_twelve_dofs():
+    """A rigidly moving affine body with a face of contacts: W solves its 12 reduced unknowns, not 3
+    columns per contact, and equals the plain path."""
+    sim = _box_on_plane(sa.Affinification(tau_a=1.0, tau_e=2.0))
+
+    def check(op, J):
+        assert op.G.shape[1] == 12  # the whole box is one affine body
+        assert J.shape[0] // 3 >= 16
+        ref, _, Y = plain_delassus(op, J)
+        res = delassus.Resolvent(op, cache={})
+        W = res.delassus(J)
+        assert res.columns_solved == 12
+        assert np.abs(W - ref).max() <= 1e-10 * np.abs(ref).max()
+        lam = np.random.default_rng(2).normal(size=J.shape[0])
+        want = op.G @ (Y @ lam)
+        assert np.allclose(res.apply(lam), want, atol=1e-10 * np.abs(want).max())
+
+    assert frames_with_contact(sim, 30, check, want=2) == 2
+
+
+def test_a_vertex_with_several_contacts_is_solved_once_in_full_space():
+    """Full space, a box on two copies of the floor: every touching vertex has two contacts (6 rows)
+    on its 3 unknowns, and W solves those 3 columns once, equal to the plain path."""
+    sim = _box_on_plane(None, colliders=2)
+
+    def check(op, J):
+        assert op.G is None
+        ref, _, _ = plain_delassus(op, J)
+        res = delassus.Resolvent(op, block=5, cache={})
+        W = res.delassus(J)
+        assert res.columns_solved == np.unique(J.indices).size == J.shape[0] // 2
+        assert np.abs(W - ref).max() <= 1e-10 * np.abs(ref).max()
+
+    assert frames_with_contact(sim, 30, check, want=2) == 2
 
 
 def _laplacian(m):
@@ -125,3 +168,71 @@ def test_block_solver_cache_holds_one_frames_blocks():
         assert np.allclose(W, solver.solve(E)[cols], atol=1e-12)
         touched = len({int(np.searchsorted(np.cumsum(sizes), c, side="right")) for c in cols})
         assert len(cache) == touched <= 3
+
+
+def _contacts_on(cols, rng, per_vertex):
+    """J of ``per_vertex`` contacts (3 rows n, t1, t2 each) on every vertex whose 3 unknowns start at
+    each of ``cols``: a vertex with several contacts (several colliders) touches the same 3 unknowns."""
+    rows = []
+    for c in cols:
+        for _ in range(per_vertex):
+            frame, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+            rows.append((c, frame))
+    return rows
+
+
+def _jacobian(entries, n):
+    data, r, c = [], [], []
+    for i, (cols, frame) in enumerate(entries):
+        cols = np.atleast_1d(cols)
+        for v, col in enumerate(cols):   # several vertices: weights +1 on the first, -1/(v) on the others
+            w = 1.0 if v == 0 else -1.0 / (len(cols) - 1)
+            for a in range(3):
+                for b in range(3):
+                    r.append(3 * i + a)
+                    c.append(col + b)
+                    data.append(w * frame[a, b])
+    return sp.csr_matrix((data, (r, c)), shape=(3 * len(entries), n))
+
+
+def _spd(m, rng):
+    """An SPD block of m unknowns coupled along a chain (one component)."""
+    return (_laplacian(m) + sp.diags(rng.uniform(0.1, 1.0, m))).tocsr()
+
+
+@pytest.mark.parametrize("per_vertex", [1, 4])
+@pytest.mark.parametrize("sizes", [(60,), (60, 900, 45), (30, 30)])
+def test_touched_unknowns_give_the_per_row_delassus(sizes, per_vertex):
+    """W from Z = (A^-1)_TT on the unknowns the contacts touch equals J A^-1 J^T, with A one body or
+    several (dense-Cholesky blocks up to BLOCK_DENSE_MAX unknowns, SuperLU above), vertices with
+    several contacts and contacts between two bodies; it solves |T| columns when fewer than the rows."""
+    rng = np.random.default_rng(3)
+    A = sp.block_diag([_spd(m, rng) for m in sizes], format="csr")
+    n, starts = A.shape[0], np.concatenate([[0], np.cumsum(sizes)])
+    entries, verts = [], []
+    for s, e in zip(starts[:-1], starts[1:]):   # 3 vertices with per_vertex contacts each per body
+        verts.append(s + 3 * rng.choice((e - s) // 3, 3, replace=False))
+        entries += _contacts_on(verts[-1], rng, per_vertex)
+    if len(sizes) > 1:                          # a vertex of body 0 on a triangle of body 1
+        frame, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+        entries.append((np.array([verts[0][0], starts[1], starts[1] + 3, starts[1] + 6]), frame))
+    J = _jacobian(entries, n)
+    solver = SuperLU()
+    solver.factorize(A)
+    ref = J @ np.linalg.solve(A.toarray(), J.T.toarray())
+    res = delassus.Resolvent(Operator(solver, A), block=5, cache={})
+    W = res.delassus(J)
+    assert np.abs(W - ref).max() <= 1e-12 * np.abs(ref).max()
+    assert np.array_equal(W, W.T)
+    # per body, the fewer of its touched unknowns and its rows: with 4 contacts per vertex, the 9
+    # unknowns of its 3 vertices (12 rows), plus in body 1 the triangle's 9 of the body-body contact
+    count = 0
+    for s, e in zip(starts[:-1], starts[1:]):
+        Jb = J[:, s:e]
+        touched, rows = np.unique(Jb.indices).size, np.flatnonzero(np.diff(Jb.tocsr().indptr)).size
+        count += min(touched, rows)
+    assert res.columns_solved == count
+    if per_vertex == 4:
+        assert count == 9 * len(sizes) + (9 if len(sizes) > 1 else 0)
+    lam = rng.normal(size=J.shape[0])
+    assert np.allclose(res.apply(lam), np.linalg.solve(A.toarray(), J.T @ lam), rtol=1e-10, atol=1e-12)

@@ -43,13 +43,23 @@ def test_a_resting_stack_turns_affine_under_the_error_budget_and_stays_at_rest()
     assert np.abs(_centres(reduced) - _centres(full)).max() < 2e-6
 
 
-def test_a_resting_stack_turns_affine_at_the_papers_thresholds():
+def test_a_resting_stack_turns_affine_at_the_papers_thresholds_and_stays_at_rest():
     sim = _stack(sa.Affinification(1e-4, 2e-4))
     for _ in sim.run(60):
         pass
     settled = sim.stats[40:]
     assert np.mean([r["reduced_fraction"] for r in settled]) > 0.8   # measured 0.95-1.0
     assert all(r["n_clusters"] >= 2 for r in settled)
+    # 140 frames more at rest: no sinking or drifting (measured 2.7e-8 m and 2e-15 m)
+    centres, lowest = _centres(sim), np.inf
+    for state in sim.run(140):
+        lowest = min(lowest, float(state.x[:, 2].min()))
+    assert np.abs(_centres(sim) - centres).max() < 1e-6
+    assert lowest > -1e-6
+    # the contacts (19, 57 rows of J) on the two affine boxes solve their 2 x 12 reduced unknowns
+    rest = sim.stats[60:]
+    assert all(r["delassus_columns"] < 3 * r["n_contacts"] for r in rest)
+    assert np.median([r["delassus_columns"] for r in rest]) == 24
 
 
 def test_a_landing_is_still_an_impact():

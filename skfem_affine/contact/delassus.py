@@ -3,8 +3,9 @@ r"""The Delassus operator W = J A^-1 J^T of a frame's contacts (paper sec. 3.3).
 The Jacobian J (3 rows n, t1, t2 per contact) maps free-DOF velocities to the relative
 velocity of each contact vertex against its closest point. W is applied through the frame's
 factorisation and, for a reduced frame, through G: ``A^-1 ~ G (G^T A G)^-1 G^T``, so
-``W = (J G) A_r^-1 (J G)^T`` costs solves of the small reduced system
-(:class:`Resolvent`). What it needs of the frame comes in the reducer's
+``W = (J G) A_r^-1 (J G)^T`` costs solves of the small reduced system, one per unknown
+that the contacts touch (12 per affine body, 6 per rigid one) or per row of J, whichever is
+fewer (:class:`Resolvent`). What it needs of the frame comes in the reducer's
 :class:`~skfem_affine.integrators.problem.Operator`.
 """
 from contextlib import nullcontext as _nothing
@@ -18,7 +19,8 @@ from skfem_affine.threads import serial_blas
 from skfem_affine.solvers import SuperLU, direct_solver
 
 # Blocks (bodies) of the Delassus operator: up to BLOCK_DENSE_MAX unknowns a dense Cholesky
-# factor L gives W_b = X^T X, X = L^-1 J_b^T (one triangular solve); below BLOCK_DIRECT_MIN
+# factor L gives W_b = X^T X, X = L^-1 R (one triangular solve, R = J_b^T or the unit columns of
+# the unknowns its contacts touch); below BLOCK_DIRECT_MIN
 # SuperLU, else the direct solver (measurements in docs/contact.md).
 BLOCK_DENSE_MAX = 800
 BLOCK_DIRECT_MIN = 2000
@@ -50,23 +52,69 @@ def block_solver(size):
     return SuperLU() if size < BLOCK_DIRECT_MIN else direct_solver()
 
 
+class DenseCholesky:
+    """A body's small block A_b = L L^T, factorised densely (up to :data:`BLOCK_DENSE_MAX` unknowns)."""
+
+    def factorize(self, A):
+        self.L = cholesky(sp.csr_matrix(A).toarray(), lower=True)
+
+    def solve(self, R):
+        return cho_solve((self.L, True), R)
+
+    def gram(self, R):
+        """R^T A^-1 R = X^T X with X = L^-1 R: one triangular solve."""
+        X = solve_triangular(self.L, R, lower=True)
+        return X.T @ X
+
+
+def _solve(solver, R, iterative=False):
+    if iterative:  # CG takes one right-hand side at a time
+        return np.column_stack([solver.solve(np.ascontiguousarray(R[:, j])) for j in range(R.shape[1])])
+    return np.asarray(solver.solve(R)).reshape(R.shape)
+
+
+def gram(solver, R, block=64, iterative=False):
+    """R^T A^-1 R (dense, m x m) for the matrix A that ``solver`` has factorised and R (n x m, sparse).
+
+    A^-1 R is solved ``block`` columns at a time; a :class:`DenseCholesky` takes X = L^-1 R at once."""
+    R = sp.csc_matrix(R)
+    if isinstance(solver, DenseCholesky):
+        return solver.gram(R.toarray())
+    out = np.empty((R.shape[1], R.shape[1]))
+    for s in range(0, R.shape[1], block):
+        cols = slice(s, min(s + block, R.shape[1]))
+        out[:, cols] = R.T @ _solve(solver, R[:, cols].toarray(), iterative)
+    return out
+
+
 class Resolvent:
     """A^-1 applied to the columns of J^T with the frame's system, through G when reduced (sec. 3.3).
 
     ``operator`` (:class:`~skfem_affine.integrators.problem.Operator`) holds the frame's
     system matrix (full A, or A_r = G^T A G of a reducer), the solver that has factorised it,
     and the reducer's mapping G (n_free x r), or None in full space, so that
-    ``W = (J G) A_r^-1 (J G)^T``. Bodies are not coupled by A, so
-    when A has several connected components (several bodies), W is built per
-    component from a factorization of that block alone (dense Cholesky up to
-    :data:`BLOCK_DENSE_MAX` unknowns, SuperLU below :data:`BLOCK_DIRECT_MIN`, else the
-    fastest direct solver), solving only the columns of contacts that touch it;
-    components without contacts cost nothing. ``cache`` (a dict kept across frames) holds the
-    block solvers by (size, first unknown); after each frame it holds only that frame's.
+    ``W = Jr A^-1 Jr^T`` with ``Jr = J G`` (``J`` in full space).
+
+    W needs A^-1 only on the unknowns T that the contacts touch (the columns of Jr with a
+    nonzero): ``W = Jr_T Z Jr_T^T`` with ``Z = (A^-1)_TT`` (:meth:`inverse_on`), from solves of
+    the unit columns e_T. That costs |T| solves instead of one per row of Jr (3 per contact),
+    and is taken when |T| is the smaller: the contacts on an affine (rigid) body touch its 12
+    (6) reduced unknowns however many they are, and a vertex with several contacts is solved
+    once; otherwise A^-1 Jr^T is solved row by row, ``block`` columns at a time (always, with
+    ``touched=False``: the reference path). The number of columns solved by the last
+    :meth:`delassus` is :attr:`columns_solved`.
+
+    Bodies are not coupled by A, so when A has several connected components (several bodies),
+    W is built per component from a factorization of that block alone (dense Cholesky up to
+    :data:`BLOCK_DENSE_MAX` unknowns, SuperLU below :data:`BLOCK_DIRECT_MIN`, else the fastest
+    direct solver), by the smaller of the two ways for the contacts that touch it; components
+    without contacts cost nothing. ``cache`` (a dict kept across frames) holds the sparse block
+    solvers by (size, first unknown); after each frame it holds only that frame's.
     """
 
-    def __init__(self, operator, block=64, cache=None):
+    def __init__(self, operator, block=64, cache=None, touched=True):
         self.solver, self.A, self.G, self.block = operator.solver, operator.matrix, operator.G, int(block)
+        self.touched = bool(touched)
         self.iterative = operator.iterative
         n_comp, labels = connected_components(self.A, directed=False)
         self.parts = None
@@ -76,21 +124,11 @@ class Resolvent:
             self.parts = range(n_comp)
         self.cache = {} if cache is None else cache
         self.used = set()
-
-    def _solve(self, solver, R, iterative=False):
-        if iterative:  # CG takes one right-hand side at a time
-            return np.column_stack([solver.solve(np.ascontiguousarray(R[:, j])) for j in range(R.shape[1])])
-        return np.asarray(solver.solve(R)).reshape(R.shape)
-
-    def _blocks(self, solver, JrT, iterative=False):
-        """A^-1 JrT (dense), ``block`` columns at a time."""
-        Y = np.empty(JrT.shape)
-        for s in range(0, JrT.shape[1], self.block):
-            cols = slice(s, min(s + self.block, JrT.shape[1]))
-            Y[:, cols] = self._solve(solver, JrT[:, cols].toarray(), iterative)
-        return Y
+        self.columns_solved = 0  # right-hand sides solved by the last :meth:`delassus`
 
     def _block_solver(self, idx):
+        if idx.size <= BLOCK_DENSE_MAX:
+            return DenseCholesky()
         key = (idx.size, int(idx[0]))  # components keep their unknowns while the pattern is fixed
         if key not in self.cache:
             self.cache[key] = block_solver(idx.size)
@@ -103,15 +141,36 @@ class Resolvent:
         for key in [key for key in self.cache if key not in self.used]:
             del self.cache[key]
 
+    def inverse_on(self, solver, n, T, iterative=False):
+        """Z = (A^-1)_TT (|T| x |T|, dense) for the n x n matrix A that ``solver`` has factorised and
+        the unknowns T: the unit columns e_T solved, ``block`` at a time, rows T kept.
+
+        The one place Z comes from: another way of getting it (a Schur complement of A on T)
+        replaces this method."""
+        self.columns_solved += T.size
+        E = sp.csc_matrix((np.ones(T.size), (T, np.arange(T.size))), shape=(n, T.size))
+        return gram(solver, E, self.block, iterative)
+
+    def _product(self, solver, Jb, iterative=False):
+        """Jb A^-1 Jb^T for the matrix A (Jb.shape[1] unknowns) that ``solver`` has factorised: from
+        Z = (A^-1)_TT on the touched unknowns T when there are fewer of them than rows, else per row."""
+        T = np.unique(Jb.indices[Jb.data != 0])
+        if self.touched and T.size < Jb.shape[0]:
+            Jt = Jb[:, T]
+            W = Jt @ (Jt @ self.inverse_on(solver, Jb.shape[1], T, iterative)).T
+        else:
+            self.columns_solved += Jb.shape[0]
+            W = gram(solver, Jb.T, self.block, iterative)
+        return 0.5 * (W + W.T)
+
     def delassus(self, J):
         """W = J A^-1 J^T (dense, symmetric), A^-1 ~ G A_r^-1 G^T in a reduced frame."""
         Jr = sp.csr_matrix(J @ self.G) if self.G is not None else sp.csr_matrix(J)
-        self.Jr = Jr
+        self.Jr, self.columns_solved = Jr, 0
         k = J.shape[0]
         if self.parts is None:
             self._evict()
-            W = Jr @ self._blocks(self.solver, Jr.T.tocsc(), self.iterative)
-            return 0.5 * (W + W.T)
+            return self._product(self.solver, Jr, self.iterative)
         W = np.zeros((k, k))
         Jc = Jr[:, self.order].tocsc()
         Ap = sp.csr_matrix(self.A)[self.order][:, self.order].tocsr()
@@ -124,32 +183,21 @@ class Resolvent:
                 continue
             Jb = Jb[rows]
             idx = self.order[s:e]
-            if idx.size <= BLOCK_DENSE_MAX:  # W_b = X^T X with X = L^-1 J_b^T, A_b = L L^T dense
-                with serial_blas():
-                    L = cholesky(Ap[s:e, s:e].toarray(), lower=True)
-                    X = solve_triangular(L, Jb.T.toarray(), lower=True)
-                    W[np.ix_(rows, rows)] += X.T @ X
-                self.local.append((idx, rows, Jb, L))
-                continue
             solver = self._block_solver(idx)
             with serial_blas() if idx.size < BLOCK_DIRECT_MIN else _nothing():
                 solver.factorize(Ap[s:e, s:e])
-                W[np.ix_(rows, rows)] += Jb @ self._blocks(solver, Jb.T.tocsc())
+                W[np.ix_(rows, rows)] += self._product(solver, Jb)
             self.local.append((idx, rows, Jb, solver))
         self._evict()
-        return 0.5 * (W + W.T)
+        return W
 
     def apply(self, lam):
-        """dv = A^-1 J^T lambda on the free DOFs (through G when reduced)."""
+        """dv = A^-1 J^T lambda on the free DOFs (through G when reduced): one solve (per component)."""
         if self.parts is None:
-            y = self._solve(self.solver, (self.Jr.T @ lam)[:, None], self.iterative)[:, 0]
+            y = _solve(self.solver, (self.Jr.T @ lam)[:, None], self.iterative)[:, 0]
         else:
             y = np.zeros(self.Jr.shape[1])
             for idx, rows, Jb, solver in self.local:
-                r = Jb.T @ lam[rows]
-                if isinstance(solver, np.ndarray):  # a dense Cholesky factor
-                    y[idx] = cho_solve((solver, True), r)
-                    continue
                 with serial_blas() if idx.size < BLOCK_DIRECT_MIN else _nothing():
-                    y[idx] = self._solve(solver, r[:, None])[:, 0]
+                    y[idx] = _solve(solver, (Jb.T @ lam[rows])[:, None])[:, 0]
         return self.G @ y if self.G is not None else y

@@ -537,7 +537,8 @@ class Contact:
         self.previous = (cs.key[order], world[order])
         self.lam = lam
         t2 = time.perf_counter()
-        rec.update(pgs_iterations=int(sweeps), delassus=t1 - t0, pgs=t2 - t1)
+        rec.update(pgs_iterations=int(sweeps), delassus=t1 - t0, pgs=t2 - t1,
+                   delassus_columns=int(resolvent.columns_solved))
         rec["contact"] = rec.get("contact", 0.0) + t2 - t0
         return dvc
 
