@@ -2,12 +2,18 @@
 rigidification stepped in turn in one process, on the paper's contact scenes.
 
 The scenes are those of ``benchmarks/paper_table1.py`` (the paper's meshes, read from MESH_DIR, and
-its thresholds). Every method runs from frame 0; the frames ``--start`` to ``--end`` are recorded:
-the frame's wall time, the factorisation, the Delassus operator, the PGS solve (with the velocity
-and position corrections), detection (the rest of contact), the contacts and the DOFs solved.
-The order of the methods rotates from frame to frame. Usage::
+its thresholds), and ``pile``: the four soft boxes of ``benchmarks/budget.py`` (``--cells`` per box
+edge) coming to rest on the ground, at the thresholds tau_a = 1e-4, tau_e = 2e-4 (no MESH_DIR).
+Every method runs from frame 0; the frames ``--start`` to ``--end`` are recorded: the frame's wall
+time, the factorisation, the Delassus operator and the columns it solved, the PGS solve (with the
+velocity and position corrections), detection (the rest of contact), the contacts and the DOFs
+solved. The order of the methods rotates from frame to frame. With ``--rows`` each frame's
+Delassus operator is also built per row of J (3 solves per contact: ``Resolvent(touched=False)``)
+on the same factorisation, before or after the frame's own in turn (``delassus_rows``,
+``rows_columns``). Usage::
 
-    python benchmarks/contact_phases.py MESH_DIR --scene wheel --start 145 --end 160
+    python benchmarks/contact_phases.py MESH_DIR --scene wheel --start 145 --end 160 --rows
+    python benchmarks/contact_phases.py --scene pile --cells 4 --start 100 --end 130 --rows
 """
 import argparse
 import json
@@ -26,24 +32,70 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.dirname(HERE))  # measure the checkout this script sits in
 sys.path.insert(0, HERE)
 import paper_table1  # noqa: E402
+import skfem_affine as sa  # noqa: E402
+from skfem_affine.contact import delassus  # noqa: E402
 
 METHODS = ("full", "affinification", "rigidification")
-COLUMNS = ("wall", "factorization", "delassus", "pgs", "detection", "contact", "n_contacts", "pgs_iterations", "dofs")
+COLUMNS = ("wall", "factorization", "delassus", "delassus_columns", "pgs", "detection", "contact", "n_contacts",
+           "pgs_iterations", "dofs")
+ROWS = ("delassus_rows", "rows_columns")
 
 
 def record(rec):
     """The columns of one frame's record (times in ms)."""
-    out = {k: 1e3 * float(rec.get(k, 0.0)) for k in ("wall", "factorization", "delassus", "pgs", "contact")}
+    out = {k: 1e3 * float(rec.get(k, 0.0)) for k in ("wall", "factorization", "delassus", "pgs", "contact",
+                                                      "delassus_rows")}
     out["detection"] = out["contact"] - out["delassus"] - out["pgs"]
-    out.update(n_contacts=float(rec.get("n_contacts", 0)), pgs_iterations=float(rec.get("pgs_iterations", 0)),
-               dofs=float(rec.get("dofs", 0)))
+    out["wall"] -= out["delassus_rows"]  # the frame without the extra per-row Delassus operator
+    out.update({k: float(rec.get(k, 0)) for k in ("n_contacts", "pgs_iterations", "dofs", "delassus_columns",
+                                                  "rows_columns")})
     return out
 
 
-def run(mesh_dir, scene, start, end):
+def per_row(sim):
+    """Also build each frame's Delassus operator per row of J on the frame's factorisation, timed,
+    before the frame's own on even frames and after it on odd ones (``delassus_rows``, s)."""
+    original, cache = sim.contact.resolve, {}
+
+    def resolve(problem, result, rec):
+        cs = sim.contact.current
+        if cs is None or result.operator is None:
+            return original(problem, result, rec)
+
+        def rows():
+            t0 = time.perf_counter()
+            res = delassus.Resolvent(result.operator, block=sim.contact.settings.block, cache=cache, touched=False)
+            res.delassus(cs.J)
+            rec.update(delassus_rows=time.perf_counter() - t0, rows_columns=res.columns_solved)
+
+        if problem.frame % 2 == 0:
+            rows()
+        out = original(problem, result, rec)
+        if problem.frame % 2:
+            rows()
+        return out
+
+    sim.contact.resolve = resolve
+
+
+def builders(mesh_dir, scene, end, cells):
+    """full space, affinification, rigidification of the scene (at the paper's thresholds)."""
+    if scene == "pile":
+        from budget import pile
+        return [pile(cells), pile(cells, sa.Affinification(tau_a=1e-4, tau_e=2e-4)),
+                pile(cells, sa.Rigidification(tau_r=1e-4, tau_e=2e-4))]
+    if mesh_dir is None:
+        raise ValueError(f"--scene {scene} needs MESH_DIR (the paper's meshes)")
     row, _, factory, fraction = paper_table1.SCENES[scene]
     build = factory(mesh_dir, end)
-    sims = [build(None)] + [build(r) for r in paper_table1.reducers(row, fraction)]
+    return [build(None)] + [build(r) for r in paper_table1.reducers(row, fraction)]
+
+
+def run(mesh_dir, scene, start, end, cells=4, compare_rows=False):
+    sims = builders(mesh_dir, scene, end, cells)
+    if compare_rows:
+        for sim in sims:
+            per_row(sim)
     rows = {m: [] for m in METHODS}
     t0 = time.perf_counter()
     for frame in range(end):
@@ -54,12 +106,12 @@ def run(mesh_dir, scene, start, end):
                 rows[METHODS[i]].append(record(sims[i].stats[-1]))
         if frame % 10 == 0:
             print(f"{scene} frame {frame}/{end} ({time.perf_counter() - t0:.0f} s)", file=sys.stderr, flush=True)
-    return {m: {c: float(np.mean([r[c] for r in rs])) for c in COLUMNS} for m, rs in rows.items()}
+    return {m: {c: float(np.mean([r[c] for r in rs])) for c in COLUMNS + ROWS} for m, rs in rows.items()}
 
 
 def markdown(scene, means):
     lines = [f"| {scene} | " + " | ".join(METHODS) + " |", "|---|---|---|---|"]
-    for c in COLUMNS:
+    for c in COLUMNS + (ROWS if any(means[m]["rows_columns"] for m in METHODS) else ()):
         lines.append(f"| {c} | " + " | ".join(f"{means[m][c]:.0f}" for m in METHODS) + " |")
     share = [means[m]["contact"] / max(means[m]["wall"], 1e-300) for m in METHODS]
     lines.append("| contact share of the frame | " + " | ".join(f"{100 * s:.0f} %" for s in share) + " |")
@@ -68,14 +120,16 @@ def markdown(scene, means):
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("mesh_dir")
-    ap.add_argument("--scene", choices=["wheel", "octopus", "pills"], required=True)
+    ap.add_argument("mesh_dir", nargs="?", default=None, help="the paper's meshes (not for --scene pile)")
+    ap.add_argument("--scene", choices=["wheel", "octopus", "pills", "pile"], required=True)
+    ap.add_argument("--cells", type=int, default=4, help="cells per box edge of the pile")
+    ap.add_argument("--rows", action="store_true", help="also time the Delassus operator built per row of J")
     ap.add_argument("--start", type=int, required=True)
     ap.add_argument("--end", type=int, required=True)
     ap.add_argument("--threads", default="1", help="BLAS/MKL threads (read before numpy is imported)")
     ap.add_argument("--json", default=None, help="also write the means here")
     args = ap.parse_args(argv)
-    means = run(args.mesh_dir, args.scene, args.start, args.end)
+    means = run(args.mesh_dir, args.scene, args.start, args.end, args.cells, args.rows)
     print(f"frames {args.start}-{args.end - 1}, ms per frame (means)")
     print(markdown(args.scene, means))
     if args.json:
