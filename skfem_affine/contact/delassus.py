@@ -143,20 +143,22 @@ class Resolvent:
 
     def inverse_on(self, solver, n, T, iterative=False):
         """Z = (A^-1)_TT (|T| x |T|, dense) for the n x n matrix A that ``solver`` has factorised and
-        the unknowns T: the unit columns e_T solved, ``block`` at a time, rows T kept.
+        the unknowns T (sorted): the unit columns e_T solved, ``block`` at a time, rows T kept.
 
         The one place Z comes from: another way of getting it (a Schur complement of A on T)
         replaces this method."""
         self.columns_solved += T.size
-        E = sp.csc_matrix((np.ones(T.size), (T, np.arange(T.size))), shape=(n, T.size))
+        E = sp.csc_matrix((np.ones(T.size), T, np.arange(T.size + 1)), shape=(n, T.size))
         return gram(solver, E, self.block, iterative)
 
     def _product(self, solver, Jb, iterative=False):
-        """Jb A^-1 Jb^T for the matrix A (Jb.shape[1] unknowns) that ``solver`` has factorised: from
+        """Jb A^-1 Jb^T for Jb (CSC, m x n) and the n x n matrix A that ``solver`` has factorised: from
         Z = (A^-1)_TT on the touched unknowns T when there are fewer of them than rows, else per row."""
-        T = np.unique(Jb.indices[Jb.data != 0])
+        counts = np.diff(Jb.indptr)
+        T = np.flatnonzero(counts)
         if self.touched and T.size < Jb.shape[0]:
-            Jt = Jb[:, T]
+            Jt = sp.csc_matrix((Jb.data, Jb.indices, np.concatenate([[0], np.cumsum(counts[T])])),
+                               shape=(Jb.shape[0], T.size))
             W = Jt @ (Jt @ self.inverse_on(solver, Jb.shape[1], T, iterative)).T
         else:
             self.columns_solved += Jb.shape[0]
@@ -170,18 +172,20 @@ class Resolvent:
         k = J.shape[0]
         if self.parts is None:
             self._evict()
-            return self._product(self.solver, Jr, self.iterative)
+            return self._product(self.solver, Jr.tocsc(), self.iterative)
         W = np.zeros((k, k))
         Jc = Jr[:, self.order].tocsc()
+        Jc.eliminate_zeros()
         Ap = sp.csr_matrix(self.A)[self.order][:, self.order].tocsr()
         self.local = []
         for c in self.parts:
             s, e = self.bounds[c], self.bounds[c + 1]
-            Jb = Jc[:, s:e].tocsr()
-            rows = np.flatnonzero(np.diff(Jb.indptr))
-            if not rows.size:
+            a, b = Jc.indptr[s], Jc.indptr[e]
+            if a == b:  # no contact touches this component
                 continue
-            Jb = Jb[rows]
+            # its columns of J, on the rows of the contacts that touch it
+            rows, local = np.unique(Jc.indices[a:b], return_inverse=True)
+            Jb = sp.csc_matrix((Jc.data[a:b], local, Jc.indptr[s:e + 1] - a), shape=(rows.size, e - s))
             idx = self.order[s:e]
             solver = self._block_solver(idx)
             with serial_blas() if idx.size < BLOCK_DIRECT_MIN else _nothing():
