@@ -102,7 +102,7 @@ class Resolvent:
     (6) reduced unknowns however many they are, and a vertex with several contacts is solved
     once; otherwise A^-1 Jr^T is solved row by row, ``block`` columns at a time (always, with
     ``touched=False``: the reference path). The number of columns solved by the last
-    :meth:`delassus` is :attr:`columns_solved`.
+    :meth:`delassus` is ``columns_solved``.
 
     Bodies are not coupled by A, so when A has several connected components (several bodies),
     W is built per component from a factorization of that block alone (dense Cholesky up to
