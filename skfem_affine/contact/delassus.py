@@ -19,8 +19,8 @@ from skfem_affine.threads import serial_blas
 from skfem_affine.solvers import SuperLU, direct_solver
 
 # Blocks (bodies) of the Delassus operator: up to BLOCK_DENSE_MAX unknowns a dense Cholesky
-# factor L gives W_b = X^T X, X = L^-1 R (one triangular solve, R = J_b^T or the unit columns of
-# the unknowns its contacts touch); below BLOCK_DIRECT_MIN
+# factor L gives R^T A_b^-1 R = X^T X, X = L^-1 R (one triangular solve; R = J_b^T, or the unit
+# columns of the unknowns its contacts touch); below BLOCK_DIRECT_MIN
 # SuperLU, else the direct solver (measurements in docs/contact.md).
 BLOCK_DENSE_MAX = 800
 BLOCK_DIRECT_MIN = 2000
