@@ -97,8 +97,8 @@ class Resolvent:
 
     W needs A^-1 only on the unknowns T that the contacts touch (the columns of Jr with a
     nonzero): ``W = Jr_T Z Jr_T^T`` with ``Z = (A^-1)_TT`` (:meth:`inverse_on`), from solves of
-    the unit columns e_T. That costs |T| solves instead of one per row of Jr (3 per contact),
-    and is taken when |T| is the smaller: the contacts on an affine (rigid) body touch its 12
+    the unit columns e_T. That costs ``|T|`` solves instead of one per row of Jr (3 per contact),
+    and is taken when ``|T|`` is the smaller: the contacts on an affine (rigid) body touch its 12
     (6) reduced unknowns however many they are, and a vertex with several contacts is solved
     once; otherwise A^-1 Jr^T is solved row by row, ``block`` columns at a time (always, with
     ``touched=False``: the reference path). The number of columns solved by the last
@@ -142,7 +142,7 @@ class Resolvent:
             del self.cache[key]
 
     def inverse_on(self, solver, n, T, iterative=False):
-        """Z = (A^-1)_TT (|T| x |T|, dense) for the n x n matrix A that ``solver`` has factorised and
+        """Z = (A^-1)_TT (``|T| x |T|``, dense) for the n x n matrix A that ``solver`` has factorised and
         the unknowns T (sorted): the unit columns e_T solved, ``block`` at a time, rows T kept.
 
         The one place Z comes from: another way of getting it (a Schur complement of A on T)
