@@ -99,6 +99,48 @@ def test_error_controller_moves_the_threshold_the_right_way():
     assert eb.local(0.5) == 1.0
 
 
+def _particle(mass, stiffness, dt, alpha=0.0):
+    """One free vertex: the solve, M and H of backward Euler's A = (1 + h alpha) M + h^2 H."""
+    import scipy.sparse as sp
+    M, H = mass * sp.identity(3, format="csr"), stiffness * sp.identity(3, format="csr")
+    A = (1 + dt * alpha) * M + dt * dt * H
+    return (lambda r: r / A.diagonal()), M, H
+
+
+def test_kick_amplification_in_closed_form():
+    free, delta = np.arange(3), np.array([0.3, 0.0, 0.4])
+    # a free particle keeps its velocity error: the position error grows by h delta every frame
+    solve, M, H = _particle(2.0, 0.0, 0.01)
+    assert budget.kick_amplification(solve, M, H, delta, 0.01, free, 1, steps=7) == pytest.approx(8.0)
+    # mass damping forgets it geometrically, r = 1 / (1 + h alpha), until it is under 5 %
+    solve, M, H = _particle(2.0, 0.0, 0.01, alpha=20.0)
+    r, k = 1 / 1.2, int(np.ceil(np.log(0.05) / np.log(1 / 1.2)))
+    assert budget.kick_amplification(solve, M, H, delta, 0.01, free, 1, steps=100) == pytest.approx(
+        sum(r ** j for j in range(k + 1)))
+    # a spring (omega = 10) turns it back: the peak is delta / omega, 1 / (h omega) = 100 kicks' worth
+    solve, M, H = _particle(1.0, 100.0, 1e-3)
+    assert budget.kick_amplification(solve, M, H, delta, 1e-3, free, 1, steps=400) == pytest.approx(100.0, rel=0.02)
+    # a stiff one within the frame: the kick's own h delta (no error: 1)
+    solve, M, H = _particle(1.0, 1e8, 0.01)
+    assert budget.kick_amplification(solve, M, H, delta, 0.01, free, 1) == 1.0
+    assert budget.kick_amplification(solve, M, H, np.zeros(3), 0.01, free, 1) == 1.0
+
+
+def test_the_estimate_counts_how_far_a_velocity_error_carries():
+    eb = budget.ErrorBudget(0.01, tau=0.1, memory=0.5)
+    eb.advance(1.0, 0.01, 1.0)
+    one = eb.estimate
+    assert eb.propagated(4.0) == 4.0 and eb.propagated(1.0) == 2.0  # the larger of the newest and the history
+    assert eb.propagated(0.5) == pytest.approx(2.0 ** 0.5)  # never under 1
+    eb = budget.ErrorBudget(0.01, tau=0.1, memory=0.5)
+    eb.propagated(4.0)
+    eb.advance(1.0, 0.01, 1.0)
+    assert eb.estimate == pytest.approx(4 * one)
+    fresh = budget.ErrorBudget(0.01, tau=0.1)
+    fresh.scale(1.0)
+    assert not fresh.breaks(0.2, 0.01) and eb.breaks(0.2, 0.01)  # its own kick 4 x 0.002 > 0.25 budgets
+
+
 def test_time_budget_raises_the_forced_fraction_when_frames_are_too_slow():
     tb = budget.TimeBudget(0.01)
     assert tb.observe(0.02) and tb.fraction == pytest.approx(0.575)  # 2x over: + 0.5 (ratio - 0.85)
@@ -301,13 +343,13 @@ def test_controller_state_is_plain_numbers_and_restores_a_run():
     a = make()
     for _ in a.run(6):
         pass
-    state = a.reducer.controller_state()
+    state = a.reducer.controllers
     assert set(state) == {"error_budget", "timer", "pays", "shadows", "thresholds"}
     flat = [v for d in state.values() for v in d.values()]
     assert all(isinstance(v, (int, float, bool)) or (isinstance(v, list) and all(isinstance(u, float) for u in v))
                for v in flat)
     b = make()
-    b.reducer.restore_controller_state(state)
-    assert b.reducer.controller_state() == state and b.reducer.tau_a == a.reducer.tau_a
+    b.reducer.controllers = state
+    assert b.reducer.controllers == state and b.reducer.tau_a == a.reducer.tau_a
     with pytest.raises(ValueError, match="no controller"):
-        sa.scenes.cantilever(resolution=2, reducer=sa.Affinification(0.1, 0.2)).reducer.restore_controller_state(state)
+        sa.scenes.cantilever(resolution=2, reducer=sa.Affinification(0.1, 0.2)).reducer.controllers = state

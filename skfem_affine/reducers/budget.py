@@ -83,6 +83,9 @@ RESPONSE_FLOOR = 1e-3
 #: A reduced frame whose own estimated position error (h ||delta|| / U) exceeds this fraction of
 #: the budget is solved again in full space (:meth:`ErrorBudget.breaks`).
 KICK = 0.25
+#: Frames a shadow frame follows its measured velocity error through the linearized step
+#: (:func:`kick_amplification`); it stops earlier once the velocity error has died out.
+PROPAGATION_STEPS = 24
 
 
 def error_unit(relative_to):
@@ -117,6 +120,49 @@ def vertex_max_norm(free_values, free, n):
     full = np.zeros(3 * n)
     full[free] = free_values
     return float(np.sqrt(np.max(np.einsum("ij,ij->i", full.reshape(n, 3), full.reshape(n, 3))))) if n else 0.0
+
+
+def kick_amplification(solve, M, H, delta, dt, free, n, steps=PROPAGATION_STEPS):
+    r"""How far a velocity error keeps moving the vertices after the frame that made it.
+
+    A reduced frame's velocity error delta (m/s, free DOFs) moves the vertices by h delta in its
+    frame; the frames after it carry it on. Linearizing backward Euler about the run, a position
+    error e_x and velocity error e_v become, one frame later (no new error),
+
+    .. math:: A\,e_v' = M e_v - h H e_x, \qquad e_x' = e_x + h e_v',
+
+    with the frame's A = c_M M + c_K H (damping included). Starting from e_v = delta,
+    e_x = h delta, this returns max_k ||e_x^(k)||_inf / (h ||delta||_inf) over ``steps`` frames
+    (>= 1): the position error one frame's velocity error grows to, in units of what it adds in
+    its own frame. A stiff scene forgets a velocity error in a few frames (about 1-2); a soft
+    or slow one keeps moving on it (the twisting beam: several).
+
+    Parameters
+    ----------
+    solve : callable
+        r -> A^-1 r with the frame's factorised full-space A (free DOFs).
+    M, H : sparse matrices
+        Mass and stiffness on the free DOFs.
+    delta : (n_free,) array
+        The measured velocity error of a shadow frame.
+    dt : float
+    free : int array
+        The free DOFs (of 3 n); ``n`` the number of vertices.
+    """
+    h = float(dt)
+    first = vertex_max_norm(delta, free, n)
+    if not first > 0:
+        return 1.0
+    ev = np.asarray(delta, float)
+    ex = h * ev
+    peak = h * first
+    for _ in range(int(steps)):
+        ev = np.asarray(solve(M @ ev - h * (H @ ex)), float).ravel()
+        ex = ex + h * ev
+        peak = max(peak, vertex_max_norm(ex, free, n))
+        if vertex_max_norm(ev, free, n) < 0.05 * first:
+            break
+    return peak / (h * first)
 
 
 def controllers_state(owner, names):
@@ -176,7 +222,12 @@ class ErrorBudget:
         Measured / proxy local error of the latest shadow frames (>= 1 is typical: one CG step
         underestimates the smooth part of the error).
     local_rate : float
-        The latest local error ||delta|| / L (1/s).
+        The latest local error ||delta|| / U (1/s).
+    amplification : float
+        G >= 1: the position error a frame's velocity error grows to in the frames after it, in
+        units of h ||delta|| (:func:`kick_amplification`, measured on shadow frames; the larger of
+        the newest and a slowly forgotten history, as the calibration). A reduced frame adds
+        G h ||delta|| to D.
     ramping : bool
         The threshold has only risen, at ``ramp_grow``, since the start.
     """
@@ -199,6 +250,7 @@ class ErrorBudget:
         self.calibration = 1.0
         self.calibrated = 0  # shadow frames that measured a nonzero proxy
         self.local_rate = 0.0
+        self.amplification = 1.0
         self.stable = False  # the latest shadow frame confirmed the calibration
 
     @property
@@ -226,6 +278,12 @@ class ErrorBudget:
             self.calibrated += 1
         return measured
 
+    def propagated(self, ratio):
+        """Take a shadow frame's measured :func:`kick_amplification`; returns the new G."""
+        ratio = max(float(ratio), 1.0)
+        self.amplification = max(ratio, math.sqrt(self.amplification * ratio))
+        return self.amplification
+
     @property
     def relative_to(self):
         """The unit of the target and the estimate: "response", "size" or "metre"."""
@@ -250,7 +308,7 @@ class ErrorBudget:
         return self.unit
 
     def advance(self, delta, dt, size, introduced=True):
-        """D <- rho D + h delta (``introduced=False``: the frame returned the full solution); E = D / U.
+        """D <- rho D + G h delta (``introduced=False``: the frame returned the full solution); E = D / U.
 
         ``size`` is the scene size; the unit is the one :meth:`scale` set (the scene size if never set).
         """
@@ -258,7 +316,7 @@ class ErrorBudget:
             self.scale(size)
         rho = math.exp(-dt / self.memory)
         self.local_rate = delta / self.unit
-        self.drift = rho * self.drift + (dt * delta if introduced else 0.0)
+        self.drift = rho * self.drift + (self.amplification * dt * delta if introduced else 0.0)
         self.estimate = self.drift / self.unit
         return self.estimate
 
@@ -271,7 +329,7 @@ class ErrorBudget:
         nothing could reduce, then everything does) is refused."""
         if not self.unit > 0:
             return False
-        kick = dt * float(delta) / self.unit
+        kick = self.amplification * dt * float(delta) / self.unit
         return kick > KICK * self.target or math.exp(-dt / self.memory) * self.estimate + kick > self.target
 
     def decay(self, dt):
@@ -287,7 +345,7 @@ class ErrorBudget:
         gain nothing and only let the next event (an impact) find everything reduced; tau
         does not grow then.
         """
-        steady = self.memory * self.local_rate
+        steady = self.memory * self.amplification * self.local_rate
         upper = self.ramp_grow if self.ramping else self.grow
         ratio = self.goal / steady if steady > 0 else upper ** 2
         factor = min(max(math.sqrt(ratio), self.shrink), upper)
