@@ -32,18 +32,21 @@ What is estimated:
   that the shadow frames keep up to date (:meth:`ErrorBudget.local`);
 * the *global* position error, accumulated as
 
-  .. math:: D_{t+1} = \rho\,D_t + h\,\|\delta_t\|_\infty,
+  .. math:: D_{t+1} = \rho\,D_t + G\,h\,\|\delta_t\|_\infty,
             \qquad \rho = e^{-h/T}, \qquad E_t = D_t / U_t,
 
-  a velocity error moving the vertices by h delta per step, forgotten over the memory time T
-  (an error in an oscillating scene comes back rather than growing without bound; T is
-  the scale of the slowest motion that still builds up drift). Shadow frames return the full
+  a velocity error moving the vertices by h delta in its frame and, carried on by the frames
+  after it, by up to G h delta in all; forgotten over the memory time T (an error in an
+  oscillating scene comes back rather than growing without bound). G >= 1, the *amplification*,
+  is measured on shadow frames by following the measured delta through the frame's linearized
+  step (:func:`kick_amplification`): about 1 where elastic forces turn a velocity error back
+  within a frame or two, several on a soft or slowly moving scene. Shadow frames return the full
   solution, so they add no error. D is in metres; U_t is the unit of the budget (R_t, L or 1 m).
-  A reduced frame whose estimated h ||delta|| / U alone is over a quarter of the budget, or that
-  would take E over the budget, is solved again in full space (:meth:`ErrorBudget.breaks`).
+  A reduced frame whose estimated G h ||delta|| / U alone is over a quarter of the budget, or
+  that would take E over the budget, is solved again in full space (:meth:`ErrorBudget.breaks`).
 
 The controller keeps the *steady-state* contribution of the current local error,
-S = T ||delta|| / U (what E would settle at), at ``safety`` times the budget: each reduced frame
+S = T G ||delta|| / U (what E would settle at), at ``safety`` times the budget: each reduced frame
 the threshold is multiplied by (goal / S)^(1/2), clipped to [``shrink``, ``grow``]; when the
 accumulated E itself is over the goal it shrinks by at least ``shrink_over``. How well the
 estimate follows the measured error is in ``docs/budget.md``.
@@ -80,7 +83,7 @@ ERROR_UNITS = ("response", "size", "metre")
 DEFAULT_RELATIVE_TO = "response"
 #: The response an error budget measures against is at least this fraction of the scene size.
 RESPONSE_FLOOR = 1e-3
-#: A reduced frame whose own estimated position error (h ||delta|| / U) exceeds this fraction of
+#: A reduced frame whose own estimated position error (G h ||delta|| / U) exceeds this fraction of
 #: the budget is solved again in full space (:meth:`ErrorBudget.breaks`).
 KICK = 0.25
 #: Frames a shadow frame follows its measured velocity error through the linearized step
@@ -322,7 +325,7 @@ class ErrorBudget:
 
     def breaks(self, delta, dt):
         """Whether a reduced frame of local error ``delta`` (m/s) would break the promise: its own
-        position error h delta / U is over :data:`KICK` budgets, or it would take the estimate over
+        position error G h delta / U is over :data:`KICK` budgets, or it would take the estimate over
         the budget. Such a frame is solved again in full space (a shadow frame: it adds no error and
         calibrates the estimate). The controller keeps the estimate near half the budget, where a
         frame adds about h / T of it, so only a sudden jump of the error (a threshold grown while
