@@ -87,7 +87,7 @@ RESPONSE_FLOOR = 1e-3
 #: the budget is solved again in full space (:meth:`ErrorBudget.breaks`).
 KICK = 0.25
 #: Frames a shadow frame follows its measured velocity error through the linearized step
-#: (:func:`kick_amplification`); it stops earlier once the velocity error has died out.
+#: (:func:`kick_amplification`); it stops earlier once the velocity error has died out or turned back.
 PROPAGATION_STEPS = 24
 
 
@@ -137,7 +137,8 @@ def kick_amplification(solve, M, H, delta, dt, free, n, steps=PROPAGATION_STEPS)
     with the frame's A = c_M M + c_K H (damping included). Starting from e_v = delta,
     e_x = h delta, this returns max_k ||e_x^(k)||_inf / (h ||delta||_inf) over ``steps`` frames
     (>= 1): the position error one frame's velocity error grows to, in units of what it adds in
-    its own frame. A stiff scene forgets a velocity error in a few frames (about 1-2); a soft
+    its own frame. It stops early once e_v is under 5 % of delta or e_x has come back to half its
+    peak. A stiff scene forgets a velocity error in a few frames (about 1-2); a soft
     or slow one keeps moving on it (the twisting beam: several).
 
     Parameters
@@ -162,9 +163,10 @@ def kick_amplification(solve, M, H, delta, dt, free, n, steps=PROPAGATION_STEPS)
     for _ in range(int(steps)):
         ev = np.asarray(solve(M @ ev - h * (H @ ex)), float).ravel()
         ex = ex + h * ev
-        peak = max(peak, vertex_max_norm(ex, free, n))
-        if vertex_max_norm(ev, free, n) < 0.05 * first:
-            break
+        now = vertex_max_norm(ex, free, n)
+        peak = max(peak, now)
+        if vertex_max_norm(ev, free, n) < 0.05 * first or now < 0.5 * peak:
+            break  # the velocity error has died out, or elastic forces have turned the error back
     return peak / (h * first)
 
 
