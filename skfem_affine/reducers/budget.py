@@ -150,8 +150,18 @@ def kick_amplification(solve, M, H, delta, dt, free, n, steps=PROPAGATION_STEPS)
     delta : (n_free,) array
         The measured velocity error of a shadow frame.
     dt : float
+        The time step h (s).
     free : int array
-        The free DOFs (of 3 n); ``n`` the number of vertices.
+        The free DOFs (of the 3 n).
+    n : int
+        The number of vertices.
+    steps : int
+        The most frames followed.
+
+    Returns
+    -------
+    float
+        G >= 1 (1 for a zero ``delta``).
     """
     h = float(dt)
     first = vertex_max_norm(delta, free, n)
