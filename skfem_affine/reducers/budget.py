@@ -138,8 +138,8 @@ def kick_amplification(solve, M, H, delta, dt, free, n, steps=PROPAGATION_STEPS)
     e_x = h delta, this returns max_k ||e_x^(k)||_inf / (h ||delta||_inf) over ``steps`` frames
     (>= 1): the position error one frame's velocity error grows to, in units of what it adds in
     its own frame. It stops early once e_v is under 5 % of delta or e_x has come back to half its
-    peak. A stiff scene forgets a velocity error in a few frames (about 1-2); a soft
-    or slow one keeps moving on it (the twisting beam: several).
+    peak. A stiff scene turns a velocity error back within a few frames (G about 1-2); a soft or
+    slow one keeps moving on it (the twisting beam: G about 5).
 
     Parameters
     ----------
