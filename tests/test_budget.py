@@ -107,38 +107,53 @@ def _particle(mass, stiffness, dt, alpha=0.0):
     return (lambda r: r / A.diagonal()), M, H
 
 
-def test_kick_amplification_in_closed_form():
-    free, delta = np.arange(3), np.array([0.3, 0.0, 0.4])
+def test_kick_response_in_closed_form():
+    free, delta, h, T = np.arange(3), np.array([0.3, 0.0, 0.4]), 0.01, 0.5
+    rho = np.exp(-h / T)
+
+    def carried(g, last):  # (1 - rho) sum_k rho^k g_k, g kept at its last value after the frames followed
+        k = np.arange(len(g))
+        return (1 - rho) * (np.sum(rho ** k * g) + last * rho ** len(g) / (1 - rho))
     # a free particle keeps its velocity error: the position error grows by h delta every frame
-    solve, M, H = _particle(2.0, 0.0, 0.01)
-    assert budget.kick_amplification(solve, M, H, delta, 0.01, free, 1, steps=7) == pytest.approx(8.0)
-    # mass damping forgets it geometrically, r = 1 / (1 + h alpha), until it is under 5 %
-    solve, M, H = _particle(2.0, 0.0, 0.01, alpha=20.0)
-    r, k = 1 / 1.2, int(np.ceil(np.log(0.05) / np.log(1 / 1.2)))
-    assert budget.kick_amplification(solve, M, H, delta, 0.01, free, 1, steps=100) == pytest.approx(
-        sum(r ** j for j in range(k + 1)))
+    solve, M, H = _particle(2.0, 0.0, h)
+    G, W = budget.kick_response(solve, M, H, delta, h, free, 1, T, steps=7)
+    g = np.arange(1.0, 9.0)
+    assert G == pytest.approx(8.0) and W == pytest.approx(carried(g, 8.0))
+    # mass damping forgets it geometrically, r = 1 / (1 + h alpha), until it is under 5 %; the
+    # position error then stays: g_k = (1 - r^(k+1)) / (1 - r)
+    solve, M, H = _particle(2.0, 0.0, h, alpha=20.0)
+    r = 1 / 1.2
+    k = int(np.ceil(np.log(0.05) / np.log(r)))
+    g = (1 - r ** np.arange(1, k + 2)) / (1 - r)
+    G, W = budget.kick_response(solve, M, H, delta, h, free, 1, T, steps=100)
+    assert G == pytest.approx(g[-1]) and W == pytest.approx(carried(g, g[-1]))
+    assert 1 < W < G
     # a spring (omega = 10) turns it back: the peak is delta / omega, 1 / (h omega) = 100 kicks' worth
     solve, M, H = _particle(1.0, 100.0, 1e-3)
-    assert budget.kick_amplification(solve, M, H, delta, 1e-3, free, 1, steps=400) == pytest.approx(100.0, rel=0.02)
-    # a stiff one within the frame: the kick's own h delta (no error: 1)
-    solve, M, H = _particle(1.0, 1e8, 0.01)
-    assert budget.kick_amplification(solve, M, H, delta, 0.01, free, 1) == 1.0
-    assert budget.kick_amplification(solve, M, H, np.zeros(3), 0.01, free, 1) == 1.0
+    G, W = budget.kick_response(solve, M, H, delta, 1e-3, free, 1, T, steps=400)
+    assert G == pytest.approx(100.0, rel=0.02) and 1 < W < G
+    # a stiff one turns it back within the frame: the kick's own h delta, and nothing carried
+    solve, M, H = _particle(1.0, 1e6, h)
+    assert budget.kick_response(solve, M, H, delta, h, free, 1, T) == (1.0, 1.0)
+    assert budget.kick_response(solve, M, H, np.zeros(3), h, free, 1, T) == (1.0, 1.0)
 
 
 def test_the_estimate_counts_how_far_a_velocity_error_carries():
     eb = budget.ErrorBudget(0.01, tau=0.1, memory=0.5)
     eb.advance(1.0, 0.01, 1.0)
     one = eb.estimate
-    assert eb.propagated(4.0) == 4.0 and eb.propagated(1.0) == 2.0  # the larger of the newest and the history
-    assert eb.propagated(0.5) == pytest.approx(2.0 ** 0.5)  # never under 1
+    assert eb.propagated(4.0, 3.0) == (4.0, 3.0)
+    assert eb.propagated(1.0, 1.0) == (2.0, pytest.approx(3.0 ** 0.5))  # the larger of the newest and the history
+    assert eb.propagated(0.5, 0.5)[0] == pytest.approx(2.0 ** 0.5)  # never under 1
     eb = budget.ErrorBudget(0.01, tau=0.1, memory=0.5)
-    eb.propagated(4.0)
+    eb.propagated(8.0, 4.0)
     eb.advance(1.0, 0.01, 1.0)
-    assert eb.estimate == pytest.approx(4 * one)
+    assert eb.estimate == pytest.approx(4 * one)  # D adds W h delta
     fresh = budget.ErrorBudget(0.01, tau=0.1)
     fresh.scale(1.0)
-    assert not fresh.breaks(0.2, 0.01) and eb.breaks(0.2, 0.01)  # its own kick 4 x 0.002 > 0.25 budgets
+    assert not fresh.breaks(0.2, 0.01) and eb.breaks(0.2, 0.01)  # its own kick G h delta: 8 x 0.002 > 0.25 budgets
+    eb.propagated(1.0, 1.0)
+    assert eb.breaks(0.1, 0.01) and not fresh.breaks(0.1, 0.01)
 
 
 def test_time_budget_raises_the_forced_fraction_when_frames_are_too_slow():

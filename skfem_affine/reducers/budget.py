@@ -32,21 +32,22 @@ What is estimated:
   that the shadow frames keep up to date (:meth:`ErrorBudget.local`);
 * the *global* position error, accumulated as
 
-  .. math:: D_{t+1} = \rho\,D_t + G\,h\,\|\delta_t\|_\infty,
+  .. math:: D_{t+1} = \rho\,D_t + W\,h\,\|\delta_t\|_\infty,
             \qquad \rho = e^{-h/T}, \qquad E_t = D_t / U_t,
 
-  a velocity error moving the vertices by h delta in its frame and, carried on by the frames
-  after it, by up to G h delta in all; forgotten over the memory time T (an error in an
-  oscillating scene comes back rather than growing without bound). G >= 1, the *amplification*,
-  is measured on shadow frames by following the measured delta through the frame's linearized
-  step (:func:`kick_amplification`): about 1 where elastic forces turn a velocity error back
-  within a frame or two, several on a soft or slowly moving scene. Shadow frames return the full
+  a velocity error moving the vertices by h delta in its frame, forgotten over the memory time T
+  (an error in an oscillating scene comes back rather than growing without bound). The frames
+  after it carry a velocity error on: it grows to G h delta (the *amplification*), and W, the
+  *carry*, is how much of that it keeps over T. Both are measured on shadow frames by following
+  the measured delta through the frame's linearized step (:func:`kick_response`): W = 1 where
+  elastic forces turn the error back within a few frames, several where it keeps drifting
+  (a soft, slow or free scene). Shadow frames return the full
   solution, so they add no error. D is in metres; U_t is the unit of the budget (R_t, L or 1 m).
   A reduced frame whose estimated G h ||delta|| / U alone is over a quarter of the budget, or
   that would take E over the budget, is solved again in full space (:meth:`ErrorBudget.breaks`).
 
 The controller keeps the *steady-state* contribution of the current local error,
-S = T G ||delta|| / U (what E would settle at), at ``safety`` times the budget: each reduced frame
+S = T W ||delta|| / U (what E would settle at), at ``safety`` times the budget: each reduced frame
 the threshold is multiplied by (goal / S)^(1/2), clipped to [``shrink``, ``grow``]; when the
 accumulated E itself is over the goal it shrinks by at least ``shrink_over``. How well the
 estimate follows the measured error is in ``docs/budget.md``.
@@ -87,7 +88,7 @@ RESPONSE_FLOOR = 1e-3
 #: the budget is solved again in full space (:meth:`ErrorBudget.breaks`).
 KICK = 0.25
 #: Frames a shadow frame follows its measured velocity error through the linearized step
-#: (:func:`kick_amplification`); it stops earlier once the velocity error has died out or turned back.
+#: (:func:`kick_response`); it stops earlier once the velocity error has died out or turned back.
 PROPAGATION_STEPS = 24
 
 
@@ -125,7 +126,7 @@ def vertex_max_norm(free_values, free, n):
     return float(np.sqrt(np.max(np.einsum("ij,ij->i", full.reshape(n, 3), full.reshape(n, 3))))) if n else 0.0
 
 
-def kick_amplification(solve, M, H, delta, dt, free, n, steps=PROPAGATION_STEPS):
+def kick_response(solve, M, H, delta, dt, free, n, memory, steps=PROPAGATION_STEPS):
     r"""How far a velocity error keeps moving the vertices after the frame that made it.
 
     A reduced frame's velocity error delta (m/s, free DOFs) moves the vertices by h delta in its
@@ -135,11 +136,20 @@ def kick_amplification(solve, M, H, delta, dt, free, n, steps=PROPAGATION_STEPS)
     .. math:: A\,e_v' = M e_v - h H e_x, \qquad e_x' = e_x + h e_v',
 
     with the frame's A = c_M M + c_K H (damping included). Starting from e_v = delta,
-    e_x = h delta, this returns max_k ||e_x^(k)||_inf / (h ||delta||_inf) over ``steps`` frames
-    (>= 1): the position error one frame's velocity error grows to, in units of what it adds in
-    its own frame. It stops early once e_v is under 5 % of delta or e_x has come back to half its
-    peak. A stiff scene turns a velocity error back within a few frames (G about 1-2); a soft or
-    slow one keeps moving on it (the twisting beam: G about 5).
+    e_x = h delta, the response is g_k = ||e_x^(k)||_inf / (h ||delta||_inf), g_0 = 1, followed
+    for at most ``steps`` frames: until e_v is under 5 % of delta (the error then stays where it
+    is) or e_x has come back to half its peak (elastic forces turn it back: an oscillation).
+
+    Returns two numbers, both >= 1:
+
+    * G, the peak of g: the position error one frame's velocity error grows to, in units of what
+      it adds in its own frame (a stiff scene about 1-3, a soft or slow one several);
+    * W, g averaged over the memory time T with the estimate's own forgetting weights,
+      W = (1 - rho) sum_k rho^k g_k (rho = exp(-h / T)), g taken on at its last value past the
+      frames followed, or as 0 once it has turned back: what the estimate D must add per frame,
+      in units of h ||delta||, to carry the error as long as it lasts. An error that elastic
+      forces turn back within a few frames gives W = 1 (the estimate's memory T covers it); one
+      that keeps drifting gives W near G.
 
     Parameters
     ----------
@@ -155,29 +165,40 @@ def kick_amplification(solve, M, H, delta, dt, free, n, steps=PROPAGATION_STEPS)
         The free DOFs (of the 3 n).
     n : int
         The number of vertices.
+    memory : float
+        The estimate's memory time T (s).
     steps : int
         The most frames followed.
 
     Returns
     -------
-    float
-        G >= 1 (1 for a zero ``delta``).
+    (float, float)
+        (G, W); (1, 1) for a zero ``delta``.
     """
     h = float(dt)
     first = vertex_max_norm(delta, free, n)
     if not first > 0:
-        return 1.0
+        return 1.0, 1.0
+    rho = math.exp(-h / float(memory))
     ev = np.asarray(delta, float)
     ex = h * ev
-    peak = h * first
+    peak = now = h * first
+    area, weight, tail = now, 1.0, True
     for _ in range(int(steps)):
         ev = np.asarray(solve(M @ ev - h * (H @ ex)), float).ravel()
         ex = ex + h * ev
         now = vertex_max_norm(ex, free, n)
+        weight *= rho
+        area += weight * now
         peak = max(peak, now)
-        if vertex_max_norm(ev, free, n) < 0.05 * first or now < 0.5 * peak:
-            break  # the velocity error has died out, or elastic forces have turned the error back
-    return peak / (h * first)
+        if now < 0.5 * peak:
+            tail = False  # turned back: an oscillation, which the memory time covers
+            break
+        if vertex_max_norm(ev, free, n) < 0.05 * first:
+            break  # the velocity error has died out: the position error stays
+    if tail:
+        area += now * weight * rho / (1.0 - rho)
+    return peak / (h * first), max(1.0, (1.0 - rho) * area / (h * first))
 
 
 def controllers_state(owner, names):
@@ -240,9 +261,12 @@ class ErrorBudget:
         The latest local error ||delta|| / U (1/s).
     amplification : float
         G >= 1: the position error a frame's velocity error grows to in the frames after it, in
-        units of h ||delta|| (:func:`kick_amplification`, measured on shadow frames; the larger of
-        the newest and a slowly forgotten history, as the calibration). A reduced frame adds
-        G h ||delta|| to D.
+        units of h ||delta|| (:func:`kick_response`, measured on shadow frames; the larger of the
+        newest and a slowly forgotten history, as the calibration). :meth:`breaks` counts a
+        frame's position error as G h ||delta||.
+    carry : float
+        W >= 1: how much of that the error keeps over the memory time (:func:`kick_response`,
+        the same history). A reduced frame adds W h ||delta|| to D.
     ramping : bool
         The threshold has only risen, at ``ramp_grow``, since the start.
     """
@@ -266,6 +290,7 @@ class ErrorBudget:
         self.calibrated = 0  # shadow frames that measured a nonzero proxy
         self.local_rate = 0.0
         self.amplification = 1.0
+        self.carry = 1.0
         self.stable = False  # the latest shadow frame confirmed the calibration
 
     @property
@@ -293,11 +318,13 @@ class ErrorBudget:
             self.calibrated += 1
         return measured
 
-    def propagated(self, ratio):
-        """Take a shadow frame's measured :func:`kick_amplification`; returns the new G."""
-        ratio = max(float(ratio), 1.0)
-        self.amplification = max(ratio, math.sqrt(self.amplification * ratio))
-        return self.amplification
+    def propagated(self, peak, carry):
+        """Take a shadow frame's measured :func:`kick_response` (G, W); returns the new (G, W)."""
+        def mixed(old, new):
+            new = max(float(new), 1.0)
+            return max(new, math.sqrt(old * new))
+        self.amplification, self.carry = mixed(self.amplification, peak), mixed(self.carry, carry)
+        return self.amplification, self.carry
 
     @property
     def relative_to(self):
@@ -323,7 +350,7 @@ class ErrorBudget:
         return self.unit
 
     def advance(self, delta, dt, size, introduced=True):
-        """D <- rho D + G h delta (``introduced=False``: the frame returned the full solution); E = D / U.
+        """D <- rho D + W h delta (``introduced=False``: the frame returned the full solution); E = D / U.
 
         ``size`` is the scene size; the unit is the one :meth:`scale` set (the scene size if never set).
         """
@@ -331,7 +358,7 @@ class ErrorBudget:
             self.scale(size)
         rho = math.exp(-dt / self.memory)
         self.local_rate = delta / self.unit
-        self.drift = rho * self.drift + (self.amplification * dt * delta if introduced else 0.0)
+        self.drift = rho * self.drift + (self.carry * dt * delta if introduced else 0.0)
         self.estimate = self.drift / self.unit
         return self.estimate
 
@@ -360,7 +387,7 @@ class ErrorBudget:
         gain nothing and only let the next event (an impact) find everything reduced; tau
         does not grow then.
         """
-        steady = self.memory * self.amplification * self.local_rate
+        steady = self.memory * self.carry * self.local_rate
         upper = self.ramp_grow if self.ramping else self.grow
         ratio = self.goal / steady if steady > 0 else upper ** 2
         factor = min(max(math.sqrt(ratio), self.shrink), upper)

@@ -457,8 +457,8 @@ class ClusteringReducer(Reducer):
             measured = budgets.vertex_max_norm(gap, sysm.free, sysm.n) if stats["n_clusters"] else 0.0
             if eb is not None and measured > 0:  # how far this velocity error will carry the vertices
                 t_amp = time.perf_counter()
-                eb.propagated(budgets.kick_amplification(op.solver.solve, sysm.Mff, problem.Hmat, gap, h,
-                                                         sysm.free, sysm.n))
+                eb.propagated(*budgets.kick_response(op.solver.solve, sysm.Mff, problem.Hmat, gap, h, sysm.free,
+                                                     sysm.n, eb.memory))
                 stats["estimation"] = stats.get("estimation", 0.0) + time.perf_counter() - t_amp
                 stats["prediction"] += time.perf_counter() - t_amp
             stats.update(dofs=op.shape[0], solver=self.full_solver.name, local_error_measured=measured / unit)
@@ -516,6 +516,7 @@ class ClusteringReducer(Reducer):
         if eb is not None:
             stats["estimated_error"] = float(eb.estimate)
             stats["amplification"] = float(eb.amplification)
+            stats["carry"] = float(eb.carry)
             stats["error_unit"] = float(eb.unit)
         stats["tau_a"] = float(getattr(self, self.threshold))
         stats["tau_e"] = float(self.tau_e)
