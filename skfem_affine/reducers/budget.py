@@ -266,7 +266,7 @@ class ErrorBudget:
         frame's position error as G h ||delta||.
     carry : float
         W >= 1: how much of that the error keeps over the memory time (:func:`kick_response`,
-        the same history). A reduced frame adds W h ||delta|| to D.
+        the newest shadow frame's). A reduced frame adds W h ||delta|| to D.
     ramping : bool
         The threshold has only risen, at ``ramp_grow``, since the start.
     """
@@ -319,11 +319,15 @@ class ErrorBudget:
         return measured
 
     def propagated(self, peak, carry):
-        """Take a shadow frame's measured :func:`kick_response` (G, W); returns the new (G, W)."""
-        def mixed(old, new):
-            new = max(float(new), 1.0)
-            return max(new, math.sqrt(old * new))
-        self.amplification, self.carry = mixed(self.amplification, peak), mixed(self.carry, carry)
+        """Take a shadow frame's measured :func:`kick_response` (G, W); returns the new (G, W).
+
+        G, which guards single frames (:meth:`breaks`), keeps a slowly forgotten history, as the
+        calibration; W, which sets the level of every frame's estimate, is the newest measurement:
+        the response of a run's first frames (a start from rest) does not hold its thresholds
+        down for the frames after."""
+        peak = max(float(peak), 1.0)
+        self.amplification = max(peak, math.sqrt(self.amplification * peak))
+        self.carry = max(float(carry), 1.0)
         return self.amplification, self.carry
 
     @property
