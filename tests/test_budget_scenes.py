@@ -42,7 +42,7 @@ def test_every_registered_scene_is_listed():
 @pytest.mark.slow
 @pytest.mark.parametrize("name", sorted(SMALL))
 def test_affinification_keeps_its_budget_on_every_scene(name):
-    budgets = BUDGETS[1:] if name == "armadillo" else BUDGETS  # the armadillo at 1 %: a known miss (test below)
+    budgets = BUDGETS[1:] if name == "armadillo" else BUDGETS  # the armadillo at 1 %: its own test below
     errors = achieved(name, [sa.Affinification(target_error=b, never_slower=False) for b in budgets])
     for b, err in zip(budgets, errors):
         assert err <= MARGIN * b, (name, b, err)
@@ -57,16 +57,30 @@ def test_rigidification_keeps_its_budget(name):
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason="rigidification on the soft twisting beam: velocity errors keep moving the "
-                                       "vertices for longer than the estimate's memory time (measured 1.3-1.6 budgets)")
-def test_rigidification_on_the_twisting_beam_exceeds_its_budget():
+def test_rigidification_on_the_soft_twisting_beam_keeps_its_budget():
+    """Its velocity errors keep moving the vertices for many frames after the frames that made them
+    (the estimate counts how far: ErrorBudget.amplification)."""
     errors = achieved("twisting_beam", [sa.Rigidification(target_error=b, never_slower=False) for b in BUDGETS], 60)
     assert np.all(errors <= MARGIN * np.array(BUDGETS)), errors
 
 
-@pytest.mark.xfail(strict=True, reason="affinification on the thrown armadillo at 1 % of the response: the contact's "
-                                       "friction amplifies a small reduced error after the frames that made it, and "
-                                       "the estimate undershoots it by about a quarter (measured 1.43 budgets)")
-def test_affinification_on_the_thrown_armadillo_exceeds_its_tight_budget():
+def test_affinification_on_the_thrown_armadillo_keeps_its_tight_budget():
+    """After landing, the rolling contact with friction carries a small reduced error on."""
     errors = achieved("armadillo", [sa.Affinification(target_error=0.01, never_slower=False)])
     assert errors[0] <= MARGIN * 0.01, errors
+
+
+@pytest.mark.slow
+def test_affinification_on_the_twisting_beam_in_size_units_over_a_longer_run():
+    """The beam's slow swing keeps carrying the velocity errors of its reduced frames on (without the
+    amplification: 1.97 budgets at 1 % of the size over 90 frames)."""
+    factory = sa.scenes.SCENES["twisting_beam"]
+    full = factory(solver="direct", **SMALL["twisting_beam"])
+    red = factory(solver="direct", reducer=sa.Affinification(target_error=0.01, relative_to="size", never_slower=False),
+                  **SMALL["twisting_beam"])
+    worst = 0.0
+    for _ in range(90):
+        full.step()
+        red.step()
+        worst = max(worst, metrics.distance_error(red.state.x, full.state.x, full.size))
+    assert worst <= MARGIN * 0.01, worst

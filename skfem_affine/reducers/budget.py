@@ -32,18 +32,22 @@ What is estimated:
   that the shadow frames keep up to date (:meth:`ErrorBudget.local`);
 * the *global* position error, accumulated as
 
-  .. math:: D_{t+1} = \rho\,D_t + h\,\|\delta_t\|_\infty,
+  .. math:: D_{t+1} = \rho\,D_t + W\,h\,\|\delta_t\|_\infty,
             \qquad \rho = e^{-h/T}, \qquad E_t = D_t / U_t,
 
-  a velocity error moving the vertices by h delta per step, forgotten over the memory time T
-  (an error in an oscillating scene comes back rather than growing without bound; T is
-  the scale of the slowest motion that still builds up drift). Shadow frames return the full
+  a velocity error moving the vertices by h delta in its frame, forgotten over the memory time T
+  (an error in an oscillating scene comes back rather than growing without bound). The frames
+  after it carry a velocity error on: it grows to G h delta (the *amplification*), and W, the
+  *carry*, is how much of that it keeps over T. Both are measured on shadow frames by following
+  the measured delta through the frame's linearized step (:func:`kick_response`): W = 1 where
+  elastic forces turn the error back within a few frames, several where it keeps drifting
+  (a soft, slow or free scene). Shadow frames return the full
   solution, so they add no error. D is in metres; U_t is the unit of the budget (R_t, L or 1 m).
-  A reduced frame whose estimated h ||delta|| / U alone is over a quarter of the budget, or that
-  would take E over the budget, is solved again in full space (:meth:`ErrorBudget.breaks`).
+  A reduced frame whose estimated G h ||delta|| / U alone is over a quarter of the budget, or
+  that would take E over the budget, is solved again in full space (:meth:`ErrorBudget.breaks`).
 
 The controller keeps the *steady-state* contribution of the current local error,
-S = T ||delta|| / U (what E would settle at), at ``safety`` times the budget: each reduced frame
+S = T W ||delta|| / U (what E would settle at), at ``safety`` times the budget: each reduced frame
 the threshold is multiplied by (goal / S)^(1/2), clipped to [``shrink``, ``grow``]; when the
 accumulated E itself is over the goal it shrinks by at least ``shrink_over``. How well the
 estimate follows the measured error is in ``docs/budget.md``.
@@ -80,9 +84,12 @@ ERROR_UNITS = ("response", "size", "metre")
 DEFAULT_RELATIVE_TO = "response"
 #: The response an error budget measures against is at least this fraction of the scene size.
 RESPONSE_FLOOR = 1e-3
-#: A reduced frame whose own estimated position error (h ||delta|| / U) exceeds this fraction of
+#: A reduced frame whose own estimated position error (G h ||delta|| / U) exceeds this fraction of
 #: the budget is solved again in full space (:meth:`ErrorBudget.breaks`).
 KICK = 0.25
+#: Frames a shadow frame follows its measured velocity error through the linearized step
+#: (:func:`kick_response`); it stops earlier once the velocity error has died out or turned back.
+PROPAGATION_STEPS = 24
 
 
 def error_unit(relative_to):
@@ -117,6 +124,81 @@ def vertex_max_norm(free_values, free, n):
     full = np.zeros(3 * n)
     full[free] = free_values
     return float(np.sqrt(np.max(np.einsum("ij,ij->i", full.reshape(n, 3), full.reshape(n, 3))))) if n else 0.0
+
+
+def kick_response(solve, M, H, delta, dt, free, n, memory, steps=PROPAGATION_STEPS):
+    r"""How far a velocity error keeps moving the vertices after the frame that made it.
+
+    A reduced frame's velocity error delta (m/s, free DOFs) moves the vertices by h delta in its
+    frame; the frames after it carry it on. Linearizing backward Euler about the run, a position
+    error e_x and velocity error e_v become, one frame later (no new error),
+
+    .. math:: A\,e_v' = M e_v - h H e_x, \qquad e_x' = e_x + h e_v',
+
+    with the frame's A = c_M M + c_K H (damping included). Starting from e_v = delta,
+    e_x = h delta, the response is g_k = ||e_x^(k)||_inf / (h ||delta||_inf), g_0 = 1, followed
+    for at most ``steps`` frames: until e_v is under 5 % of delta (the error then stays where it
+    is) or e_x has come back to half its peak (elastic forces turn it back: an oscillation).
+
+    Returns two numbers, both >= 1:
+
+    * G, the peak of g: the position error one frame's velocity error grows to, in units of what
+      it adds in its own frame (a stiff scene about 1-3, a soft or slow one several);
+    * W, g averaged over the memory time T with the estimate's own forgetting weights,
+      W = (1 - rho) sum_k rho^k g_k (rho = exp(-h / T)), g taken on at its last value past the
+      frames followed, or as 0 once it has turned back: what the estimate D must add per frame,
+      in units of h ||delta||, to carry the error as long as it lasts. An error that elastic
+      forces turn back within a few frames gives W = 1 (the estimate's memory T covers it); one
+      that keeps drifting gives W near G.
+
+    Parameters
+    ----------
+    solve : callable
+        r -> A^-1 r with the frame's factorised full-space A (free DOFs).
+    M, H : sparse matrices
+        Mass and stiffness on the free DOFs.
+    delta : (n_free,) array
+        The measured velocity error of a shadow frame.
+    dt : float
+        The time step h (s).
+    free : int array
+        The free DOFs (of the 3 n).
+    n : int
+        The number of vertices.
+    memory : float
+        The estimate's memory time T (s).
+    steps : int
+        The most frames followed.
+
+    Returns
+    -------
+    (float, float)
+        (G, W); (1, 1) for a zero ``delta``.
+    """
+    h = float(dt)
+    first = vertex_max_norm(delta, free, n)
+    if not first > 0:
+        return 1.0, 1.0
+    rho = math.exp(-h / float(memory))
+    ev = np.asarray(delta, float)
+    ex = h * ev
+    peak = now = h * first
+    area, weight, tail = now, 1.0, True
+    for _ in range(int(steps)):
+        ev = np.asarray(solve(M @ ev - h * (H @ ex)), float).ravel()
+        ex = ex + h * ev
+        now = vertex_max_norm(ex, free, n)
+        weight *= rho
+        area += weight * now
+        peak = max(peak, now)
+        if now < 0.5 * peak:
+            tail = False  # turned back: an oscillation, which the memory time covers
+            break
+        if vertex_max_norm(ev, free, n) < 0.05 * first:
+            break  # the velocity error has died out: the position error stays
+    if tail:
+        area += now * weight * rho / (1.0 - rho)
+    return peak / (h * first), max(1.0, (1.0 - rho) * area / (h * first))
 
 
 def controllers_state(owner, names):
@@ -176,7 +258,15 @@ class ErrorBudget:
         Measured / proxy local error of the latest shadow frames (>= 1 is typical: one CG step
         underestimates the smooth part of the error).
     local_rate : float
-        The latest local error ||delta|| / L (1/s).
+        The latest local error ||delta|| / U (1/s).
+    amplification : float
+        G >= 1: the position error a frame's velocity error grows to in the frames after it, in
+        units of h ||delta|| (:func:`kick_response`, measured on shadow frames; the larger of the
+        newest and a slowly forgotten history, as the calibration). :meth:`breaks` counts a
+        frame's position error as G h ||delta||.
+    carry : float
+        W >= 1: how much of that the error keeps over the memory time (:func:`kick_response`,
+        the newest shadow frame's). A reduced frame adds W h ||delta|| to D.
     ramping : bool
         The threshold has only risen, at ``ramp_grow``, since the start.
     """
@@ -199,6 +289,8 @@ class ErrorBudget:
         self.calibration = 1.0
         self.calibrated = 0  # shadow frames that measured a nonzero proxy
         self.local_rate = 0.0
+        self.amplification = 1.0
+        self.carry = 1.0
         self.stable = False  # the latest shadow frame confirmed the calibration
 
     @property
@@ -226,6 +318,18 @@ class ErrorBudget:
             self.calibrated += 1
         return measured
 
+    def propagated(self, peak, carry):
+        """Take a shadow frame's measured :func:`kick_response` (G, W); returns the new (G, W).
+
+        G, which guards single frames (:meth:`breaks`), keeps a slowly forgotten history, as the
+        calibration; W, which sets the level of every frame's estimate, is the newest measurement:
+        the response of a run's first frames (a start from rest) does not hold its thresholds
+        down for the frames after."""
+        peak = max(float(peak), 1.0)
+        self.amplification = max(peak, math.sqrt(self.amplification * peak))
+        self.carry = max(float(carry), 1.0)
+        return self.amplification, self.carry
+
     @property
     def relative_to(self):
         """The unit of the target and the estimate: "response", "size" or "metre"."""
@@ -250,7 +354,7 @@ class ErrorBudget:
         return self.unit
 
     def advance(self, delta, dt, size, introduced=True):
-        """D <- rho D + h delta (``introduced=False``: the frame returned the full solution); E = D / U.
+        """D <- rho D + W h delta (``introduced=False``: the frame returned the full solution); E = D / U.
 
         ``size`` is the scene size; the unit is the one :meth:`scale` set (the scene size if never set).
         """
@@ -258,20 +362,20 @@ class ErrorBudget:
             self.scale(size)
         rho = math.exp(-dt / self.memory)
         self.local_rate = delta / self.unit
-        self.drift = rho * self.drift + (dt * delta if introduced else 0.0)
+        self.drift = rho * self.drift + (self.carry * dt * delta if introduced else 0.0)
         self.estimate = self.drift / self.unit
         return self.estimate
 
     def breaks(self, delta, dt):
         """Whether a reduced frame of local error ``delta`` (m/s) would break the promise: its own
-        position error h delta / U is over :data:`KICK` budgets, or it would take the estimate over
+        position error G h delta / U is over :data:`KICK` budgets, or it would take the estimate over
         the budget. Such a frame is solved again in full space (a shadow frame: it adds no error and
         calibrates the estimate). The controller keeps the estimate near half the budget, where a
         frame adds about h / T of it, so only a sudden jump of the error (a threshold grown while
         nothing could reduce, then everything does) is refused."""
         if not self.unit > 0:
             return False
-        kick = dt * float(delta) / self.unit
+        kick = self.amplification * dt * float(delta) / self.unit
         return kick > KICK * self.target or math.exp(-dt / self.memory) * self.estimate + kick > self.target
 
     def decay(self, dt):
@@ -287,7 +391,7 @@ class ErrorBudget:
         gain nothing and only let the next event (an impact) find everything reduced; tau
         does not grow then.
         """
-        steady = self.memory * self.local_rate
+        steady = self.memory * self.carry * self.local_rate
         upper = self.ramp_grow if self.ramping else self.grow
         ratio = self.goal / steady if steady > 0 else upper ** 2
         factor = min(max(math.sqrt(ratio), self.shrink), upper)

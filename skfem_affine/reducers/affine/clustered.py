@@ -179,14 +179,22 @@ class ClusteringReducer(Reducer):
     _state_keys = ("was_reduced", "labels", "previous_seeds", "rng_state", "controllers", "refresh_counters",
                    "precond_pose_state")
 
+    #: The controllers' attribute names; their state is plain numbers (checkpoints save it).
+    CONTROLLERS = ("error_budget", "timer", "pays", "shadows")
+
     @property
     def controllers(self):
-        """The budgets' controllers and thresholds as plain numbers (:meth:`controller_state`)."""
-        return self.controller_state()
+        """The budgets' state as plain numbers, {controller: {attribute: value}} plus the thresholds:
+        what a checkpoint saves to resume a controlled run. Setting it (after
+        :meth:`~skfem_affine.reducers.base.Reducer.attach`) restores them."""
+        state = budgets.controllers_state(self, self.CONTROLLERS)
+        state["thresholds"] = {self.threshold: float(getattr(self, self.threshold)), "tau_e": float(self.tau_e),
+                               "min_fraction": float(self.min_fraction)}
+        return state
 
     @controllers.setter
     def controllers(self, state):
-        self.restore_controller_state(state)
+        budgets.restore_controllers(self, state, own="thresholds")
 
     @property
     def refresh_counters(self):
@@ -319,23 +327,6 @@ class ClusteringReducer(Reducer):
             spec = self.solver_spec if self.solver_spec is None or isinstance(self.solver_spec, str) else "direct"
             self.full_solver = make_solver(spec if spec is not None else "direct")
 
-    #: The controllers' attribute names; their state is plain numbers (checkpoints save it).
-    CONTROLLERS = ("error_budget", "timer", "pays", "shadows")
-
-    def controller_state(self):
-        """The budgets' state as plain numbers: {controller: {attribute: value}} plus the thresholds.
-
-        With :meth:`restore_controller_state`, what a checkpoint saves to resume a controlled run.
-        """
-        state = budgets.controllers_state(self, self.CONTROLLERS)
-        state["thresholds"] = {self.threshold: float(getattr(self, self.threshold)), "tau_e": float(self.tau_e),
-                               "min_fraction": float(self.min_fraction)}
-        return state
-
-    def restore_controller_state(self, state):
-        """Set the state :meth:`controller_state` returned (after :meth:`~skfem_affine.reducers.base.Reducer.attach`)."""
-        budgets.restore_controllers(self, state, own="thresholds")
-
     def _set_thresholds(self, tau):
         """The error budget's threshold: ``tau`` to become reduced, 2 tau to stay."""
         setattr(self, self.threshold, float(tau))
@@ -464,6 +455,12 @@ class ClusteringReducer(Reducer):
             if support is not None and stats["n_clusters"]:
                 gap += _response(result.operator, support) - _response(op, support)
             measured = budgets.vertex_max_norm(gap, sysm.free, sysm.n) if stats["n_clusters"] else 0.0
+            if eb is not None and measured > 0:  # how far this velocity error will carry the vertices
+                t_amp = time.perf_counter()
+                eb.propagated(*budgets.kick_response(op.solver.solve, sysm.Mff, problem.Hmat, gap, h, sysm.free,
+                                                     sysm.n, eb.memory))
+                stats["estimation"] = stats.get("estimation", 0.0) + time.perf_counter() - t_amp
+                stats["prediction"] += time.perf_counter() - t_amp
             stats.update(dofs=op.shape[0], solver=self.full_solver.name, local_error_measured=measured / unit)
             result = StepResult(dv=dv, operator=op, clusters=np.full(sysm.m, -1, dtype=np.int64), stats=stats)
         ramp = eb is not None and eb.ramping  # this frame's threshold is still on its way up
@@ -518,6 +515,8 @@ class ClusteringReducer(Reducer):
         eb = self.error_budget
         if eb is not None:
             stats["estimated_error"] = float(eb.estimate)
+            stats["amplification"] = float(eb.amplification)
+            stats["carry"] = float(eb.carry)
             stats["error_unit"] = float(eb.unit)
         stats["tau_a"] = float(getattr(self, self.threshold))
         stats["tau_e"] = float(self.tau_e)

@@ -164,15 +164,17 @@ class Controllers:
             return True  # reduced steps became much cheaper: measure the full step again
         return self.shadows is not None and self.shadows.due()
 
-    def controller_state(self):
-        """{controller: {attribute: plain number}} (checkpoints; the spelling of the affine reducers')."""
+    @property
+    def state(self):
+        """{controller: {attribute: plain number}} (the reducer's ``controllers``, checkpoints); setting
+        it restores them."""
         out = budgets.controllers_state(self, self.NAMES)
         out["plan"] = {"warmup": self.warmup, "phase_cost": self.phase_cost, "last_reduced": self.last_reduced,
                        "full_before": self.full_before, "full_now": self.full_now}
         return out
 
-    def restore_controller_state(self, state):
-        """Set the state :meth:`controller_state` returned."""
+    @state.setter
+    def state(self, state):
         budgets.restore_controllers(self, state, own="plan")
 
 

@@ -223,7 +223,7 @@ class AdaptiveSubspace(Reducer):
     @property
     def controllers(self):
         """The budgets' state and the thresholds as plain numbers (checkpoints)."""
-        state = {} if self.control is None else self.control.controller_state()
+        state = {} if self.control is None else self.control.state
         state["thresholds"] = {"eps_nodal": float(self.eps_nodal), "eps_modal": float(self.eps_modal)}
         return state
 
@@ -236,7 +236,7 @@ class AdaptiveSubspace(Reducer):
         if state:
             if self.control is None:
                 raise ValueError(f"this reducer has no controllers {sorted(state)} to restore")
-            self.control.restore_controller_state(state)
+            self.control.state = state
 
     # ------------------------------------------------------------------ set-up
     def attach(self, model):
