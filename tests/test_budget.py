@@ -144,8 +144,12 @@ def test_the_estimate_counts_how_far_a_velocity_error_carries():
     eb.advance(1.0, 0.01, 1.0)
     one = eb.estimate
     assert eb.propagated(4.0, 3.0) == (4.0, 3.0)
-    assert eb.propagated(1.0, 1.0) == (2.0, 1.0)  # G: the larger of the newest and the history; W: the newest
-    assert eb.propagated(0.5, 0.5)[0] == pytest.approx(2.0 ** 0.5)  # never under 1
+    assert eb.propagated(2.0, 1.0) == (2.0, 1.0)  # the first reading (from rest) holds until the next
+    assert eb.propagated(1.0, 2.0) == (pytest.approx(2.0 ** 0.5), 1.5)  # G: newest and history; W: the mean
+    assert eb.propagated(0.5, 0.5)[0] == pytest.approx(2.0 ** 0.25)  # never under 1
+    for _ in range(budget.RECENT):
+        eb.propagated(1.0, 1.0)
+    assert eb.carry == 1.0  # W: the mean of the latest RECENT readings
     eb = budget.ErrorBudget(0.01, tau=0.1, memory=0.5)
     eb.propagated(8.0, 4.0)
     eb.advance(1.0, 0.01, 1.0)

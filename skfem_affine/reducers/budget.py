@@ -87,6 +87,9 @@ RESPONSE_FLOOR = 1e-3
 #: A reduced frame whose own estimated position error (G h ||delta|| / U) exceeds this fraction of
 #: the budget is solved again in full space (:meth:`ErrorBudget.breaks`).
 KICK = 0.25
+
+#: The shadow frames whose measured (G, W) :meth:`ErrorBudget.propagated` keeps.
+RECENT = 4
 #: Frames a shadow frame follows its measured velocity error through the linearized step
 #: (:func:`kick_response`); it stops earlier once the velocity error has died out or turned back.
 PROPAGATION_STEPS = 24
@@ -262,11 +265,11 @@ class ErrorBudget:
     amplification : float
         G >= 1: the position error a frame's velocity error grows to in the frames after it, in
         units of h ||delta|| (:func:`kick_response`, measured on shadow frames; the larger of the
-        newest and a slowly forgotten history, as the calibration). :meth:`breaks` counts a
-        frame's position error as G h ||delta||.
+        newest and a slowly forgotten history, as the calibration, which the first reading does
+        not seed). :meth:`breaks` counts a frame's position error as G h ||delta||.
     carry : float
         W >= 1: how much of that the error keeps over the memory time (:func:`kick_response`,
-        the newest shadow frame's). A reduced frame adds W h ||delta|| to D.
+        the mean of the latest :data:`RECENT` shadow frames'). A reduced frame adds W h ||delta|| to D.
     ramping : bool
         The threshold has only risen, at ``ramp_grow``, since the start.
     """
@@ -291,6 +294,8 @@ class ErrorBudget:
         self.local_rate = 0.0
         self.amplification = 1.0
         self.carry = 1.0
+        self.readings = []  # W of the latest shadow frames, newest last, at most RECENT
+        self.propagations = 0  # shadow frames that measured (G, W)
         self.stable = False  # the latest shadow frame confirmed the calibration
 
     @property
@@ -322,12 +327,17 @@ class ErrorBudget:
         """Take a shadow frame's measured :func:`kick_response` (G, W); returns the new (G, W).
 
         G, which guards single frames (:meth:`breaks`), keeps a slowly forgotten history, as the
-        calibration; W, which sets the level of every frame's estimate, is the newest measurement:
-        the response of a run's first frames (a start from rest) does not hold its thresholds
-        down for the frames after."""
-        peak = max(float(peak), 1.0)
-        self.amplification = max(peak, math.sqrt(self.amplification * peak))
-        self.carry = max(float(carry), 1.0)
+        calibration; W, which sets the level of every frame's estimate, is the mean of the latest
+        :data:`RECENT` readings (one frame's reading scatters). The first reading holds only until
+        the next one replaces it: the response of a run's first frame (a start from rest) does
+        not hold its thresholds down for the frames after."""
+        peak, carry = max(float(peak), 1.0), max(float(carry), 1.0)
+        # the first reading (a start from rest) holds only until the next one replaces it
+        first = self.propagations < 2
+        self.amplification = peak if first else max(peak, math.sqrt(self.amplification * peak))
+        self.readings = [carry] if first else (list(self.readings) + [carry])[-RECENT:]
+        self.propagations += 1
+        self.carry = sum(self.readings) / len(self.readings)
         return self.amplification, self.carry
 
     @property
