@@ -98,7 +98,7 @@ def test_anderson_keeps_the_stopping_rule():
 
 
 def test_solver_setting_is_checked():
-    assert sa.PGS().solver == "anderson"
+    assert sa.PGS().solver == "gauss-seidel" and sa.PGS(solver="anderson").solver == "anderson"
     for bad in ("newton", 3, None):
         with pytest.raises(ValueError, match="solver"):
             sa.PGS(solver=bad)

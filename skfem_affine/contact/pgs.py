@@ -25,8 +25,9 @@ One frame, in the order of Algorithm 1:
 
    with the bias ``b_n = d / h`` for a gap (speculative contact: the vertex may close it
    within the step but not cross) and ``b_n = 0`` for a penetration (it may not deepen).
-   Restitution is zero. The velocity correction is ``dv_c = A^-1 J^T lambda`` (one
-   more solve), and v_{t+1} = v_t + dv + dv_c.
+   Restitution is zero. ``PGS(solver="anderson")`` accelerates the sweeps by Anderson mixing of
+   the last few (:func:`anderson_gauss_seidel`). The velocity correction is
+   ``dv_c = A^-1 J^T lambda`` (one more solve), and v_{t+1} = v_t + dv + dv_c.
 5. **Penetration** (split impulse, :meth:`Contact.resolve` sets :attr:`Contact.correction`):
    when a contact penetrates (d < 0, e.g. bodies that start overlapping or inside a collider),
    a second, frictionless PGS finds a pseudo-velocity ``w = G M_G^-1 G^T J^T mu`` of the *rigid
@@ -115,10 +116,11 @@ class PGS:
         face; False leaves vertex contacts only (cheaper for stacks of coarse curved bodies,
         whose many sharp edges add contacts).
     solver : str
-        The iteration on the contact problem: ``"anderson"`` (Gauss-Seidel sweeps accelerated by
-        Anderson mixing of the last few, :func:`anderson_gauss_seidel`) or ``"gauss-seidel"``
-        (plain sweeps, :func:`projected_gauss_seidel`). Both solve the same problem to the same
-        residual; ``iterations`` and ``max_iterations`` count sweeps in either.
+        The iteration on the contact problem: ``"gauss-seidel"`` (plain sweeps,
+        :func:`projected_gauss_seidel`) or ``"anderson"`` (sweeps accelerated by Anderson mixing
+        of the last few, :func:`anderson_gauss_seidel`: about 3 times fewer sweeps to the tolerance
+        on the paper's pills). Both solve the same problem to the same residual; ``iterations``
+        and ``max_iterations`` count sweeps in either.
     """
 
     friction: float = 0.5
@@ -132,7 +134,7 @@ class PGS:
     block: int = 64
     edge_contact: bool = True
     max_iterations: int = None
-    solver: str = "anderson"
+    solver: str = "gauss-seidel"
 
     def __post_init__(self):
         put = object.__setattr__  # frozen: store the checked values
@@ -416,7 +418,7 @@ def projected_gauss_seidel_lowrank(indptr, indices, data, ncols, u0, lam, iterat
 
 
 # The iterations of PGS(solver=...): same arguments, same stopping rule, the sweeps done returned.
-SOLVERS = {"anderson": anderson_gauss_seidel, "gauss-seidel": projected_gauss_seidel}
+SOLVERS = {"gauss-seidel": projected_gauss_seidel, "anderson": anderson_gauss_seidel}
 
 
 class Contact:
