@@ -8,9 +8,10 @@ residual (``contact_residual / contact_scale``), frames with unresolved contact,
 share of the frame, the deepest penetration, and the largest vertex distance between the two
 runs relative to the scene size (what stopping at the cap changes).
 
-With ``--solvers``, the contact iterations are compared instead, at the default settings: plain
-Gauss-Seidel sweeps, Anderson-accelerated sweeps, and Anderson-accelerated sweeps run to the
-tolerance (a cap of 2000); the frames from ``--start`` on are summarised, with the contact phase's
+With ``--solvers``, the contact iterations are compared instead: plain Gauss-Seidel sweeps and
+Anderson-accelerated sweeps (caps ``--solver-caps``, default 50 each, the other settings the
+defaults), and Anderson-accelerated sweeps run to the tolerance (a cap of 2000; not with
+``--no-reference``); the frames from ``--start`` on are summarised, with the contact phase's
 time (detection, Delassus operator, solve, corrections) and the PGS solve's time of each
 relative to plain Gauss-Seidel, and each run's largest vertex distance to the run to tolerance
 and its deepest penetration over the window.
@@ -89,6 +90,9 @@ def main(argv=None):
                    help="also the default settings (extra sweeps while contact is unresolved)")
     p.add_argument("--solvers", action="store_true", help="compare the contact iterations (see above)")
     p.add_argument("--start", type=int, default=0, help="summarise the frames from this one on (--solvers)")
+    p.add_argument("--solver-caps", type=int, nargs=2, default=[50, 50],
+                   help="--solvers: the sweep caps (iterations) of Gauss-Seidel and of Anderson")
+    p.add_argument("--no-reference", action="store_true", help="--solvers: without the run to tolerance")
     args = p.parse_args(argv)
     friction = 0.3 if "pills" in args.scene else 0.5
     if args.solvers:
@@ -115,14 +119,16 @@ def main(argv=None):
 
 def compare_solvers(args, friction):
     """Gauss-Seidel, Anderson and Anderson to tolerance, stepped in turn; see the module docstring."""
-    settings = {"gauss-seidel": sa.PGS(friction=friction, solver="gauss-seidel"),
-                "anderson": sa.PGS(friction=friction, solver="anderson"),
-                "to tolerance": sa.PGS(friction=friction, solver="anderson", iterations=2000, max_iterations=2000)}
+    plain, mixed = args.solver_caps
+    settings = {"gauss-seidel": sa.PGS(friction=friction, solver="gauss-seidel", iterations=plain),
+                "anderson": sa.PGS(friction=friction, solver="anderson", iterations=mixed)}
+    if not args.no_reference:
+        settings["to tolerance"] = sa.PGS(friction=friction, solver="anderson", iterations=2000, max_iterations=2000)
     sims = {name: scene(args.scene, st) for name, st in settings.items()}
     gap = {name: 0.0 for name in sims}
 
     def on_frame(frame, running):
-        if frame >= args.start and len(running) == len(sims):
+        if frame >= args.start and len(running) == len(sims) and "to tolerance" in running:
             ref = running["to tolerance"].state.x
             for name, sim in running.items():
                 gap[name] = max(gap[name], metrics.distance_error(sim.state.x, ref, sim.size))
@@ -131,7 +137,7 @@ def compare_solvers(args, friction):
     out = {name: summary(runs[name].records, args.start) for name in sims}
     base = out["gauss-seidel"]
     for name in sims:
-        out[name].update(distance_to_tolerance=gap[name], contact_ratio=out[name]["contact_s"] / base["contact_s"],
+        out[name].update(distance_to_tolerance=gap[name] if "to tolerance" in sims else None, contact_ratio=out[name]["contact_s"] / base["contact_s"],
                          pgs_ratio=out[name]["pgs_s"] / base["pgs_s"])
     out["scene"], out["frames"], out["start"] = args.scene, args.frames, args.start
     print(json.dumps(out, indent=1))
