@@ -23,7 +23,7 @@ its largest eigenvalue estimated by 10 power iterations, counted); and the libra
 Anderson-accelerated sweeps (depth 5 and 10; the extrapolation's own work, O(depth) vectors, is
 not counted). Usage::
 
-    MESH_DIR=... python benchmarks/contact_solvers.py dump /tmp/frames --frames 40:70:2 70:151:10
+    MESH_DIR=... python benchmarks/contact_solvers.py dump /tmp/frames --frames 44:71:2 80:151:10
     python benchmarks/contact_solvers.py compare /tmp/frames --cap 300
 """
 import argparse
