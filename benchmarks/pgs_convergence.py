@@ -8,11 +8,20 @@ residual (``contact_residual / contact_scale``), frames with unresolved contact,
 share of the frame, the deepest penetration, and the largest vertex distance between the two
 runs relative to the scene size (what stopping at the cap changes).
 
+With ``--solvers``, the contact iterations are compared instead: plain Gauss-Seidel sweeps and
+Anderson-accelerated sweeps (caps ``--solver-caps``, default 50 each, the other settings the
+defaults), and Anderson-accelerated sweeps run to the tolerance (a cap of 2000; not with
+``--no-reference``); the frames from ``--start`` on are summarised, with the contact phase's
+time (detection, Delassus operator, solve, corrections) and the PGS solve's time of each
+relative to plain Gauss-Seidel, and each run's largest vertex distance to the run to tolerance
+and its deepest penetration over the window.
+
 Usage::
 
     python benchmarks/pgs_convergence.py --scene pills --frames 120          # 8 procedural pills
     python benchmarks/pgs_convergence.py --scene stack --frames 40 --caps 50 3000 --default   # heavy on light
     MESH_DIR=... python benchmarks/pgs_convergence.py --scene paper-pills --frames 100   # the paper's Pill.mesh
+    MESH_DIR=... python benchmarks/pgs_convergence.py --scene table1-pills --solvers --start 30 --frames 90
 """
 import argparse
 import json
@@ -25,6 +34,7 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 import numpy as np  # noqa: E402
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+sys.path.insert(1, os.path.dirname(os.path.abspath(__file__)))
 import skfem_affine as sa  # noqa: E402
 from skfem_affine.lab import metrics, runners  # noqa: E402
 
@@ -39,6 +49,14 @@ def scene(name, caps_contact):
             raise SystemExit("set MESH_DIR (or SKFEM_AFFINE_MESHES) to the folder of the paper's meshes")
         mats = (sa.NeoHookean(E=1.1e3, nu=0.35), sa.NeoHookean(E=5e4, nu=0.36))
         return sa.scenes.pills(mesh=os.path.join(mesh_dir, "Pill.mesh"), materials=mats, contact=caps_contact)
+    if name == "table1-pills":  # as benchmarks/paper_table1.py builds it (its density and step)
+        import paper_table1
+        mesh_dir = os.environ.get("MESH_DIR") or os.environ.get("SKFEM_AFFINE_MESHES")
+        if not mesh_dir:
+            raise SystemExit("set MESH_DIR (or SKFEM_AFFINE_MESHES) to the folder of the paper's meshes")
+        mats = (sa.NeoHookean(E=1.1e3, nu=0.35), sa.NeoHookean(E=5e4, nu=0.36))
+        return sa.scenes.pills(mesh=os.path.join(mesh_dir, "Pill.mesh"), materials=mats,
+                               density=paper_table1.DENSITY, dt=0.01, contact=caps_contact)
     if name == "stack":  # a stiff box 1e4 times denser than the soft one it lands on
         box = sa.scenes.box_mesh
         light = sa.ElasticBody(box(0.2, 2, (0, 0, 0.1)), sa.NeoHookean(E=1e6, nu=0.3), density=10.0)
@@ -48,7 +66,8 @@ def scene(name, caps_contact):
     raise SystemExit(f"unknown scene {name!r}")
 
 
-def summary(records):
+def summary(records, start=0):
+    records = [r for r in records if r["frame"] >= start]
     rel = [r["contact_residual"] / r["contact_scale"] for r in records if r.get("contact_scale")]
     sweeps = [r["pgs_iterations"] for r in records if r.get("n_contacts")]
     walls = sum(r["wall"] for r in records)
@@ -58,18 +77,26 @@ def summary(records):
             "median_rel_residual": float(np.median(rel)) if rel else None, "max_rel_residual": max(rel, default=0.0),
             "unresolved_frames": int(sum(bool(r.get("contact_unresolved")) for r in records)),
             "pgs_share": sum(r.get("pgs", 0.0) for r in records) / walls if walls else None,
+            "contact_s": sum(r.get("contact", 0.0) for r in records), "pgs_s": sum(r.get("pgs", 0.0) for r in records),
             "max_penetration": max(r.get("max_penetration", 0.0) for r in records), "wall_s": walls}
 
 
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    p.add_argument("--scene", default="pills", choices=["pills", "paper-pills", "stack"])
+    p.add_argument("--scene", default="pills", choices=["pills", "paper-pills", "table1-pills", "stack"])
     p.add_argument("--frames", type=int, default=120)
     p.add_argument("--caps", type=int, nargs=2, default=[50, 400], help="the default and the larger sweep cap")
     p.add_argument("--default", action="store_true",
                    help="also the default settings (extra sweeps while contact is unresolved)")
+    p.add_argument("--solvers", action="store_true", help="compare the contact iterations (see above)")
+    p.add_argument("--start", type=int, default=0, help="summarise the frames from this one on (--solvers)")
+    p.add_argument("--solver-caps", type=int, nargs=2, default=[50, 50],
+                   help="--solvers: the sweep caps (iterations) of Gauss-Seidel and of Anderson")
+    p.add_argument("--no-reference", action="store_true", help="--solvers: without the run to tolerance")
     args = p.parse_args(argv)
     friction = 0.3 if "pills" in args.scene else 0.5
+    if args.solvers:
+        return compare_solvers(args, friction)
     sims = {f"cap {c}": scene(args.scene, sa.PGS(friction=friction, iterations=c, max_iterations=c))
             for c in args.caps}
     names = list(sims)
@@ -86,6 +113,33 @@ def main(argv=None):
     out = {name: summary(runs[name].records) for name in sims}
     out["distance_between_caps"] = gap[0]
     out["scene"], out["frames"] = args.scene, args.frames
+    print(json.dumps(out, indent=1))
+    return out
+
+
+def compare_solvers(args, friction):
+    """Gauss-Seidel, Anderson and Anderson to tolerance, stepped in turn; see the module docstring."""
+    plain, mixed = args.solver_caps
+    settings = {"gauss-seidel": sa.PGS(friction=friction, solver="gauss-seidel", iterations=plain),
+                "anderson": sa.PGS(friction=friction, solver="anderson", iterations=mixed)}
+    if not args.no_reference:
+        settings["to tolerance"] = sa.PGS(friction=friction, solver="anderson", iterations=2000, max_iterations=2000)
+    sims = {name: scene(args.scene, st) for name, st in settings.items()}
+    gap = {name: 0.0 for name in sims}
+
+    def on_frame(frame, running):
+        if frame >= args.start and len(running) == len(sims) and "to tolerance" in running:
+            ref = running["to tolerance"].state.x
+            for name, sim in running.items():
+                gap[name] = max(gap[name], metrics.distance_error(sim.state.x, ref, sim.size))
+
+    runs = runners.interleaved(sims, args.frames, on_frame=on_frame)
+    out = {name: summary(runs[name].records, args.start) for name in sims}
+    base = out["gauss-seidel"]
+    for name in sims:
+        out[name].update(distance_to_tolerance=gap[name] if "to tolerance" in sims else None, contact_ratio=out[name]["contact_s"] / base["contact_s"],
+                         pgs_ratio=out[name]["pgs_s"] / base["pgs_s"])
+    out["scene"], out["frames"], out["start"] = args.scene, args.frames, args.start
     print(json.dumps(out, indent=1))
     return out
 
