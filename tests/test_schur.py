@@ -13,7 +13,8 @@ pytest.importorskip("pypardiso")
 import skfem_affine as sa  # noqa: E402
 from skfem_affine.contact import delassus  # noqa: E402
 from skfem_affine.contact.schur import SchurInverse  # noqa: E402
-from skfem_affine.solvers import PardisoSchur  # noqa: E402
+from skfem_affine.integrators.problem import Operator  # noqa: E402
+from skfem_affine.solvers import PardisoSchur, SuperLU  # noqa: E402
 
 from test_delassus import REDUCERS, frames_with_contact, plain_delassus  # noqa: E402
 
@@ -86,7 +87,7 @@ def test_delassus_from_the_schur_complement_equals_the_plain_path(reducer):
     assert any(taken), "no frame took the Schur complement"
 
 
-def test_several_bodies_solve_their_columns_per_body():
+def test_small_bodies_take_their_dense_blocks():
     sim = sa.scenes.SCENES["stacked_beams"](resolution=1)
     schur = SchurInverse(min_size=1)
 
@@ -97,6 +98,26 @@ def test_several_bodies_solve_their_columns_per_body():
         assert res.parts is not None and res.schur_unknowns == 0
 
     frames_with_contact(sim, 120, check, want=1)
+
+
+def test_each_large_body_takes_the_schur_complement_of_its_block():
+    """Two bodies above the dense-block size, each keeping its own analysis across frames."""
+    m = delassus.BLOCK_DENSE_MAX + 100
+    schur = SchurInverse(min_size=1)
+    rng = np.random.default_rng(3)
+    for frame in range(3):
+        A = sp.block_diag([_spd(m, seed=frame), _spd(m + 7, seed=frame + 10)], format="csr")
+        solver = SuperLU()
+        solver.factorize(A)
+        cols = np.sort(rng.choice(A.shape[0], 40, replace=False))
+        J = sp.csr_matrix((rng.normal(size=60), (rng.integers(0, 30, 60), rng.choice(cols, 60))),
+                          shape=(30, A.shape[0]))
+        op = Operator(solver, A)
+        ref = plain_delassus(op, J)[0]
+        res = delassus.Resolvent(op, cache={}, schur=schur)
+        assert np.abs(res.delassus(J) - ref).max() <= 1e-9 * np.abs(ref).max()
+        assert res.schur_unknowns == np.unique(J.indices).size and res.columns_solved == 0
+    assert len(schur._kept_by) == 2
 
 
 def test_stress_script_survives_varied_calls_in_a_subprocess():

@@ -142,39 +142,42 @@ class Resolvent:
         for key in [key for key in self.cache if key not in self.used]:
             del self.cache[key]
 
-    def _from_schur(self, A, T, iterative):
-        """Z = (A^-1)_TT from the Schur complement of the whole system A on T, or None when ``schur``
-        (:class:`~skfem_affine.contact.schur.SchurInverse`) is not given or declines (one body's
-        block of several, an iterative solver, too few or too many unknowns)."""
-        if self.schur is None or iterative or A is not self.A:
+    def _from_schur(self, A, T, iterative, key=None):
+        """Z = (A^-1)_TT from the Schur complement of A (the whole system, or the block ``key`` of a
+        body) on T, or None when ``schur`` (:class:`~skfem_affine.contact.schur.SchurInverse`) is
+        not given or declines (an iterative solver, too few or too many unknowns)."""
+        if self.schur is None or iterative:
             return None
-        Z = self.schur.inverse_on(A, T)
+        Z = self.schur.inverse_on(A, T, key=key)
         if Z is not None:
             self.schur_unknowns += T.size
         return Z
 
-    def inverse_on(self, solver, A, T, iterative=False):
+    def inverse_on(self, solver, A, T, iterative=False, key=None):
         """Z = (A^-1)_TT (|T| x |T|, dense) for the matrix A that ``solver`` has factorised and the
         unknowns T (sorted): from the Schur complement (:meth:`_from_schur`), else the unit
         columns e_T solved, ``block`` at a time, rows T kept."""
-        Z = self._from_schur(A, T, iterative)
-        if Z is not None:
-            return Z
+        Z = self._from_schur(A, T, iterative, key)
+        return self._columns(solver, A, T, iterative) if Z is None else Z
+
+    def _columns(self, solver, A, T, iterative):
         self.columns_solved += T.size
         E = sp.csc_matrix((np.ones(T.size), T, np.arange(T.size + 1)), shape=(A.shape[0], T.size))
         return gram(solver, E, self.block, iterative)
 
-    def _product(self, solver, A, Jb, iterative=False):
+    def _product(self, solver, A, Jb, iterative=False, key=None):
         """Jb A^-1 Jb^T for Jb (CSC, m x n) and the n x n matrix A that ``solver`` has factorised: from
         Z = (A^-1)_TT on the touched unknowns T when the Schur complement gives it or there are fewer
         of them than rows, else per row."""
         counts = np.diff(Jb.indptr)
         T = np.flatnonzero(counts)
-        Z = self._from_schur(A, T, iterative) if self.touched else None
-        if Z is not None or (self.touched and T.size < Jb.shape[0]):
+        dense = isinstance(solver, DenseCholesky)  # a small body's block: one triangular solve is cheaper
+        Z = self._from_schur(A, T, iterative, key) if self.touched and not dense else None
+        if Z is None and self.touched and T.size < Jb.shape[0]:
+            Z = self._columns(solver, A, T, iterative)
+        if Z is not None:
             Jt = sp.csc_matrix((Jb.data, Jb.indices, np.concatenate([[0], np.cumsum(counts[T])])),
                                shape=(Jb.shape[0], T.size))
-            Z = self.inverse_on(solver, A, T, iterative) if Z is None else Z
             W = Jt @ (Jt @ Z).T
         else:
             self.columns_solved += Jb.shape[0]
@@ -206,7 +209,7 @@ class Resolvent:
             solver = self._block_solver(idx)
             with serial_blas() if idx.size < BLOCK_DIRECT_MIN else _nothing():
                 solver.factorize(Ap[s:e, s:e])
-                W[np.ix_(rows, rows)] += self._product(solver, Ap[s:e, s:e], Jb)
+                W[np.ix_(rows, rows)] += self._product(solver, Ap[s:e, s:e], Jb, key=(e - s, int(idx[0])))
             self.local.append((idx, rows, Jb, solver))
         self._evict()
         return W

@@ -6,7 +6,10 @@ factorisation of A with T eliminated last), ``(A^-1)_TT = S^-1``: no solve per u
 about as much as a factorisation again, so it keeps the last one while the contacts touch a subset
 of its unknowns at most twice as many, grows it by new ones under the same bound, and below
 ``min_size`` unknowns (or above half of A's) it declines, and the caller solves the unit columns.
+Several systems (the bodies of a scene, each its own block) each keep their analysis, by key.
 """
+from collections import OrderedDict
+
 import numpy as np
 from scipy.linalg import cho_factor, cho_solve
 
@@ -27,21 +30,32 @@ class SchurInverse:
     ----------
     min_size : int
         Fewest touched unknowns for which a new analysis is made (:data:`SCHUR_MIN`).
+    systems : int
+        Most systems (keys) whose analyses are kept; the least recently used goes first.
 
     ``available`` is False without MKL Pardiso; :meth:`inverse_on` then always returns None.
-    One instance keeps one analysis: hold one per simulation, not per frame.
+    Hold one instance per simulation, not per frame: it keeps the analyses.
     """
 
-    def __init__(self, min_size=SCHUR_MIN):
+    def __init__(self, min_size=SCHUR_MIN, systems=16):
         self.min_size = integer(min_size, "min_size", low=1)
+        self.systems = integer(systems, "systems", low=1)
         self.available = has_pardiso()
-        self._schur = PardisoSchur() if self.available else None
+        self._kept_by = OrderedDict()  # key -> PardisoSchur, each on its own Pardiso handle
         self.analyses = 0  # new analyses made (the rest were numeric factorisations only)
 
-    def _kept(self, A, T, upper):
+    def _handle(self, key):
+        if key not in self._kept_by:
+            self._kept_by[key] = PardisoSchur()
+            while len(self._kept_by) > self.systems:
+                self._kept_by.popitem(last=False)
+        self._kept_by.move_to_end(key)
+        return self._kept_by[key]
+
+    def _kept(self, schur, A, T, upper):
         """The unknowns to take the complement on (T or a superset), or None to decline."""
         n = A.shape[0]
-        last = self._schur.analysed(A, upper)
+        last = schur.analysed(A, upper)
         if last is not None:
             if last.size <= 2 * T.size and np.isin(T, last, assume_unique=True).all():
                 return last
@@ -52,18 +66,20 @@ class SchurInverse:
             return None
         return T
 
-    def inverse_on(self, A, T, upper=False):
+    def inverse_on(self, A, T, upper=False, key=None):
         """Z = (A^-1)_TT (dense, |T| x |T|) for the SPD matrix A (CSR, whole or, with ``upper=True``,
-        its upper triangle) and the sorted unknowns T; None when the Schur complement declines."""
+        its upper triangle) and the sorted unknowns T; None when the Schur complement declines.
+        ``key`` names the system (e.g. a body's block), whose analysis is kept for its next call."""
         if not self.available:
             return None
         T = np.asarray(T, dtype=np.int64)
-        keep = self._kept(A, T, upper)
+        schur = self._handle(key)
+        keep = self._kept(schur, A, T, upper)
         if keep is None:
             return None
-        if keep is not self._schur.analysed(A, upper):
+        if keep is not schur.analysed(A, upper):
             self.analyses += 1
-        S = self._schur.complement(A, keep, upper)
+        S = schur.complement(A, keep, upper)
         pos = np.searchsorted(keep, T)
         with serial_blas():
             factor = cho_factor(S, lower=True, check_finite=False)
