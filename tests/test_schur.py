@@ -120,6 +120,21 @@ def test_each_large_body_takes_the_schur_complement_of_its_block():
     assert len(schur._kept_by) == 2
 
 
+def test_a_resumed_schur_inverse_analyses_the_saved_sets_and_gives_the_same_bits():
+    A = _spd(80, seed=2)
+    ahead = SchurInverse(min_size=4)
+    ahead.inverse_on(A, np.arange(10, 30))
+    ahead.inverse_on(A, np.arange(12, 26))  # kept: the analysis of 10..29
+    resumed = SchurInverse(min_size=4)
+    resumed.load_state_dict({k: v.copy() for k, v in ahead.state_dict().items()})
+    A = A.copy()
+    A.data *= 1.01
+    T = np.arange(14, 24)
+    assert np.array_equal(ahead.inverse_on(A, T), resumed.inverse_on(A, T))
+    with pytest.raises(ValueError, match="schur0.keep"):
+        resumed.load_state_dict({"schur_systems": np.array([[-1, -1]]), "schur0.keep": np.array([3, 2])})
+
+
 def test_stress_script_survives_varied_calls_in_a_subprocess():
     """Patterns, sets, thread counts and handles varied call to call (benchmarks/schur_stress.py)."""
     run = subprocess.run([sys.executable, os.path.join(ROOT, "benchmarks", "schur_stress.py"), "--calls", "60",

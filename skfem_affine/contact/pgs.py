@@ -398,6 +398,8 @@ class Contact:
         for i, solver in enumerate(self.block_solvers.values()):
             if hasattr(solver, "state_dict"):
                 out.update({f"block{i}.{k}": v for k, v in solver.state_dict().items()})
+        if self.schur is not None:
+            out.update(self.schur.state_dict())
         return out
 
     def load_state_dict(self, state):
@@ -412,6 +414,8 @@ class Contact:
             if sub and hasattr(solver, "load_state_dict"):
                 solver.load_state_dict(sub)
             self.block_solvers[key] = solver
+        if self.schur is not None:
+            self.schur.load_state_dict(state)
 
     # -------------------------------------------------------------- frame hooks
     def detect(self, model, x, v, rec, f_ext=None):

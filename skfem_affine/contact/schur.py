@@ -42,6 +42,7 @@ class SchurInverse:
         self.systems = integer(systems, "systems", low=1)
         self.available = has_pardiso()
         self._kept_by = OrderedDict()  # key -> PardisoSchur, each on its own Pardiso handle
+        self._resume = {}  # key -> the unknowns a checkpointed run had analysed, for the key's next call
         self.analyses = 0  # new analyses made (the rest were numeric factorisations only)
 
     def _handle(self, key):
@@ -52,10 +53,13 @@ class SchurInverse:
         self._kept_by.move_to_end(key)
         return self._kept_by[key]
 
-    def _kept(self, schur, A, T, upper):
+    def _kept(self, schur, A, T, upper, key):
         """The unknowns to take the complement on (T or a superset), or None to decline."""
         n = A.shape[0]
         last = schur.analysed(A, upper)
+        if last is None and key in self._resume:  # as the saved run: the same set rounds the same way
+            last = self._resume.pop(key)
+            last = last if last.size and last[-1] < n else None
         if last is not None:
             if last.size <= 2 * T.size and np.isin(T, last, assume_unique=True).all():
                 return last
@@ -74,7 +78,7 @@ class SchurInverse:
             return None
         T = np.asarray(T, dtype=np.int64)
         schur = self._handle(key)
-        keep = self._kept(schur, A, T, upper)
+        keep = self._kept(schur, A, T, upper, key)
         if keep is None:
             return None
         if keep is not schur.analysed(A, upper):
@@ -87,3 +91,24 @@ class SchurInverse:
             E[pos, np.arange(T.size)] = 1.0
             Z = cho_solve(factor, E, check_finite=False)[pos]
         return 0.5 * (Z + Z.T)
+
+    def state_dict(self):
+        """The unknowns each kept analysis was made on, by system: a resumed run analyses the same
+        sets (another superset would round Z differently)."""
+        keys = [(-1, -1) if key is None else key for key in self._kept_by]
+        out = {"schur_systems": np.array(keys, dtype=np.int64).reshape(-1, 2)}
+        for i, schur in enumerate(self._kept_by.values()):
+            kept = schur._pattern[2] if schur._pattern is not None else np.zeros(0, np.int64)
+            out[f"schur{i}.keep"] = np.array(kept, dtype=np.int64)
+        return out
+
+    def load_state_dict(self, state):
+        self._kept_by = OrderedDict()
+        systems = np.asarray(state.get("schur_systems", np.zeros((0, 2))), dtype=np.int64).reshape(-1, 2)
+        self._resume = {}
+        for i, (size, first) in enumerate(systems):
+            key = None if size < 0 else (int(size), int(first))
+            keep = np.asarray(state[f"schur{i}.keep"], dtype=np.int64)
+            if keep.ndim != 1 or (keep.size > 1 and np.any(np.diff(keep) <= 0)) or (keep.size and keep[0] < 0):
+                raise ValueError(f"schur{i}.keep must be sorted distinct unknowns")
+            self._resume[key] = keep
