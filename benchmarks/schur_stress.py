@@ -37,19 +37,19 @@ def spd(rng, vertices):
     return sp.csr_matrix(B + sp.diags(np.abs(B).sum(axis=1).A1 + 1.0))
 
 
-def stress(calls, check_every, seed):
+def stress(calls, check_every, seed, vertices=400):
     from threadpoolctl import ThreadpoolController
     from skfem_affine.contact.schur import SchurInverse
     control = ThreadpoolController()
     rng = np.random.default_rng(seed)
     providers = [SchurInverse(min_size=1) for _ in range(3)]
-    mats = [spd(rng, int(v)) for v in rng.integers(30, 400, size=5)]
+    mats = [spd(rng, int(v)) for v in rng.integers(10, vertices, size=5)]
     last = [None] * len(providers)
     worst, declined = 0.0, 0
     for c in range(calls):
         if rng.random() < 0.05:  # a new pattern
             m = int(rng.integers(len(mats)))
-            mats[m] = spd(rng, int(rng.integers(30, 400)))
+            mats[m] = spd(rng, int(rng.integers(10, vertices)))
             last = [None if kept is not None and kept[0] == m else kept for kept in last]
         if rng.random() < 0.03:  # an instance dropped and collected, a new one in its place
             h = int(rng.integers(len(providers)))
@@ -112,12 +112,13 @@ def main():
     ap.add_argument("--calls", type=int, default=2000)
     ap.add_argument("--check-every", type=int, default=10, help="compare Z with the dense inverse every so many calls")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--vertices", type=int, default=400, help="largest matrix: 3 unknowns per vertex")
     ap.add_argument("--repro", choices=("threads", "all"), help="the unguarded calls that crash")
     args = ap.parse_args()
     if args.repro:
         repro(args.repro, min(args.calls, 150 if args.repro == "threads" else 3), args.seed)
     else:
-        stress(args.calls, args.check_every, args.seed)
+        stress(args.calls, args.check_every, args.seed, args.vertices)
 
 
 if __name__ == "__main__":

@@ -138,7 +138,7 @@ def test_a_resumed_schur_inverse_analyses_the_saved_sets_and_gives_the_same_bits
 def test_stress_script_survives_varied_calls_in_a_subprocess():
     """Patterns, sets, thread counts and handles varied call to call (benchmarks/schur_stress.py)."""
     run = subprocess.run([sys.executable, os.path.join(ROOT, "benchmarks", "schur_stress.py"), "--calls", "60",
-                          "--check-every", "5"], capture_output=True, text=True, timeout=300,
+                          "--check-every", "3", "--vertices", "60"], capture_output=True, text=True, timeout=300,
                          env=dict(os.environ, PYTHONPATH=ROOT))
     assert run.returncode == 0, run.stderr[-2000:]
     assert "survived 60 calls" in run.stdout
