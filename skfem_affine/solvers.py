@@ -212,7 +212,7 @@ class PardisoSchur(Pardiso):
     name = "pardiso-schur"
 
     def complement(self, A, keep, upper=False):
-        """S (|keep| x |keep|, dense) of A (full symmetric CSR, or its upper triangle with
+        """S (``|keep| x |keep|``, dense) of A (full symmetric CSR, or its upper triangle with
         ``upper=True``) on the sorted, distinct unknowns ``keep`` (at most half of A's)."""
         indptr, indices, data = self._upper(A, upper)
         n, keep = indptr.size - 1, np.asarray(keep, dtype=np.int64)

@@ -71,7 +71,7 @@ class SchurInverse:
         return T
 
     def inverse_on(self, A, T, upper=False, key=None):
-        """Z = (A^-1)_TT (dense, |T| x |T|) for the SPD matrix A (CSR, whole or, with ``upper=True``,
+        """Z = (A^-1)_TT (dense, ``|T| x |T|``) for the SPD matrix A (CSR, whole or, with ``upper=True``,
         its upper triangle) and the sorted unknowns T; None when the Schur complement declines.
         ``key`` names the system (e.g. a body's block), whose analysis is kept for its next call."""
         if not self.available:
