@@ -19,8 +19,8 @@ from skfem_affine.threads import serial_blas
 from skfem_affine.solvers import SuperLU, direct_solver
 
 # Blocks (bodies) of the Delassus operator: up to BLOCK_DENSE_MAX unknowns a dense Cholesky
-# factor L gives W_b = X^T X, X = L^-1 R (one triangular solve, R = J_b^T or the unit columns of
-# the unknowns its contacts touch); below BLOCK_DIRECT_MIN
+# factor L gives R^T A_b^-1 R = X^T X, X = L^-1 R (one triangular solve; R = J_b^T, or the unit
+# columns of the unknowns its contacts touch); below BLOCK_DIRECT_MIN
 # SuperLU, else the direct solver (measurements in docs/contact.md).
 BLOCK_DENSE_MAX = 800
 BLOCK_DIRECT_MIN = 2000
@@ -97,8 +97,8 @@ class Resolvent:
 
     W needs A^-1 only on the unknowns T that the contacts touch (the columns of Jr with a
     nonzero): ``W = Jr_T Z Jr_T^T`` with ``Z = (A^-1)_TT`` (:meth:`inverse_on`), from solves of
-    the unit columns e_T. That costs |T| solves instead of one per row of Jr (3 per contact),
-    and is taken when |T| is the smaller: the contacts on an affine (rigid) body touch its 12
+    the unit columns e_T. That costs ``|T|`` solves instead of one per row of Jr (3 per contact),
+    and is taken when ``|T|`` is the smaller: the contacts on an affine (rigid) body touch its 12
     (6) reduced unknowns however many they are, and a vertex with several contacts is solved
     once; otherwise A^-1 Jr^T is solved row by row, ``block`` columns at a time (always, with
     ``touched=False``: the reference path). The number of columns solved by the last
@@ -154,7 +154,7 @@ class Resolvent:
         return Z
 
     def inverse_on(self, solver, A, T, iterative=False, key=None):
-        """Z = (A^-1)_TT (|T| x |T|, dense) for the matrix A that ``solver`` has factorised and the
+        """Z = (A^-1)_TT (``|T| x |T|``, dense) for the matrix A that ``solver`` has factorised and the
         unknowns T (sorted): from the Schur complement (:meth:`_from_schur`), else the unit
         columns e_T solved, ``block`` at a time, rows T kept."""
         Z = self._from_schur(A, T, iterative, key)
