@@ -59,7 +59,7 @@ class SchurInverse:
         last = schur.analysed(A, upper)
         if last is None and key in self._resume:  # as the saved run: the same set rounds the same way
             last = self._resume.pop(key)
-            last = last if last.size and last[-1] < n else None
+            last = last if last.size and last[-1] < n and 2 * last.size <= n else None
         if last is not None:
             if last.size <= 2 * T.size and np.isin(T, last, assume_unique=True).all():
                 return last
