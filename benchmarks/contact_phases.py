@@ -10,7 +10,9 @@ velocity and position corrections), detection (the rest of contact), the contact
 solved. The order of the methods rotates from frame to frame. With ``--rows`` each frame's
 Delassus operator is also built per row of J (3 solves per contact: ``Resolvent(touched=False)``)
 on the same factorisation, before or after the frame's own in turn (``delassus_rows``,
-``rows_columns``). Usage::
+``rows_columns``); with ``--columns`` instead from solves of the unit columns of the unknowns the
+contacts touch (no Schur complement), so that the frame's own (``delassus``, from the Schur
+complement where it is taken: ``delassus_schur`` unknowns) is compared with it. Usage::
 
     python benchmarks/contact_phases.py MESH_DIR --scene wheel --start 145 --end 160 --rows
     python benchmarks/contact_phases.py --scene pile --cells 4 --start 100 --end 130 --rows
@@ -36,7 +38,8 @@ import skfem_affine as sa  # noqa: E402
 from skfem_affine.contact import delassus  # noqa: E402
 
 METHODS = ("full", "affinification", "rigidification")
-COLUMNS = ("wall", "factorization", "delassus", "delassus_columns", "pgs", "detection", "contact", "n_contacts",
+COLUMNS = ("wall", "factorization", "delassus", "delassus_columns", "delassus_schur", "pgs", "detection", "contact",
+           "n_contacts",
            "pgs_iterations", "dofs")
 ROWS = ("delassus_rows", "rows_columns")
 
@@ -48,12 +51,13 @@ def record(rec):
     out["detection"] = out["contact"] - out["delassus"] - out["pgs"]
     out["wall"] -= out["delassus_rows"]  # the frame without the extra per-row Delassus operator
     out.update({k: float(rec.get(k, 0)) for k in ("n_contacts", "pgs_iterations", "dofs", "delassus_columns",
-                                                  "rows_columns")})
+                                                  "delassus_schur", "rows_columns")})
     return out
 
 
-def per_row(sim):
-    """Also build each frame's Delassus operator per row of J on the frame's factorisation, timed,
+def per_row(sim, columns=False):
+    """Also build each frame's Delassus operator per row of J (``columns``: from solves of the unit
+    columns of the touched unknowns, no Schur complement) on the frame's factorisation, timed,
     before the frame's own on even frames and after it on odd ones (``delassus_rows``, s)."""
     original, cache = sim.contact.resolve, {}
 
@@ -64,7 +68,8 @@ def per_row(sim):
 
         def rows():
             t0 = time.perf_counter()
-            res = delassus.Resolvent(result.operator, block=sim.contact.settings.block, cache=cache, touched=False)
+            res = delassus.Resolvent(result.operator, block=sim.contact.settings.block, cache=cache,
+                                     touched=columns)
             res.delassus(cs.J)
             rec.update(delassus_rows=time.perf_counter() - t0, rows_columns=res.columns_solved)
 
@@ -91,11 +96,11 @@ def builders(mesh_dir, scene, end, cells):
     return [build(None)] + [build(r) for r in paper_table1.reducers(row, fraction)]
 
 
-def run(mesh_dir, scene, start, end, cells=4, compare_rows=False):
+def run(mesh_dir, scene, start, end, cells=4, compare_rows=False, compare_columns=False):
     sims = builders(mesh_dir, scene, end, cells)
-    if compare_rows:
+    if compare_rows or compare_columns:
         for sim in sims:
-            per_row(sim)
+            per_row(sim, columns=compare_columns)
     rows = {m: [] for m in METHODS}
     t0 = time.perf_counter()
     for frame in range(end):
@@ -124,12 +129,14 @@ def main(argv=None):
     ap.add_argument("--scene", choices=["wheel", "octopus", "pills", "pile"], required=True)
     ap.add_argument("--cells", type=int, default=4, help="cells per box edge of the pile")
     ap.add_argument("--rows", action="store_true", help="also time the Delassus operator built per row of J")
+    ap.add_argument("--columns", action="store_true",
+                    help="also time it built from solves of the touched unknowns' columns (no Schur complement)")
     ap.add_argument("--start", type=int, required=True)
     ap.add_argument("--end", type=int, required=True)
     ap.add_argument("--threads", default="1", help="BLAS/MKL threads (read before numpy is imported)")
     ap.add_argument("--json", default=None, help="also write the means here")
     args = ap.parse_args(argv)
-    means = run(args.mesh_dir, args.scene, args.start, args.end, args.cells, args.rows)
+    means = run(args.mesh_dir, args.scene, args.start, args.end, args.cells, args.rows, args.columns)
     print(f"frames {args.start}-{args.end - 1}, ms per frame (means)")
     print(markdown(args.scene, means))
     if args.json:

@@ -196,6 +196,75 @@ class Pardiso:
         return np.ascontiguousarray(x).reshape(b.shape)
 
 
+class PardisoSchur(Pardiso):
+    """The dense Schur complement ``S = A_TT - A_TR A_RR^-1 A_RT`` of a symmetric positive-definite
+    matrix on chosen unknowns T (MKL Pardiso, ``iparm(36)``), on a handle of its own: then
+    ``(A^-1)_TT = S^-1``.
+
+    The analysis (ordering with T eliminated last) is redone when the pattern or T changes, the
+    numeric factorisation every call. Two conditions under which MKL Pardiso corrupts memory are
+    kept out: T is at most half the unknowns (with T all of them, Pardiso wrote past its Schur
+    buffer), and an analysis' factorisations and release run on the MKL thread count it ran on
+    (an analysis on two threads and a factorisation on one segfaulted). Both were reproduced by
+    ``benchmarks/schur_stress.py``, which also checks that this class survives varied calls.
+    """
+
+    name = "pardiso-schur"
+
+    def complement(self, A, keep, upper=False):
+        """S (``|keep| x |keep|``, dense) of A (full symmetric CSR, or its upper triangle with
+        ``upper=True``) on the sorted, distinct unknowns ``keep`` (at most half of A's)."""
+        indptr, indices, data = self._upper(A, upper)
+        n, keep = indptr.size - 1, np.asarray(keep, dtype=np.int64)
+        k = keep.size
+        if k == 0 or 2 * k > n or (k > 1 and np.any(np.diff(keep) <= 0)) or keep[0] < 0 or keep[-1] >= n:
+            raise ValueError(f"keep must be sorted distinct unknowns, at most half of the {n} (got {k})")
+        pat = self._pattern
+        same = (pat is not None and _same(pat[0], indptr) and _same(pat[1], indices) and _same(pat[2], keep))
+        if not same:
+            self._release()
+            self._threads = 1 if n < PARDISO_THREADED_MIN else self._lib.max_threads
+        marks = np.zeros(n, dtype=np.int32)  # given afresh: Pardiso writes its ordering into perm
+        marks[keep] = 1
+        self._arrays = (np.ascontiguousarray(data, dtype=float), indptr, indices, n)
+        try:
+            with threads.mkl_threads(self._threads):
+                x = self._lib.schur(12 if not same else 22, self._arrays, marks, k)
+        except Exception as err:
+            self._release()
+            raise SolverError(f"Pardiso Schur complement failed ({err}); is the system positive definite?") from err
+        self._pattern = (indptr, indices, keep.copy())
+        return x.reshape(k, k)
+
+    def analysed(self, A, upper=False):
+        """The unknowns T of the current analysis when it is of A's pattern, else None (a complement
+        on them costs a numeric factorisation only)."""
+        pat = self._pattern
+        if pat is None:
+            return None
+        indptr, indices, _ = self._upper(A, upper)
+        return pat[2] if _same(pat[0], indptr) and _same(pat[1], indices) else None
+
+    def _release(self):
+        """Free the analysis and factors with the arrays and thread count they were made with."""
+        if self._pattern is not None:
+            self._pattern = None
+            with threads.mkl_threads(self._threads):
+                self._lib.release(self._arrays)
+
+    def __del__(self):
+        try:
+            self._release()
+        except Exception:
+            pass
+
+    def factorize(self, A, upper=False, order=None):
+        raise TypeError("PardisoSchur computes Schur complements (complement), it does not solve")
+
+    def solve(self, b):
+        raise TypeError("PardisoSchur computes Schur complements (complement), it does not solve")
+
+
 class _PardisoLibrary:
     """The one adapter to MKL Pardiso through pypardiso's private parts (ctypes, ``_mkl_pardiso``, iparm).
 
@@ -234,14 +303,31 @@ class _PardisoLibrary:
         """The permutation array handed to Pardiso (the given order, when one was)."""
         return self._ps.perm
 
-    def release(self):
-        """Free the factors and the analysis."""
-        self._ps.free_memory(everything=True)
+    def release(self, arrays=None):
+        """Free the factors and the analysis (``arrays``: those of the last call, required after a
+        Schur complement: pypardiso's own release passes an empty matrix, which that mode must not see)."""
+        if arrays is None:
+            self._ps.free_memory(everything=True)
+            return
+        n = arrays[3]
+        self.call(-1, arrays, np.zeros((n, 1)), perm=np.zeros(n, dtype=np.int32))
+        self._ps.pt[:] = 0  # a fresh handle for the next analysis
 
-    def call(self, phase, arrays, b):
-        """One ``pardiso`` call on the upper triangle ``arrays = (data, indptr, indices, n)``; returns x."""
+    def schur(self, phase, arrays, marks, k):
+        """Factorise (``phase`` 12 or 22, METIS ordering) with the unknowns marked 1 in ``marks``
+        (int32, n) eliminated last; returns their dense Schur complement (k * k, row-major)."""
+        self._ps.set_iparm(2, 2)
+        self._ps.set_iparm(5, 0)
+        self._ps.set_iparm(36, 1)
+        n = arrays[3]
+        return self.call(phase, arrays, np.zeros((max(n, k * k), 1)), perm=marks)[:k * k, 0]
+
+    def call(self, phase, arrays, b, perm=None):
+        """One ``pardiso`` call on the upper triangle ``arrays = (data, indptr, indices, n)``; returns x
+        (``perm``: the permutation array of this call, default the one set by the orderings above)."""
         import ctypes
         ps = self._ps
+        perm = ps.perm if perm is None else perm
         data, indptr, indices, n = arrays
         x = np.zeros_like(b)
         error = ctypes.c_int32(0)
@@ -250,7 +336,7 @@ class _PardisoLibrary:
                         ctypes.byref(ctypes.c_int32(1)), ctypes.byref(ctypes.c_int32(self.MTYPE)),
                         ctypes.byref(ctypes.c_int32(phase)), ctypes.byref(ctypes.c_int32(n)),
                         data.ctypes.data_as(f64), indptr.ctypes.data_as(i32), indices.ctypes.data_as(i32),
-                        ps.perm.ctypes.data_as(i32), ctypes.byref(ctypes.c_int32(b.shape[1])),
+                        perm.ctypes.data_as(i32), ctypes.byref(ctypes.c_int32(b.shape[1])),
                         ps.iparm.ctypes.data_as(i32), ctypes.byref(ctypes.c_int32(0)),
                         b.ctypes.data_as(f64), x.ctypes.data_as(f64), ctypes.byref(error))
         threads.no_spin_wait()  # after a call, MKL has loaded its OpenMP runtime if it uses one

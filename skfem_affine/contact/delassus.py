@@ -112,9 +112,9 @@ class Resolvent:
     solvers by (size, first unknown); after each frame it holds only that frame's.
     """
 
-    def __init__(self, operator, block=64, cache=None, touched=True):
+    def __init__(self, operator, block=64, cache=None, touched=True, schur=None):
         self.solver, self.A, self.G, self.block = operator.solver, operator.matrix, operator.G, int(block)
-        self.touched = bool(touched)
+        self.touched, self.schur = bool(touched), schur
         self.iterative = operator.iterative
         n_comp, labels = connected_components(self.A, directed=False)
         self.parts = None
@@ -125,6 +125,7 @@ class Resolvent:
         self.cache = {} if cache is None else cache
         self.used = set()
         self.columns_solved = 0  # right-hand sides solved by the last :meth:`delassus`
+        self.schur_unknowns = 0  # unknowns whose Z came from the Schur complement instead
 
     def _block_solver(self, idx):
         if idx.size <= BLOCK_DENSE_MAX:
@@ -141,25 +142,43 @@ class Resolvent:
         for key in [key for key in self.cache if key not in self.used]:
             del self.cache[key]
 
-    def inverse_on(self, solver, n, T, iterative=False):
-        """Z = (A^-1)_TT (``|T| x |T|``, dense) for the n x n matrix A that ``solver`` has factorised and
-        the unknowns T (sorted): the unit columns e_T solved, ``block`` at a time, rows T kept.
+    def _from_schur(self, A, T, iterative, key=None):
+        """Z = (A^-1)_TT from the Schur complement of A (the whole system, or the block ``key`` of a
+        body) on T, or None when ``schur`` (:class:`~skfem_affine.contact.schur.SchurInverse`) is
+        not given or declines (an iterative solver, too few or too many unknowns)."""
+        if self.schur is None or iterative:
+            return None
+        Z = self.schur.inverse_on(A, T, key=key)
+        if Z is not None:
+            self.schur_unknowns += T.size
+        return Z
 
-        The one place Z comes from: another way of getting it (a Schur complement of A on T)
-        replaces this method."""
+    def inverse_on(self, solver, A, T, iterative=False, key=None):
+        """Z = (A^-1)_TT (``|T| x |T|``, dense) for the matrix A that ``solver`` has factorised and the
+        unknowns T (sorted): from the Schur complement (:meth:`_from_schur`), else the unit
+        columns e_T solved, ``block`` at a time, rows T kept."""
+        Z = self._from_schur(A, T, iterative, key)
+        return self._columns(solver, A, T, iterative) if Z is None else Z
+
+    def _columns(self, solver, A, T, iterative):
         self.columns_solved += T.size
-        E = sp.csc_matrix((np.ones(T.size), T, np.arange(T.size + 1)), shape=(n, T.size))
+        E = sp.csc_matrix((np.ones(T.size), T, np.arange(T.size + 1)), shape=(A.shape[0], T.size))
         return gram(solver, E, self.block, iterative)
 
-    def _product(self, solver, Jb, iterative=False):
+    def _product(self, solver, A, Jb, iterative=False, key=None):
         """Jb A^-1 Jb^T for Jb (CSC, m x n) and the n x n matrix A that ``solver`` has factorised: from
-        Z = (A^-1)_TT on the touched unknowns T when there are fewer of them than rows, else per row."""
+        Z = (A^-1)_TT on the touched unknowns T when the Schur complement gives it or there are fewer
+        of them than rows, else per row."""
         counts = np.diff(Jb.indptr)
         T = np.flatnonzero(counts)
-        if self.touched and T.size < Jb.shape[0]:
+        dense = isinstance(solver, DenseCholesky)  # a small body's block: one triangular solve is cheaper
+        Z = self._from_schur(A, T, iterative, key) if self.touched and not dense else None
+        if Z is None and self.touched and T.size < Jb.shape[0]:
+            Z = self._columns(solver, A, T, iterative)
+        if Z is not None:
             Jt = sp.csc_matrix((Jb.data, Jb.indices, np.concatenate([[0], np.cumsum(counts[T])])),
                                shape=(Jb.shape[0], T.size))
-            W = Jt @ (Jt @ self.inverse_on(solver, Jb.shape[1], T, iterative)).T
+            W = Jt @ (Jt @ Z).T
         else:
             self.columns_solved += Jb.shape[0]
             W = gram(solver, Jb.T, self.block, iterative)
@@ -168,11 +187,11 @@ class Resolvent:
     def delassus(self, J):
         """W = J A^-1 J^T (dense, symmetric), A^-1 ~ G A_r^-1 G^T in a reduced frame."""
         Jr = sp.csr_matrix(J @ self.G) if self.G is not None else sp.csr_matrix(J)
-        self.Jr, self.columns_solved = Jr, 0
+        self.Jr, self.columns_solved, self.schur_unknowns = Jr, 0, 0
         k = J.shape[0]
         if self.parts is None:
             self._evict()
-            return self._product(self.solver, Jr.tocsc(), self.iterative)
+            return self._product(self.solver, self.A, Jr.tocsc(), self.iterative)
         W = np.zeros((k, k))
         Jc = Jr[:, self.order].tocsc()
         Jc.eliminate_zeros()
@@ -190,7 +209,7 @@ class Resolvent:
             solver = self._block_solver(idx)
             with serial_blas() if idx.size < BLOCK_DIRECT_MIN else _nothing():
                 solver.factorize(Ap[s:e, s:e])
-                W[np.ix_(rows, rows)] += self._product(solver, Jb)
+                W[np.ix_(rows, rows)] += self._product(solver, Ap[s:e, s:e], Jb, key=(e - s, int(idx[0])))
             self.local.append((idx, rows, Jb, solver))
         self._evict()
         return W

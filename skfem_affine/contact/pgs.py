@@ -63,6 +63,7 @@ from skfem_affine import _compile_notice  # noqa: F401 (one stderr line when the
 from skfem_affine.checks import flag, integer, nonnegative, positive, real
 from skfem_affine.contact.colliders import check_colliders
 from skfem_affine.contact.delassus import Resolvent, block_solver, jacobian
+from skfem_affine.contact.schur import SchurInverse
 from skfem_affine.contact.geometry import Detector
 from skfem_affine.monitor import SimulationWarning
 
@@ -121,6 +122,10 @@ class PGS:
         of the last few, :func:`anderson_gauss_seidel`: about 3 times fewer sweeps to the tolerance
         on the paper's pills). Both solve the same problem to the same residual; ``iterations``
         and ``max_iterations`` count sweeps in either.
+    schur : bool
+        Build the Delassus operator of a one-body system from the Schur complement of the frame's
+        matrix on the unknowns the contacts touch (MKL Pardiso, :mod:`~skfem_affine.contact.schur`)
+        where that is cheaper than solving their unit columns; False always solves them.
     """
 
     friction: float = 0.5
@@ -135,6 +140,7 @@ class PGS:
     edge_contact: bool = True
     max_iterations: int = None
     solver: str = "gauss-seidel"
+    schur: bool = True
 
     def __post_init__(self):
         put = object.__setattr__  # frozen: store the checked values
@@ -150,6 +156,7 @@ class PGS:
         put(self, "body_contact", flag(self.body_contact, "PGS body_contact"))
         put(self, "block", integer(self.block, "PGS block", low=1))
         put(self, "edge_contact", flag(self.edge_contact, "PGS edge_contact"))
+        put(self, "schur", flag(self.schur, "PGS schur"))
         if self.max_iterations is not None:
             put(self, "max_iterations", integer(self.max_iterations, "PGS max_iterations", low=self.iterations))
         if not isinstance(self.solver, str) or self.solver not in SOLVERS:
@@ -441,6 +448,7 @@ class Contact:
         self.inv_mass = 1.0 / np.repeat(sysm.lumped_mass, 3)[sysm.free]
         self.previous = None  # (sorted keys, world impulses)
         self.block_solvers = {}  # per-body factorizations of the Delassus operator, reused across frames
+        self.schur = SchurInverse() if self.settings.schur else None  # keeps its analysis across frames
         self.current = None
         self.prediction = None
         self.correction = None
@@ -501,6 +509,8 @@ class Contact:
         for i, solver in enumerate(self.block_solvers.values()):
             if hasattr(solver, "state_dict"):
                 out.update({f"block{i}.{k}": v for k, v in solver.state_dict().items()})
+        if self.schur is not None:
+            out.update(self.schur.state_dict())
         return out
 
     def load_state_dict(self, state):
@@ -515,6 +525,8 @@ class Contact:
             if sub and hasattr(solver, "load_state_dict"):
                 solver.load_state_dict(sub)
             self.block_solvers[key] = solver
+        if self.schur is not None:
+            self.schur.load_state_dict(state)
 
     # -------------------------------------------------------------- frame hooks
     def detect(self, model, x, v, rec, f_ext=None):
@@ -617,7 +629,7 @@ class Contact:
             raise TypeError("PGS contact needs the reducer's factorised operator (StepResult.operator)")
         t0 = time.perf_counter()
         st = self.settings
-        resolvent = Resolvent(result.operator, block=st.block, cache=self.block_solvers)
+        resolvent = Resolvent(result.operator, block=st.block, cache=self.block_solvers, schur=self.schur)
         v_star = problem.v.reshape(-1)[problem.system.free] + dv
         W = resolvent.delassus(cs.J)
         t1 = time.perf_counter()
@@ -649,7 +661,7 @@ class Contact:
         self.lam = lam
         t2 = time.perf_counter()
         rec.update(pgs_iterations=int(sweeps), delassus=t1 - t0, pgs=t2 - t1,
-                   delassus_columns=int(resolvent.columns_solved))
+                   delassus_columns=int(resolvent.columns_solved), delassus_schur=int(resolvent.schur_unknowns))
         rec["contact"] = rec.get("contact", 0.0) + t2 - t0
         return dvc
 

@@ -1,0 +1,144 @@
+"""Z = (A^-1)_TT from Pardiso's Schur complement on the touched unknowns T, against the inverse
+itself and against the unit-column solves (the Delassus operator W in full and reduced space)."""
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+pytest.importorskip("pypardiso")
+
+import skfem_affine as sa  # noqa: E402
+from skfem_affine.contact import delassus  # noqa: E402
+from skfem_affine.contact.schur import SchurInverse  # noqa: E402
+from skfem_affine.integrators.problem import Operator  # noqa: E402
+from skfem_affine.solvers import PardisoSchur, SuperLU  # noqa: E402
+
+from test_delassus import REDUCERS, frames_with_contact, plain_delassus  # noqa: E402
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+
+def _spd(n, seed=0):
+    """A sparse SPD matrix of n unknowns (a perturbed chain with a few long-range couplings)."""
+    rng = np.random.default_rng(seed)
+    i = rng.integers(0, n, 2 * n)
+    j = rng.integers(0, n, 2 * n)
+    B = sp.coo_matrix((rng.normal(size=i.size), (i, j)), shape=(n, n)).tocsr()
+    B = B + B.T + sp.diags([-np.ones(n - 1), -np.ones(n - 1)], [-1, 1])
+    return sp.csr_matrix(B + sp.diags(np.abs(B).sum(axis=1).A1 + 1.0))
+
+
+def test_complement_inverts_to_the_inverse_on_the_kept_unknowns():
+    A = _spd(60)
+    keep = np.array([2, 5, 11, 30, 31, 59])
+    S = PardisoSchur().complement(A, keep)
+    Z = np.linalg.inv(A.toarray())[np.ix_(keep, keep)]
+    assert np.abs(np.linalg.inv(S) - Z).max() <= 1e-12 * np.abs(Z).max()
+    U = sp.triu(A, format="csr")
+    assert np.abs(PardisoSchur().complement(U, keep, upper=True) - S).max() <= 1e-12 * np.abs(S).max()
+
+
+@pytest.mark.parametrize("keep", [np.arange(31), np.arange(60), np.array([3, 3]), np.array([5, 2]), np.array([-1, 4])])
+def test_complement_refuses_unsorted_repeated_or_more_than_half_the_unknowns(keep):
+    with pytest.raises(ValueError, match="keep"):
+        PardisoSchur().complement(_spd(60), keep)
+
+
+def test_schur_inverse_keeps_its_analysis_for_subsets_and_declines_small_or_large_sets():
+    A = _spd(80, seed=1)
+    inv = np.linalg.inv(A.toarray())
+    schur = SchurInverse(min_size=4)
+    # a subset of the kept set reuses its analysis; a set that grows it, or another one, is analysed anew
+    for T, analyses in [(np.arange(10, 30), 1), (np.arange(12, 28), 1), (np.arange(5, 30), 2), (np.arange(6, 20), 2),
+                        (np.arange(40, 45), 3)]:
+        A = A.copy()
+        A.data *= 1.0 + 1e-3 * analyses  # new values, same pattern: every call a new factorisation
+        Z = schur.inverse_on(A, T)
+        ref = np.linalg.inv(A.toarray())[np.ix_(T, T)]
+        assert np.abs(Z - ref).max() <= 1e-11 * np.abs(ref).max()
+        assert schur.analyses == analyses
+    assert schur.inverse_on(A, np.arange(3)) is None  # below min_size without a kept analysis
+    assert schur.inverse_on(A, np.arange(41)) is None  # more than half the unknowns
+    assert inv.shape == (80, 80)
+
+
+@pytest.mark.parametrize("reducer", list(REDUCERS))
+def test_delassus_from_the_schur_complement_equals_the_plain_path(reducer):
+    """The falling box in full space, and reduced frames whose system has more than twice the unknowns
+    the contacts touch (smaller ones, e.g. the whole box affine, solve their columns)."""
+    sim = sa.scenes.SCENES["drop"](resolution=1, shape="box", reducer=REDUCERS[reducer]())
+    schur = SchurInverse(min_size=1)
+    taken = []
+
+    def check(op, J):
+        ref, Jr, Y = plain_delassus(op, J)
+        res = delassus.Resolvent(op, block=7, cache={}, schur=schur)
+        W = res.delassus(J)
+        assert np.abs(W - ref).max() <= 1e-9 * np.abs(ref).max(), np.abs(W - ref).max() / np.abs(ref).max()
+        T = np.unique(sp.csr_matrix(Jr).indices)
+        eligible = res.parts is None and 2 * T.size <= Jr.shape[1]
+        assert (res.schur_unknowns == T.size) if eligible else (res.schur_unknowns == 0)
+        taken.append(eligible)
+
+    frames_with_contact(sim, 120, check, want=6)
+    assert any(taken), "no frame took the Schur complement"
+
+
+def test_small_bodies_take_their_dense_blocks():
+    sim = sa.scenes.SCENES["stacked_beams"](resolution=1)
+    schur = SchurInverse(min_size=1)
+
+    def check(op, J):
+        ref = plain_delassus(op, J)[0]
+        res = delassus.Resolvent(op, block=7, cache={}, schur=schur)
+        assert np.abs(res.delassus(J) - ref).max() <= 1e-9 * np.abs(ref).max()
+        assert res.parts is not None and res.schur_unknowns == 0
+
+    frames_with_contact(sim, 120, check, want=1)
+
+
+def test_each_large_body_takes_the_schur_complement_of_its_block():
+    """Two bodies above the dense-block size, each keeping its own analysis across frames."""
+    m = delassus.BLOCK_DENSE_MAX + 100
+    schur = SchurInverse(min_size=1)
+    rng = np.random.default_rng(3)
+    for frame in range(3):
+        A = sp.block_diag([_spd(m, seed=frame), _spd(m + 7, seed=frame + 10)], format="csr")
+        solver = SuperLU()
+        solver.factorize(A)
+        cols = np.sort(rng.choice(A.shape[0], 40, replace=False))
+        J = sp.csr_matrix((rng.normal(size=60), (rng.integers(0, 30, 60), rng.choice(cols, 60))),
+                          shape=(30, A.shape[0]))
+        op = Operator(solver, A)
+        ref = plain_delassus(op, J)[0]
+        res = delassus.Resolvent(op, cache={}, schur=schur)
+        assert np.abs(res.delassus(J) - ref).max() <= 1e-9 * np.abs(ref).max()
+        assert res.schur_unknowns == np.unique(J.indices).size and res.columns_solved == 0
+    assert len(schur._kept_by) == 2
+
+
+def test_a_resumed_schur_inverse_analyses_the_saved_sets_and_gives_the_same_bits():
+    A = _spd(80, seed=2)
+    ahead = SchurInverse(min_size=4)
+    ahead.inverse_on(A, np.arange(10, 30))
+    ahead.inverse_on(A, np.arange(12, 26))  # kept: the analysis of 10..29
+    resumed = SchurInverse(min_size=4)
+    resumed.load_state_dict({k: v.copy() for k, v in ahead.state_dict().items()})
+    A = A.copy()
+    A.data *= 1.01
+    T = np.arange(14, 24)
+    assert np.array_equal(ahead.inverse_on(A, T), resumed.inverse_on(A, T))
+    with pytest.raises(ValueError, match="schur0.keep"):
+        resumed.load_state_dict({"schur_systems": np.array([[-1, -1]]), "schur0.keep": np.array([3, 2])})
+
+
+def test_stress_script_survives_varied_calls_in_a_subprocess():
+    """Patterns, sets, thread counts and handles varied call to call (benchmarks/schur_stress.py)."""
+    run = subprocess.run([sys.executable, os.path.join(ROOT, "benchmarks", "schur_stress.py"), "--calls", "60",
+                          "--check-every", "3", "--vertices", "60"], capture_output=True, text=True, timeout=300,
+                         env=dict(os.environ, PYTHONPATH=ROOT))
+    assert run.returncode == 0, run.stderr[-2000:]
+    assert "survived 60 calls" in run.stdout
