@@ -43,7 +43,7 @@ sys.path.insert(0, os.path.dirname(HERE))
 sys.path.insert(1, HERE)
 import skfem_affine as sa  # noqa: E402
 from skfem_affine.contact import pgs  # noqa: E402
-from skfem_affine.contact.pgs import _contact_error, _disk, _tangent_step, _worst  # noqa: E402
+from skfem_affine.contact.pgs import _contact_error, _contact_step, _disk, _tangent_step, _worst  # noqa: E402
 
 
 # ----------------------------------------------------------------------------- saving the frames
@@ -83,30 +83,6 @@ def dump(out, frames, mesh_dir):
 
 # ----------------------------------------------------------------------------- the iterations
 @njit(cache=True)
-def _step(W, u, lam, mu, c, omega):
-    """The Gauss-Seidel step of contact c (normal, then tangents onto the disk), over-relaxed by omega."""
-    m = lam.size
-    r = 3 * c
-    if W[r, r] <= 0.0:
-        return
-    new_n = max(0.0, lam[r] - omega * u[r] / W[r, r])
-    dn = new_n - lam[r]
-    if dn != 0.0:
-        lam[r] = new_n
-        for j in range(m):
-            u[j] += W[r, j] * dn
-    step = _tangent_step(W, r)
-    if step <= 0.0:
-        return
-    t1, t2 = _disk(lam[r + 1] - omega * u[r + 1] / step, lam[r + 2] - omega * u[r + 2] / step, mu * lam[r])
-    d1, d2 = t1 - lam[r + 1], t2 - lam[r + 2]
-    if d1 != 0.0 or d2 != 0.0:
-        lam[r + 1], lam[r + 2] = t1, t2
-        for j in range(m):
-            u[j] += W[r + 1, j] * d1 + W[r + 2, j] * d2
-
-
-@njit(cache=True)
 def ordered(W, u0, lam, mu, goal, cap, order, mode, omega):
     """Sweeps in ``order`` (mode 0), a random order per sweep (1), or forward and backward in turn (2).
     Returns (passes to the goal or -1, the residual after each pass)."""
@@ -123,7 +99,7 @@ def ordered(W, u0, lam, mu, goal, cap, order, mode, omega):
         elif mode == 2 and s % 2 == 1:
             perm = order[::-1].copy()
         for c in perm:
-            _step(W, u, lam, mu, c, omega)
+            _contact_step(W, u, lam, mu, 3 * c, omega)
         hist[s + 1] = _worst(W, u, lam, mu)
         if hist[s + 1] <= goal:
             return s + 1, hist
@@ -153,7 +129,7 @@ def block(W, u0, lam, mu, goal, cap, ptr, members, inner):
             before = lg.copy()
             for _ in range(inner):
                 for i in range(cs.size):
-                    _step(Wg, ug, lg, mu, i, 1.0)
+                    _contact_step(Wg, ug, lg, mu, 3 * i, 1.0)
                 cost += float(rows.size) ** 2
                 if _worst(Wg, ug, lg, mu) <= 0.1 * goal:
                     break

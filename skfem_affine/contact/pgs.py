@@ -241,34 +241,41 @@ def _worst(W, u, lam, mu):
 
 
 @njit(cache=True)
-def _sweep(W, u, lam, mu):
-    """One Gauss-Seidel sweep over the contacts in their order: lam and u = u0 + W lam updated in place.
+def _contact_step(W, u, lam, mu, r, omega):
+    """The Gauss-Seidel step of the contact whose normal row is r: lam and u = u0 + W lam in place.
 
-    Per contact: the normal row by a projected Gauss-Seidel step, then both tangent rows, projected
-    jointly onto the disk of radius mu lam_n (Euclidean projection after a gradient step of the
-    2 x 2 tangent block's largest eigenvalue). Contacts no impulse can act on (W_nn = 0) are skipped.
+    The normal row by a projected Gauss-Seidel step, then both tangent rows, projected jointly onto
+    the disk of radius mu lam_n (Euclidean projection after a gradient step of the 2 x 2 tangent
+    block's largest eigenvalue), each step over-relaxed by ``omega`` (1: plain Gauss-Seidel). A
+    contact no impulse can act on (W_nn = 0) is skipped.
     """
     m = lam.size
-    for r in range(0, m, 3):
-        if W[r, r] <= 0.0:
-            continue
-        new_n = max(0.0, lam[r] - u[r] / W[r, r])
-        dn = new_n - lam[r]
-        if dn != 0.0:
-            lam[r] = new_n
-            for j in range(m):
-                u[j] += W[r, j] * dn
-        # one projected gradient step on both tangents with the largest eigenvalue of their
-        # 2 x 2 block: its fixed point is exactly Coulomb's maximal dissipation
-        step = _tangent_step(W, r)
-        if step <= 0.0:
-            continue
-        t1, t2 = _disk(lam[r + 1] - u[r + 1] / step, lam[r + 2] - u[r + 2] / step, mu * lam[r])
-        d1, d2 = t1 - lam[r + 1], t2 - lam[r + 2]
-        if d1 != 0.0 or d2 != 0.0:
-            lam[r + 1], lam[r + 2] = t1, t2
-            for j in range(m):
-                u[j] += W[r + 1, j] * d1 + W[r + 2, j] * d2
+    if W[r, r] <= 0.0:
+        return
+    new_n = max(0.0, lam[r] - omega * u[r] / W[r, r])
+    dn = new_n - lam[r]
+    if dn != 0.0:
+        lam[r] = new_n
+        for j in range(m):
+            u[j] += W[r, j] * dn
+    # one projected gradient step on both tangents with the largest eigenvalue of their
+    # 2 x 2 block: its fixed point is exactly Coulomb's maximal dissipation
+    step = _tangent_step(W, r)
+    if step <= 0.0:
+        return
+    t1, t2 = _disk(lam[r + 1] - omega * u[r + 1] / step, lam[r + 2] - omega * u[r + 2] / step, mu * lam[r])
+    d1, d2 = t1 - lam[r + 1], t2 - lam[r + 2]
+    if d1 != 0.0 or d2 != 0.0:
+        lam[r + 1], lam[r + 2] = t1, t2
+        for j in range(m):
+            u[j] += W[r + 1, j] * d1 + W[r + 2, j] * d2
+
+
+@njit(cache=True)
+def _sweep(W, u, lam, mu):
+    """One Gauss-Seidel sweep over the contacts in their order (``_contact_step`` of each)."""
+    for r in range(0, lam.size, 3):
+        _contact_step(W, u, lam, mu, r, 1.0)
 
 
 @njit(cache=True)
