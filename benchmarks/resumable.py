@@ -271,7 +271,7 @@ def tables(split, names=METHODS, paper=None):
             continue
         lines += ["", f"Per-phase means over the {label} (frames {summ['frames'][0]}-{summ['frames'][1]}), ms per "
                   f"frame (detection: contact outside the Delassus build and PGS; other: the frame outside "
-                  f"factorisation and contact):", "",
+                  f"factorisation and contact; the last three rows are per-frame means of counts):", "",
                   "| | " + " | ".join(names) + " |", "|---|" + "---|" * len(names)]
         for col in PHASE_COLUMNS + COUNT_COLUMNS:
             fmt = ".0f" if col != "pgs_iterations" else ".1f"
