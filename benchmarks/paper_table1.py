@@ -182,8 +182,7 @@ def measure(name, mesh_dir, frames=None, checkpoint=None, every=25, stop_at=None
     frames = paper[3] if frames is None else int(frames)
     build = factory(mesh_dir, frames)
     folder = os.path.join(checkpoint, name) if checkpoint else None
-    title = f"{row}: {name}, {frames} frames, full / affinification / rigidification"
-    speedups = {"affinification": paper[5], "rigidification": paper[6]}
+    title, speedups = report_title(name, frames)
     meta = {"scene": name, "paper row": row, "command": command or "-", "machine": machine(),
             "thresholds": f"tau_e {paper[12]:g}, tau_a (= tau_r) {paper[13]:g}"}
 
@@ -208,6 +207,28 @@ def measure(name, mesh_dir, frames=None, checkpoint=None, every=25, stop_at=None
             "paper": {"affinification_s": paper[0], "rigidification_s": paper[1], "full_s": paper[2],
                       "frames": paper[3], "h": paper[4], "speedup_affinification": paper[5],
                       "speedup_rigidification": paper[6], "elements": paper[7], "vertices": paper[8]}}
+
+
+def report_title(name, frames):
+    """The title of a scene's report and the paper's speedups of its row."""
+    row = SCENES[name][0]
+    return (f"{row}: {name}, {frames} frames, full / affinification / rigidification",
+            {"affinification": PAPER[row][5], "rigidification": PAPER[row][6]})
+
+
+def report_only(checkpoint, names, rest_from=None, rest_ke=0.01):
+    """Rewrite the reports of runs saved in ``checkpoint`` (e.g. with another rest phase) without stepping."""
+    for name in names:
+        folder = os.path.join(checkpoint, name)
+        path = os.path.join(folder, resumable.PROGRESS)
+        if not os.path.isfile(path):
+            print(f"{name}: no run saved in {folder}")
+            continue
+        with open(path) as fh:
+            progress = json.load(fh)
+        title, speedups = report_title(name, progress["frames_total"])
+        resumable.write_report(folder, title, progress, rest_from, rest_ke, speedups)
+        print(open(os.path.join(folder, "report.md")).read())
 
 
 def machine():
@@ -276,7 +297,13 @@ def main(argv=None):
                     help="first frame of the rest phase (default: from the full solve's kinetic energy, --rest-ke)")
     ap.add_argument("--rest-ke", type=float, default=0.01,
                     help="rest: the kinetic energy stays below this fraction of its peak (default 0.01)")
+    ap.add_argument("--report-only", action="store_true",
+                    help="rewrite the reports of the runs saved in --checkpoint DIR (another --rest-from) and stop")
     args = ap.parse_args(argv)
+    if args.report_only:
+        if not args.checkpoint:
+            ap.error("--report-only reads the runs of --checkpoint DIR")
+        return report_only(args.checkpoint, args.scenes, args.rest_from, args.rest_ke)
     if args.every < 1:
         ap.error(f"--every must be at least 1, got {args.every}")
     if not os.path.isdir(args.mesh_dir):

@@ -247,6 +247,11 @@ def markdown(title, progress, split, paper=None):
     if any(d is not None for d in progress["diverged"]):
         lines.append("- diverged: " + ", ".join(f"{n} at frame {d}" for n, d in zip(names, progress["diverged"])
                                                if d is not None))
+    ke = [k for k in progress["kinetic"][:done] if k is not None]
+    if ke:
+        peak = int(np.argmax(ke))
+        lines.append(f"- kinetic energy of the full solve: peak {ke[peak]:.3g} J at frame {peak + 1}, "
+                     f"{ke[-1]:.3g} J ({ke[-1] / max(ke[peak], 1e-300):.2g} of the peak) at frame {len(ke)}")
     return "\n".join(lines) + "\n\n" + tables(split, names, paper)
 
 

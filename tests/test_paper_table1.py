@@ -101,3 +101,21 @@ def test_the_rest_phase_and_its_summary():
     assert full["detection"] == pytest.approx(100.0) and full["other"] == pytest.approx(300.0)
     assert res.phases(progress, rest_from=2)["rest"]["frames"] == [2, 4]
     assert "| rest 3-4 | affinification | 1.0 | 2.00 | 2.0e-02 | 0.500 |" in res.tables(split)
+
+
+def test_report_only_rewrites_a_saved_run_with_another_rest_phase(tmp_path, capsys):
+    bench, res = load(), load_resumable()
+    folder = tmp_path / "wheel"
+    folder.mkdir()
+    rec = {"wall": 1.0, "factorization": 0.2, "contact": 0.5, "delassus": 0.3, "pgs": 0.1, "dofs": 10,
+           "n_contacts": 2, "pgs_iterations": 5}
+    progress = res.new_progress(1000, res.METHODS, {"scene": "wheel"})
+    progress["records"] = [[rec] * 4 for _ in range(3)]
+    progress["errors"] = [[None] * 4, [0.1] * 4, [0.2] * 4]
+    progress["kinetic"], progress["done"] = [1.0, 2.0, 0.001, 0.0], 4
+    (folder / "progress.json").write_text(json.dumps(progress))
+    bench.main([str(tmp_path), "--scenes", "wheel", "--checkpoint", str(tmp_path), "--report-only", "--rest-from", "2"])
+    report = (folder / "report.md").read_text()
+    assert "4 of 1000 frames done" in report and "Rest phase: from frame 2 (given): frames 2-4." in report
+    assert "peak 2 J at frame 2" in report and "| rest 2-4 | affinification | 3.0 | 1.00 | 1.0e-01 | 1.000 | 16.92 |" in report
+    assert json.loads((folder / "report.json").read_text())["rest"]["frames"] == [2, 4]
