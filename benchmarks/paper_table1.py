@@ -15,20 +15,25 @@ Usage::
 
     python benchmarks/paper_table1.py MESH_DIR                    # the paper's frame counts
     python benchmarks/paper_table1.py MESH_DIR --frames 20 --scenes beam_neo wheel
+    python benchmarks/paper_table1.py MESH_DIR --scenes wheel --checkpoint RUNS   # resumable, RUNS/wheel/report.md
+
+Each scene is also reported over its rest phase (``--rest-from F``, else from the full solve's
+kinetic energy) with per-phase means (factorisation, Delassus, PGS, detection, other): see
+``benchmarks/resumable.py``.
 """
 import argparse
 import json
 import os
 import sys
-import time
 
 import numpy as np
 
 # measure the checkout this script sits in, not whatever skfem_affine is installed
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 import skfem_affine as sa  # noqa: E402
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import resumable  # noqa: E402
 from skfem_affine.integrators.problem import PHASES  # noqa: E402
-from skfem_affine.simulation import SimulationDiverged  # noqa: E402
 
 # The paper's Table 1: affinification, rigidification, full wall time (s), frames, h,
 # speedups, elements, vertices, nu, E, energy, tau_e, tau_a.
@@ -147,47 +152,47 @@ def reducers(row, fraction):
             sa.Rigidification(tau_r=tau_a, tau_e=tau_e, min_rigid_fraction=fraction)]
 
 
-def run_interleaved(build, reducer_list, frames):
-    """Step full space and every reducer frame by frame, in turn, in one process.
+def run_interleaved(build, reducer_list, frames, **kwargs):
+    """Step full space and every reducer frame by frame, in turn, in one process (:func:`resumable.run`).
 
-    Returns the full simulation and one dict per method (full first): wall time (s),
-    DOFs, max distance error over the scene size, the frame it diverged at (or None), and
-    the seconds of each timed phase (contact, assembly, factorization, ...) summed over the run.
+    Returns the full simulation, one dict per method (full first): wall time (s), DOFs, max
+    distance error over the scene size, the frame it diverged at (or None), and the seconds of
+    each timed phase (contact, assembly, factorization, ...) summed over the run; and the
+    per-frame records. ``kwargs`` go to :func:`resumable.run` (checkpoint folder, ...).
     """
-    sims = [build(None)] + [build(r) for r in reducer_list]
-    walls, errs, dofs = np.zeros(len(sims)), np.zeros(len(sims)), np.zeros(len(sims))
-    diverged = [None] * len(sims)
-    phases = [{} for _ in sims]
-    for frame in range(frames):
-        if frame and frame % 10 == 0:
-            print(f"frame {frame}/{frames}: wall s " + " ".join(f"{w:.1f}" for w in walls), file=sys.stderr, flush=True)
-        for i, sim in enumerate(sims):
-            if diverged[i] is not None or diverged[0] is not None:
-                continue
-            t0 = time.perf_counter()
-            try:
-                sim.step()
-            except SimulationDiverged as err:
-                diverged[i] = err.frame
-                continue
-            walls[i] += time.perf_counter() - t0
-            dofs[i] += sim.stats[-1].get("dofs", 0)
-            for key in PHASES:
-                phases[i][key] = phases[i].get(key, 0.0) + float(sim.stats[-1].get(key, 0.0))
-            if i:
-                errs[i] = max(errs[i], np.abs(sim.state.x - sims[0].state.x).max())
-    return sims[0], [{"wall": float(w), "dofs": float(d), "err": float(e / sims[0].size), "diverged": dv, "phases": ph}
-                     for w, d, e, dv, ph in zip(walls, dofs, errs, diverged, phases)]
+    sims, progress = resumable.run(build, reducer_list, frames, **kwargs)
+    totals = []
+    for i, recs in enumerate(progress["records"]):
+        errs = [e for e in progress["errors"][i] if e is not None]
+        totals.append({"wall": float(sum(r["wall"] for r in recs)), "dofs": float(sum(r["dofs"] for r in recs)),
+                       "err": max(errs, default=0.0), "diverged": progress["diverged"][i],
+                       "phases": {key: float(sum(r[key] for r in recs)) for key in PHASES}})
+    return sims[0], totals, progress
 
 
-def measure(name, mesh_dir, frames=None):
-    """One row of the table: our numbers for scene ``name`` beside the paper's."""
+def measure(name, mesh_dir, frames=None, checkpoint=None, every=25, stop_at=None, rest_from=None, rest_ke=0.01,
+            command=None):
+    """One row of the table: our numbers for scene ``name`` beside the paper's, over the run and its rest phase.
+
+    With ``checkpoint`` (a folder), the run is saved in ``checkpoint/name`` every ``every`` frames with
+    a report of the frames done so far, and continued from there when started again.
+    """
     row, mesh_file, factory, fraction = SCENES[name]
     paper = PAPER[row]
     frames = paper[3] if frames is None else int(frames)
     build = factory(mesh_dir, frames)
-    sim, (full, aff, rig) = run_interleaved(build, reducers(row, fraction), frames)
-    return {"scene": name, "paper_row": row, "stand_in": mesh_file is None, "frames": frames, "h": sim.dt,
+    folder = os.path.join(checkpoint, name) if checkpoint else None
+    title, speedups = report_title(name, frames)
+    meta = {"scene": name, "paper row": row, "command": command or "-", "machine": machine(),
+            "thresholds": f"tau_e {paper[12]:g}, tau_a (= tau_r) {paper[13]:g}"}
+
+    def report(progress):
+        resumable.write_report(folder, title, progress, rest_from, rest_ke, speedups)
+    sim, (full, aff, rig), progress = run_interleaved(build, reducers(row, fraction), frames, checkpoint=folder,
+                                                      every=every, stop_at=stop_at, meta=meta, on_save=report)
+    split = resumable.phases(progress, rest_from, rest_ke)
+    return {"scene": name, "paper_row": row, "stand_in": mesh_file is None, "frames": frames,
+            "frames_done": progress["done"], "h": sim.dt,
             "elements": sim.system.m, "vertices": sim.system.n,
             "affinification_s": aff["wall"], "rigidification_s": rig["wall"], "full_s": full["wall"],
             "speedup_affinification": full["wall"] / aff["wall"] if aff["wall"] else None,
@@ -198,13 +203,49 @@ def measure(name, mesh_dir, frames=None):
             "phases_s": {k: r["phases"] for k, r in zip(("full", "affinification", "rigidification"), (full, aff, rig))},
             "diverged": {k: r["diverged"] for k, r in zip(("full", "affinification", "rigidification"),
                                                           (full, aff, rig)) if r["diverged"] is not None},
+            "run": split["run"], "rest": split["rest"], "rest_rule": split["rest_rule"],
             "paper": {"affinification_s": paper[0], "rigidification_s": paper[1], "full_s": paper[2],
                       "frames": paper[3], "h": paper[4], "speedup_affinification": paper[5],
                       "speedup_rigidification": paper[6], "elements": paper[7], "vertices": paper[8]}}
 
 
+def report_title(name, frames):
+    """The title of a scene's report and the paper's speedups of its row."""
+    row = SCENES[name][0]
+    return (f"{row}: {name}, {frames} frames, full / affinification / rigidification",
+            {"affinification": PAPER[row][5], "rigidification": PAPER[row][6]})
+
+
+def report_only(checkpoint, names, rest_from=None, rest_ke=0.01):
+    """Rewrite the reports of runs saved in ``checkpoint`` (e.g. with another rest phase) without stepping."""
+    for name in names:
+        folder = os.path.join(checkpoint, name)
+        path = os.path.join(folder, resumable.PROGRESS)
+        if not os.path.isfile(path):
+            print(f"{name}: no run saved in {folder}")
+            continue
+        with open(path) as fh:
+            progress = json.load(fh)
+        title, speedups = report_title(name, progress["frames_total"])
+        resumable.write_report(folder, title, progress, rest_from, rest_ke, speedups)
+        print(open(os.path.join(folder, "report.md")).read())
+
+
+def machine():
+    """Cores, load average and BLAS/MKL/numba thread settings, for the report."""
+    env = ", ".join(f"{v}={os.environ[v]}" for v in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS",
+                                                     "NUMBA_NUM_THREADS") if v in os.environ)
+    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
+    return f"{os.cpu_count()} cores, load average {load:.1f} at the start" + (f", {env}" if env else "")
+
+
 def _f(x, fmt):
     return "-" if x is None else format(x, fmt)
+
+
+def _done(row):
+    done = row.get("frames_done", row["frames"])
+    return f"{row['frames']}" if done == row["frames"] else f"{done} of {row['frames']}"
 
 
 def markdown(rows):
@@ -217,7 +258,7 @@ def markdown(rows):
         label = f"{r['paper_row']}" + (" (stand-in)" if r["stand_in"] else "") + \
             ("" if not r["diverged"] else f" diverged {r['diverged']}")
         lines.append(
-            f"| {label} | {r['frames']} ({p['frames']}) | {r['h']:g} ({p['h']:g}) | {r['elements']} ({p['elements']}) "
+            f"| {label} | {_done(r)} ({p['frames']}) | {r['h']:g} ({p['h']:g}) | {r['elements']} ({p['elements']}) "
             f"| {r['vertices']} ({p['vertices']}) | {r['affinification_s']:.2f} ({p['affinification_s']:.2f}) "
             f"| {r['rigidification_s']:.2f} ({p['rigidification_s']:.2f}) | {r['full_s']:.2f} ({p['full_s']:.2f}) "
             f"| {_f(r['speedup_affinification'], '.2f')} ({p['speedup_affinification']:.2f}) "
@@ -232,13 +273,39 @@ def markdown(rows):
     return "\n".join(lines) + "\n"
 
 
+def phase_tables(row):
+    """Run and rest rows of one scene with their per-phase means (Markdown)."""
+    split = {"run": row["run"], "rest": row["rest"], "rest_rule": row["rest_rule"]}
+    paper = {"affinification": row["paper"]["speedup_affinification"],
+             "rigidification": row["paper"]["speedup_rigidification"]}
+    return f"## {row['paper_row']}: the run and its rest phase\n\n" + resumable.tables(split, paper=paper)
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("mesh_dir", help="folder of the paper's meshes (see docs/bodies.md)")
     ap.add_argument("--scenes", nargs="+", default=list(SCENES), choices=list(SCENES))
     ap.add_argument("--frames", type=int, default=None, help="frames of every scene (default: the paper's)")
     ap.add_argument("--out", default="benchmarks/results/paper_table1", help="writes OUT.md and OUT.json")
+    ap.add_argument("--checkpoint", default=None, metavar="DIR",
+                    help="save each scene's run in DIR/SCENE every --every frames with a report of the frames done "
+                         "(report.md, report.json); a run started again with the same DIR continues from there")
+    ap.add_argument("--every", type=int, default=25, help="frames between checkpoints (default 25)")
+    ap.add_argument("--stop-at", type=int, default=None, metavar="F",
+                    help="stop once F frames are done (with --checkpoint: continue later)")
+    ap.add_argument("--rest-from", type=int, default=None, metavar="F",
+                    help="first frame of the rest phase (default: from the full solve's kinetic energy, --rest-ke)")
+    ap.add_argument("--rest-ke", type=float, default=0.01,
+                    help="rest: the kinetic energy stays below this fraction of its peak (default 0.01)")
+    ap.add_argument("--report-only", action="store_true",
+                    help="rewrite the reports of the runs saved in --checkpoint DIR (another --rest-from) and stop")
     args = ap.parse_args(argv)
+    if args.report_only:
+        if not args.checkpoint:
+            ap.error("--report-only reads the runs of --checkpoint DIR")
+        return report_only(args.checkpoint, args.scenes, args.rest_from, args.rest_ke)
+    if args.every < 1:
+        ap.error(f"--every must be at least 1, got {args.every}")
     if not os.path.isdir(args.mesh_dir):
         ap.error(f"MESH_DIR {args.mesh_dir!r} is not a folder")
     missing = [n for n in args.scenes
@@ -249,12 +316,14 @@ def main(argv=None):
     run_interleaved(lambda r: sa.scenes.cantilever(resolution=1, reducer=r), reducers("Beam Neo", 0.0), 3)
     rows = []
     for name in args.scenes:
-        rows.append(measure(name, args.mesh_dir, args.frames))
+        rows.append(measure(name, args.mesh_dir, args.frames, checkpoint=args.checkpoint, every=args.every,
+                            stop_at=args.stop_at, rest_from=args.rest_from, rest_ke=args.rest_ke,
+                            command="python benchmarks/paper_table1.py " + " ".join(argv or sys.argv[1:])))
         r = rows[-1]
         print(f"{name}: {r['elements']} tets, {r['frames']} frames, full {r['full_s']:.2f} s, "
               f"affinification {r['affinification_s']:.2f} s, rigidification {r['rigidification_s']:.2f} s"
               + (f", diverged {r['diverged']}" if r["diverged"] else ""), flush=True)
-    table = markdown(rows)
+    table = markdown(rows) + "".join("\n" + phase_tables(r) for r in rows)
     print(table)
     if args.out:
         os.makedirs(os.path.dirname(args.out) or ".", exist_ok=True)
