@@ -70,6 +70,28 @@ def test_body_contact_measures_overlap_and_ignores_edges():
     assert np.all(cs.distance[side] > 0)                          # beside an edge is not inside
 
 
+
+def test_gravity_alone_takes_one_pass_over_body_pairs(monkeypatch):
+    """v + h g - v is h g only up to rounding: the relative approach speeds are those of v, and
+    the pairs between bodies (vertex and edge) are searched once, not once per velocity."""
+    lower, upper = _block(0.4, 2), _block(0.2, 2, z0=0.401)
+    sim = sa.Simulation([lower, upper], contact=sa.PGS(margin=0.005))
+    det = sim.contact.detector
+    rng = np.random.default_rng(0)
+    x, v = sim.state.x, rng.normal(scale=0.3, size=sim.state.x.shape)
+    calls = []
+    find = det.edge_pairs.find
+    monkeypatch.setattr(det.edge_pairs, "find", lambda *a, **k: calls.append(1) or find(*a, **k))
+    w = v + sim.dt * np.array([0.0, 0.0, -9.81])
+    assert np.ptp(w - v, axis=0).any()                            # the rounding the test is about
+    cs, ref = det.find(x, v, sim.dt, w), det.find(x, v, sim.dt)
+    assert len(calls) == 2                                         # one pass per call
+    body = det.body_contacts(cs)
+    assert np.array_equal(cs.key[body], ref.key[det.body_contacts(ref)])
+    w[0] += 1.0                                                   # a non-uniform change: both velocities
+    det.find(x, v, sim.dt, w)
+    assert len(calls) == 4
+
 # ---------------------------------------------------------------------------- PGS
 def test_pgs_single_contact_closed_form_and_cone():
     W = np.diag([2.0, 4.0, 4.0])

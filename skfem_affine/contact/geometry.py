@@ -156,6 +156,12 @@ def concat(sets):
 
 
 
+def _uniform(dv, scale):
+    """Whether the velocity changes ``dv`` (k, 3) are one vector up to the rounding of velocities of
+    magnitude ``scale`` (``v + h a - v`` for a uniform ``a`` differs from ``h a`` by a few ulps)."""
+    return bool(np.all(np.ptp(dv, axis=0) <= 16.0 * np.finfo(float).eps * scale)) if len(dv) else True
+
+
 class Detector:
     """Finds the contacts of a system's vertices and edges against colliders and other bodies.
 
@@ -219,7 +225,7 @@ class Detector:
                                        d[hit], vtx * self.n_kinds + ci))
         if self.body_pairs:
             sv = self.body_vertices
-            if w is not None and not np.ptp(w[sv] - v[sv], axis=0).any():
+            if w is not None and _uniform(w[sv] - v[sv], np.abs(w[sv]).max(initial=0.0)):
                 fields = [v]  # a uniform acceleration (gravity alone) leaves relative approach speeds as they are
             speeds = [self._speeds(self.body_of_vertex[sv], u[sv]) for u in fields]
             vertex_sets = self._body_contacts(x, fields, x[sv], dt, speeds)
@@ -267,9 +273,9 @@ class Detector:
         if not found:
             return None
         ea, eb, s, t, normal, d = (np.concatenate(parts) for parts in zip(*found))
-        if len(found) > 1:  # a pair found with both velocities counts once
-            _, first = np.unique(ea * len(ep.edges) + eb, return_index=True)
-            ea, eb, s, t, normal, d = (a[first] for a in (ea, eb, s, t, normal, d))
+        # ordered by pair, a pair found with both velocities counting once
+        _, first = np.unique(ea * len(ep.edges) + eb, return_index=True)
+        ea, eb, s, t, normal, d = (a[first] for a in (ea, eb, s, t, normal, d))
         a0, a1 = ep.edges[ea, 0], ep.edges[ea, 1]
         others = np.column_stack([a1, ep.edges[eb]])
         weights = np.column_stack([-s, 1.0 - t, t])
