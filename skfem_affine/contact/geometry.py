@@ -297,9 +297,11 @@ class Detector:
         # |v_i - v_j| <= |v_i - vbar_a| + |vbar_a - vbar_b| + max_j |v_j - vbar_b| for i in a, j in b
         if speeds is None:
             speeds = [self._speeds(owner, u[sv]) for u in fields]
+        # broad phase body by body, then one narrow phase over every body's candidate pairs
+        points, rows, tris, bodies, start = [], [], [], [], 0
         for b in np.unique(self.tri_body):
-            tris = self.tris[self.tri_body == b]
-            corners = x[tris]                                             # (T, 3 corners, 3)
+            mine = np.flatnonzero(self.tri_body == b)
+            corners = x[self.tris[mine]]                                  # (T, 3 corners, 3)
             bound = np.maximum.reduce([spread + np.linalg.norm(mean_v[owner] - mean_v[b], axis=1) + max_spread[b]
                                        for mean_v, spread, max_spread in speeds])
             radius = self.margin + 2.0 * dt * bound
@@ -310,19 +312,30 @@ class Detector:
                 continue
             centroid = corners.mean(axis=1)
             reach = np.sqrt(((corners - centroid[:, None]) ** 2).sum(axis=2).max())
-            kq = min(NEAREST_TRIANGLES, len(tris))
+            kq = min(NEAREST_TRIANGLES, len(mine))
             _, idx = cKDTree(centroid).query(xs[cand], k=kq, distance_upper_bound=radius[cand].max() + reach)
-            rows, cols = np.nonzero(idx.reshape(len(cand), kq) < len(tris))
-            if not rows.size:
+            r, c = np.nonzero(idx.reshape(len(cand), kq) < len(mine))
+            if not r.size:
                 continue
-            found, tri, W, d, normal = closest_surface_points(xs[cand], rows, idx.reshape(len(cand), kq)[rows, cols],
-                                                              corners, 1e-9 * self.mean_edge)
-            pairs = sv[cand[found]]
-            approach = np.maximum.reduce([np.maximum(0.0, -np.einsum("ij,ij->i", u[pairs] - np.einsum(
-                "kj,kjc->kc", W, u[tris[tri]]), normal)) for u in fields])
-            hit = d < self.margin + 2.0 * dt * approach
-            if np.any(hit):
-                vtx = sv[cand[found[hit]]]
-                out.append(ContactSet(vtx, tris[tri[hit]], W[hit], normal[hit], d[hit],
+            points.append(cand)
+            rows.append(start + r)
+            tris.append(mine[idx.reshape(len(cand), kq)[r, c]])
+            bodies.append(b)
+            start += cand.size
+        if not points:
+            return out
+        cand = np.concatenate(points)
+        found, tri, W, d, normal = closest_surface_points(xs[cand], np.concatenate(rows), np.concatenate(tris),
+                                                          x[self.tris], 1e-9 * self.mean_edge)
+        pairs = sv[cand[found]]
+        approach = np.maximum.reduce([np.maximum(0.0, -np.einsum("ij,ij->i", u[pairs] - np.einsum(
+            "kj,kjc->kc", W, u[self.tris[tri]]), normal)) for u in fields])
+        hit = d < self.margin + 2.0 * dt * approach
+        ends = np.searchsorted(found, np.cumsum([p.size for p in points]))  # found is sorted: body by body
+        for b, part in zip(bodies, np.split(np.arange(found.size), ends[:-1])):
+            part = part[hit[part]]
+            if part.size:
+                vtx = pairs[part]
+                out.append(ContactSet(vtx, self.tris[tri[part]], W[part], normal[part], d[part],
                                       vtx * self.n_kinds + len(self.colliders) + b))
         return out
