@@ -207,9 +207,10 @@ class Resolvent:
             Jb = sp.csc_matrix((Jc.data[a:b], local, Jc.indptr[s:e + 1] - a), shape=(rows.size, e - s))
             idx = self.order[s:e]
             solver = self._block_solver(idx)
+            Ab = Ap[s:e, s:e]
             with serial_blas() if idx.size < BLOCK_DIRECT_MIN else _nothing():
-                solver.factorize(Ap[s:e, s:e])
-                W[np.ix_(rows, rows)] += self._product(solver, Ap[s:e, s:e], Jb, key=(e - s, int(idx[0])))
+                solver.factorize(Ab)
+                W[np.ix_(rows, rows)] += self._product(solver, Ab, Jb, key=(e - s, int(idx[0])))
             self.local.append((idx, rows, Jb, solver))
         self._evict()
         return W
