@@ -119,8 +119,8 @@ class PGS:
     solver : str
         The iteration on the contact problem: ``"gauss-seidel"`` (plain sweeps,
         :func:`projected_gauss_seidel`) or ``"anderson"`` (sweeps accelerated by Anderson mixing
-        of the last few, :func:`anderson_gauss_seidel`: about 3 times fewer sweeps to the tolerance
-        on the paper's pills). Both solve the same problem to the same residual; ``iterations``
+        of the last few, :func:`anderson_gauss_seidel`: fewer sweeps to the tolerance on stacks of
+        soft bodies, measured in ``docs/contact.md``). Both solve the same problem to the same residual; ``iterations``
         and ``max_iterations`` count sweeps in either.
     schur : bool
         Build the Delassus operator of a one-body system from the Schur complement of the frame's

@@ -18,8 +18,8 @@ from skfem_affine.solvers import PardisoSchur, has_pardiso
 from skfem_affine.threads import serial_blas
 
 # Below this many touched unknowns and without a kept analysis, solves of the unit columns with the
-# frame's factorisation are cheaper (one solve cost 1/40 to 1/100 of a factorisation on the paper's
-# wheel and octopus, a new analysis with its factorisation about two factorisations).
+# frame's factorisation are cheaper than a new analysis with its factorisation (measured in
+# docs/contact.md, "The Delassus operator from a Schur complement against unit-column solves").
 SCHUR_MIN = 128
 
 
@@ -53,10 +53,9 @@ class SchurInverse:
         self._kept_by.move_to_end(key)
         return self._kept_by[key]
 
-    def _kept(self, schur, A, T, upper, key):
-        """The unknowns to take the complement on (T or a superset), or None to decline."""
-        n = A.shape[0]
-        last = schur.analysed(A, upper)
+    def _kept(self, last, n, T, key):
+        """The unknowns to take the complement on (T or a superset), or None to decline; ``last``: those
+        of the current analysis when it is of this system's pattern (:meth:`PardisoSchur.analysed`)."""
         if last is None and key in self._resume:  # as the saved run: the same set rounds the same way
             last = self._resume.pop(key)
             last = last if last.size and last[-1] < n and 2 * last.size <= n else None
@@ -78,10 +77,11 @@ class SchurInverse:
             return None
         T = np.asarray(T, dtype=np.int64)
         schur = self._handle(key)
-        keep = self._kept(schur, A, T, upper, key)
+        current = schur.analysed(A, upper)
+        keep = self._kept(current, A.shape[0], T, key)
         if keep is None:
             return None
-        if keep is not schur.analysed(A, upper):
+        if keep is not current:  # a new set (or pattern): a new analysis
             self.analyses += 1
         S = schur.complement(A, keep, upper)
         pos = np.searchsorted(keep, T)

@@ -332,10 +332,9 @@ class ErrorBudget:
         the next one replaces it: the response of a run's first frame (a start from rest) does
         not hold its thresholds down for the frames after."""
         peak, carry = max(float(peak), 1.0), max(float(carry), 1.0)
-        # the first reading (a start from rest) holds only until the next one replaces it
-        first = self.propagations < 2
-        self.amplification = peak if first else max(peak, math.sqrt(self.amplification * peak))
-        self.readings = [carry] if first else (list(self.readings) + [carry])[-RECENT:]
+        restart = self.propagations < 2  # the first reading, or the second, which replaces it
+        self.amplification = peak if restart else max(peak, math.sqrt(self.amplification * peak))
+        self.readings = [carry] if restart else (list(self.readings) + [carry])[-RECENT:]
         self.propagations += 1
         self.carry = sum(self.readings) / len(self.readings)
         return self.amplification, self.carry
