@@ -127,8 +127,9 @@ class Monitor:
     FLOOR_STRAIN = 1e-6  # the strain whose strain energy is the absolute floor of the energy scale
 
     def __init__(self, system, f_gravity, size, on_inverted="warn", on_nonconvergence="warn", check_energy=True,
-                 energy_growth=1.0, energy_warn=0.05):
+                 energy_growth=1.0, energy_warn=0.05, method="full space"):
         self.system, self.f_gravity, self.size = system, f_gravity, float(size)
+        self.method = method  # named in warnings: a process may step several simulations of one scene
         self.on_inverted = choice(on_inverted, "on_inverted", POLICIES)
         self.on_nonconvergence = choice(on_nonconvergence, "on_nonconvergence", POLICIES)
         self.check_energy = flag(check_energy, "check_energy")
@@ -262,7 +263,7 @@ class Monitor:
         if not self.warned[kind]:
             self.warned[kind] = True
             how = "" if kind == "energy" else f"; on_{kind}='raise' makes this an error"
-            warnings.warn(f"{message} at frame {frame} (further occurrences are counted in sim.stats, not "
+            warnings.warn(f"{message} at frame {frame} of the {self.method} run (further occurrences are counted in sim.stats, not "
                           f"warned{how})", SimulationWarning, stacklevel=4)
 
     # -------------------------------------------------------------- checkpoint

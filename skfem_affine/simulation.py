@@ -305,7 +305,8 @@ class Simulation:
             self.colliders = colliders  # the barrier of the colliders (property setter)
         if self.system.free.size:  # a scene whose vertices all follow paths has nothing to reduce
             active.attach(self.model)
-        self.monitor = Monitor(self.system, self.f_gravity, self.size, on_inverted, on_nonconvergence, check_energy)
+        self.monitor = Monitor(self.system, self.f_gravity, self.size, on_inverted, on_nonconvergence, check_energy,
+                               method="full space" if reducer is None else type(reducer).__name__)
         if linearized:  # slivers: the linearized step's round-off on them (a Newton step iterates it away)
             self.monitor.stiffness_ratio = warn_stiff_elements(self.system, self.dt)
 

@@ -81,6 +81,13 @@ def test_inverted_elements_warn_once_and_are_counted():
     assert err is None and len([w for w in record if "inverted" in str(w.message)]) == 1
     assert sum(r["inverted_elements"] > 0 for r in sim.stats) >= 1
     assert sim.stats.problems()["inverted_frames"] == sum(r["inverted_elements"] > 0 for r in sim.stats)
+    assert "of the full space run" in str(record[0].message)  # several simulations may share a process
+
+
+def test_inverted_warning_names_the_reduced_method():
+    sim = _crushed(reducer=sa.Affinification(tau_e=1e-12, tau_a=1e-12))
+    with pytest.warns(sa.SimulationWarning, match="inverted element.* of the Affinification run"):
+        _run(sim, 3)
 
 
 def test_inverted_elements_raise_when_asked():
