@@ -66,6 +66,7 @@ from skfem_affine.contact.delassus import Resolvent, block_solver, jacobian
 from skfem_affine.contact.schur import SchurInverse
 from skfem_affine.contact.geometry import Detector
 from skfem_affine.monitor import SimulationWarning
+from skfem_affine.reducers.affine.mapping import group_sum
 
 # The contact model this module implements, as recorded in ``sim.stats`` ("contact_model").
 MODEL = "pgs"
@@ -464,7 +465,8 @@ class Contact:
         self._rigid_setup(sysm)
 
     def _rigid_setup(self, sysm):
-        """Which vertices belong to bodies without fixed vertices, their body and free-DOF rows."""
+        """Which vertices belong to bodies without fixed vertices, their body and free-DOF rows, and
+        the sparsity of :meth:`_rigid_motions`' G and C (the same every frame)."""
         body = np.repeat(np.arange(len(sysm.bodies)), np.diff(sysm.vertex_offsets))
         pinned = np.zeros(len(sysm.bodies), dtype=bool)
         np.logical_or.at(pinned, body, sysm.fixed)
@@ -473,14 +475,24 @@ class Contact:
         dof_map[sysm.free] = np.arange(sysm.free.size)
         rank = np.full(len(sysm.bodies), -1)
         rank[~pinned] = np.arange(int((~pinned).sum()))
-        self.rigid = (movable, rank[body[movable]], dof_map[3 * movable[:, None] + np.arange(3)],
-                      int((~pinned).sum()), sysm)
+        nb, owner, rows = int((~pinned).sum()), rank[body[movable]], dof_map[3 * movable[:, None] + np.arange(3)]
+        # G: each movable vertex's 3 free-DOF rows hold its body's 6 columns; C: a dense 6 x 6 block per body
+        order = np.argsort(rows.ravel(), kind="stable")
+        counts = np.zeros(sysm.free.size, dtype=np.int64)
+        counts[rows.ravel()] = 6
+        g_cols = (6 * np.repeat(owner, 3)[order])[:, None] + np.arange(6)
+        c_cols = (6 * np.arange(nb)).repeat(6)[:, None] + np.arange(6)
+        self.movable_bodies = nb
+        self.rigid = (movable, owner, order, (np.r_[0, np.cumsum(counts)], g_cols.ravel()),
+                      (6 * np.arange(6 * nb + 1), c_cols.ravel()), sysm)
 
     def _rigid_motions(self, x):
         """G (n_free x 6B, sparse): v_i = c_b + omega_b x (x_i - x_b) for the B movable bodies
         (x_b their centres of mass at x), and C (6B x 6B, sparse block diagonal) with
-        C C^T = M_G^-1, M_G = G^T M G (C = L^-T for the Cholesky factor L of each body's 6 x 6 block)."""
-        movable, body, rows, nb, sysm = self.rigid
+        C C^T = M_G^-1, M_G = G^T M G (C = L^-T for the Cholesky factor L of each body's 6 x 6 block).
+        Their sparsity is fixed (:meth:`_rigid_setup`); only the values are computed here."""
+        movable, body, order, g_index, c_index, sysm = self.rigid
+        nb = self.movable_bodies
         m = sysm.lumped_mass[movable]
         mass = np.bincount(body, m, nb)
         centre = np.stack([np.bincount(body, m * x[movable, k], nb) for k in range(3)], axis=1) / mass[:, None]
@@ -492,17 +504,12 @@ class Contact:
         vals[:, 0, 4], vals[:, 0, 5] = r[:, 2], -r[:, 1]
         vals[:, 1, 3], vals[:, 1, 5] = -r[:, 2], r[:, 0]
         vals[:, 2, 3], vals[:, 2, 4] = r[:, 1], -r[:, 0]
-        cols = 6 * body[:, None, None] + np.arange(6)[None, None, :]
-        G = sp.csr_matrix((vals.ravel(), (np.broadcast_to(rows[:, :, None], vals.shape).ravel(),
-                                          np.broadcast_to(cols, vals.shape).ravel())),
+        G = sp.csr_matrix((vals.reshape(-1, 6)[order].ravel(), g_index[1], g_index[0]),
                           shape=(sysm.free.size, 6 * nb))
         # the bodies' 6 x 6 blocks of M_G, sum over their vertices of m_i vals_i^T vals_i
-        blocks = np.zeros((nb, 6, 6))
-        np.add.at(blocks, body, m[:, None, None] * np.einsum("kri,krj->kij", vals, vals))
+        blocks = group_sum(body, m[:, None, None] * np.einsum("kri,krj->kij", vals, vals), nb)
         C = np.linalg.inv(np.linalg.cholesky(blocks)).transpose(0, 2, 1)  # L^-T, upper triangular
-        idx = 6 * np.arange(nb)[:, None, None] + np.arange(6)
-        C = sp.csr_matrix((C.ravel(), (np.broadcast_to(idx.transpose(0, 2, 1), C.shape).ravel(),
-                                       np.broadcast_to(idx, C.shape).ravel())), shape=(6 * nb, 6 * nb))
+        C = sp.csr_matrix((C.ravel(), c_index[1], c_index[0]), shape=(6 * nb, 6 * nb))
         return G, C
 
     # -------------------------------------------------------------- checkpoint
@@ -650,7 +657,7 @@ class Contact:
         self._report(W, u0, lam, sweeps, problem.frame, floor, rec)
         dvc = resolvent.apply(lam)
         d = cs.distance
-        if np.any(d < 0) and self.rigid[3]:  # split impulse: push penetrations out through x, rigidly
+        if np.any(d < 0) and self.movable_bodies:  # split impulse: push penetrations out through x, rigidly
             h = problem.model.dt
             bn = np.where(d < 0, np.maximum(st.erp * d, -self.push_limit), d) / h
             u1 = cs.J[0::3] @ (v_star + dvc) + bn
