@@ -561,6 +561,7 @@ class Contact:
         self.current, self.prediction = cs, None
         if cs is not None:
             cs.J = jacobian(cs, sysm.n, sysm.free)
+            self.Jn = cs.J[0::3]  # the normal rows, sliced once per frame
             self.lam0 = self._warm_start(cs)
             self.bias = self._bias(cs, h)
             vf = v.reshape(-1)[sysm.free]
@@ -603,7 +604,7 @@ class Contact:
         Jacobi step on the bilateral J_n v = -b_n with the lumped-mass Delassus (sec. 3.4):
         lambda_n = max(0, -(J_n v + b_n)) / (J_n M^-1 J_n^T)."""
         lam = self.lam0.copy()
-        Jn = cs.J[0::3]
+        Jn = self.Jn
         un = Jn @ v_free + self.bias[0::3]
         wnn = np.asarray(Jn.multiply(Jn) @ self.inv_mass).ravel()
         new = (self.lam0[0::3] == 0) & (wnn > 0)
@@ -618,7 +619,7 @@ class Contact:
         impulses, and a resting vertex without one approaches at no more than gravity's step.
         A reducer under an error budget solves a frame with an impact in full space.
         """
-        un = cs.J[0::3] @ v_free + self.bias[0::3]
+        un = self.Jn @ v_free + self.bias[0::3]
         h = model.dt
         speed = max(float(np.linalg.norm(model.gravity)) * h, 1e-6 * model.size / h)
         return (self.lam0[0::3] == 0) & (un < -speed)
@@ -660,9 +661,9 @@ class Contact:
         if np.any(d < 0) and self.movable_bodies:  # split impulse: push penetrations out through x, rigidly
             h = problem.model.dt
             bn = np.where(d < 0, np.maximum(st.erp * d, -self.push_limit), d) / h
-            u1 = cs.J[0::3] @ (v_star + dvc) + bn
+            u1 = self.Jn @ (v_star + dvc) + bn
             G, C = self._rigid_motions(problem.x)
-            B = sp.csr_matrix(cs.J[0::3] @ G @ C)  # frictionless: the normal rows; W_r = B B^T, rank <= 6 per body
+            B = sp.csr_matrix(self.Jn @ G @ C)  # frictionless: the normal rows; W_r = B B^T, rank <= 6 per body
             B.sort_indices()
             mu = np.zeros(cs.size)
             w = projected_gauss_seidel_lowrank(B.indptr, B.indices, B.data, B.shape[1], u1, mu,
