@@ -23,8 +23,13 @@ One frame, in the order of Algorithm 1:
              0 \le \lambda_n \perp u_n \ge 0, \qquad
              \|\lambda_t\| \le \mu \lambda_n \ (\text{Coulomb cone, maximal dissipation}),
 
-   with the bias ``b_n = d / h`` for a gap (speculative contact: the vertex may close it
-   within the step but not cross) and ``b_n = 0`` for a penetration (it may not deepen).
+   with the bias ``b_n = (d - slop) / h`` for a gap beyond the slop (speculative contact: the
+   vertex may close it within the step but not cross), ``b_n = 0`` for a penetration (it may not
+   deepen) and for a gap within the slop (the vertex touches: a rest offset). The slop, 1e-5 of
+   a surface edge by default, keeps resting contacts solvable: a gap of a few nanometres that a
+   solve leaves on one of an affine body's many coplanar contacts would otherwise ask for a
+   velocity no affine motion gives it alone (the contacts' W has rank 12 per body), and PGS
+   stalls on it at its sweep cap (docs/contact.md).
    Restitution is zero. ``PGS(solver="anderson")`` accelerates the sweeps by Anderson mixing of
    the last few (:func:`anderson_gauss_seidel`). The velocity correction is
    ``dv_c = A^-1 J^T lambda`` (one more solve), and v_{t+1} = v_t + dv + dv_c.
@@ -75,6 +80,9 @@ MODEL = "pgs"
 # residual after the PGS solve is above this fraction of the velocity the contacts remove.
 UNRESOLVED = 0.01
 
+# The default slop of PGS, in mean surface edge lengths.
+SLOP = 1e-5
+
 
 @dataclass(frozen=True)
 class PGS:
@@ -101,6 +109,9 @@ class PGS:
     push_limit : float, optional
         Largest position correction of a penetration per step (m, > 0); default the mean
         surface edge length.
+    slop : float, optional
+        Gap (m, >= 0) below which a contact counts as touching (no speculative bias: the vertex
+        may not approach); default 1e-5 of the mean surface edge length (:data:`SLOP`).
     margin : float, optional
         Speculative contact distance (m); default a fifth of the mean surface edge
         length. A vertex becomes a contact when its gap is below ``margin + 2 h`` times its
@@ -142,6 +153,7 @@ class PGS:
     max_iterations: int = None
     solver: str = "gauss-seidel"
     schur: bool = True
+    slop: float = None
 
     def __post_init__(self):
         put = object.__setattr__  # frozen: store the checked values
@@ -153,6 +165,8 @@ class PGS:
             put(self, "margin", nonnegative(self.margin, "PGS margin"))
         if self.push_limit is not None:
             put(self, "push_limit", positive(self.push_limit, "PGS push_limit"))
+        if self.slop is not None:
+            put(self, "slop", nonnegative(self.slop, "PGS slop"))
         put(self, "warm_start", flag(self.warm_start, "PGS warm_start"))
         put(self, "body_contact", flag(self.body_contact, "PGS body_contact"))
         put(self, "block", integer(self.block, "PGS block", low=1))
@@ -462,6 +476,7 @@ class Contact:
         self.correction = None
         self.warned = False  # the unresolved-contact warning, once per run
         self.push_limit = self.detector.mean_edge if self.settings.push_limit is None else self.settings.push_limit
+        self.slop = SLOP * self.detector.mean_edge if self.settings.slop is None else self.settings.slop
         self._rigid_setup(sysm)
 
     def _rigid_setup(self, sysm):
@@ -577,10 +592,11 @@ class Contact:
         return cs
 
     def _bias(self, cs, h):
-        """b_n = d / h for a gap (speculative), 0 for a penetration (it may not deepen); tangents 0."""
+        """b_n = (d - slop) / h for a gap beyond the slop (speculative), 0 within it and for a
+        penetration (it may not deepen); tangents 0."""
         d = cs.distance
         b = np.zeros(3 * cs.size)
-        b[0::3] = np.maximum(d, 0.0) / h
+        b[0::3] = np.maximum(d - self.slop, 0.0) / h
         return b
 
     def _warm_start(self, cs):
