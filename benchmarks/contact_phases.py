@@ -12,14 +12,21 @@ Delassus operator is also built per row of J (3 solves per contact: ``Resolvent(
 on the same factorisation, before or after the frame's own in turn (``delassus_rows``,
 ``rows_columns``); with ``--columns`` instead from solves of the unit columns of the unknowns the
 contacts touch (no Schur complement), so that the frame's own (``delassus``, from the Schur
-complement where it is taken: ``delassus_schur`` unknowns) is compared with it. Usage::
+complement where it is taken: ``delassus_schur`` unknowns) is compared with it. With ``--profile
+METHOD`` that method's frames in the window also run under cProfile, and the contact functions
+outside the Delassus operator (detection, the Jacobian, warm start, prediction impulses, the PGS
+sweeps and the split-impulse correction) are listed by their time per frame. Usage::
 
     python benchmarks/contact_phases.py MESH_DIR --scene wheel --start 145 --end 160 --rows
     python benchmarks/contact_phases.py --scene pile --cells 4 --start 100 --end 130 --rows
+    python benchmarks/contact_phases.py --scene pile --cells 4 --start 100 --end 119 --profile affinification
 """
 import argparse
+import cProfile
+import io
 import json
 import os
+import pstats
 import sys
 import time
 
@@ -83,6 +90,29 @@ def per_row(sim, columns=False):
     sim.contact.resolve = resolve
 
 
+# The contact functions outside the Delassus operator that --profile lists (file, function).
+PROFILED = (("pgs.py", "detect"), ("geometry.py", "find"), ("geometry.py", "_body_contacts"),
+            ("geometry.py", "_edge_contacts"), ("geometry.py", "frames"), ("delassus.py", "jacobian"),
+            ("pgs.py", "_warm_start"), ("pgs.py", "_predicted_impulses"), ("pgs.py", "_impacts"),
+            ("pgs.py", "resolve"), ("delassus.py", "delassus"), ("delassus.py", "apply"),
+            ("pgs.py", "projected_gauss_seidel"), ("pgs.py", "anderson_gauss_seidel"),
+            ("pgs.py", "contact_residual"), ("pgs.py", "_rigid_motions"),
+            ("pgs.py", "projected_gauss_seidel_lowrank"))
+
+
+def profile_table(profile, frames):
+    """The :data:`PROFILED` functions' calls per frame and cumulative ms per frame (cProfile's
+    cumulative time: a function's callees included), largest first."""
+    stats = pstats.Stats(profile, stream=io.StringIO()).stats
+    rows = []
+    for (path, _, name), (_, calls, _, cumulative, _) in stats.items():
+        if (os.path.basename(path), name) in PROFILED and os.path.basename(os.path.dirname(path)) == "contact":
+            rows.append((1e3 * cumulative / frames, calls / frames, f"{os.path.basename(path)}:{name}"))
+    lines = ["| function | calls per frame | ms per frame (with callees) |", "|---|---|---|"]
+    lines += [f"| {name} | {calls:.1f} | {ms:.2f} |" for ms, calls, name in sorted(rows, reverse=True)]
+    return "\n".join(lines) + "\n"
+
+
 def builders(mesh_dir, scene, end, cells):
     """full space, affinification, rigidification of the scene (at the paper's thresholds)."""
     if scene == "pile":
@@ -96,8 +126,11 @@ def builders(mesh_dir, scene, end, cells):
     return [build(None)] + [build(r) for r in paper_table1.reducers(row, fraction)]
 
 
-def run(mesh_dir, scene, start, end, cells=4, compare_rows=False, compare_columns=False):
+def run(mesh_dir, scene, start, end, cells=4, compare_rows=False, compare_columns=False, profile=None):
+    """The per-phase means of each method over the frames ``start`` to ``end - 1``; with ``profile``
+    (a method), also that method's :func:`profile_table` over them (else None)."""
     sims = builders(mesh_dir, scene, end, cells)
+    profiler = cProfile.Profile() if profile else None
     if compare_rows or compare_columns:
         for sim in sims:
             per_row(sim, columns=compare_columns)
@@ -106,12 +139,18 @@ def run(mesh_dir, scene, start, end, cells=4, compare_rows=False, compare_column
     for frame in range(end):
         turn = [(frame + i) % len(sims) for i in range(len(sims))]  # rotate who steps first
         for i in turn:
+            timed = profiler is not None and frame >= start and METHODS[i] == profile
+            if timed:
+                profiler.enable()
             sims[i].step()
+            if timed:
+                profiler.disable()
             if frame >= start:
                 rows[METHODS[i]].append(record(sims[i].stats[-1]))
         if frame % 10 == 0:
             print(f"{scene} frame {frame}/{end} ({time.perf_counter() - t0:.0f} s)", file=sys.stderr, flush=True)
-    return {m: {c: float(np.mean([r[c] for r in rs])) for c in COLUMNS + ROWS} for m, rs in rows.items()}
+    means = {m: {c: float(np.mean([r[c] for r in rs])) for c in COLUMNS + ROWS} for m, rs in rows.items()}
+    return means, (profile_table(profiler, end - start) if profiler is not None else None)
 
 
 def markdown(scene, means):
@@ -135,13 +174,20 @@ def main(argv=None):
     ap.add_argument("--end", type=int, required=True)
     ap.add_argument("--threads", default="1", help="BLAS/MKL threads (read before numpy is imported)")
     ap.add_argument("--json", default=None, help="also write the means here")
+    ap.add_argument("--profile", choices=METHODS, default=None,
+                    help="also profile this method's frames: its contact functions' ms per frame")
     args = ap.parse_args(argv)
-    means = run(args.mesh_dir, args.scene, args.start, args.end, args.cells, args.rows, args.columns)
+    means, profiled = run(args.mesh_dir, args.scene, args.start, args.end, args.cells, args.rows, args.columns,
+                          args.profile)
     print(f"frames {args.start}-{args.end - 1}, ms per frame (means)")
     print(markdown(args.scene, means))
+    if profiled:
+        print(f"{args.profile}, under cProfile (its overhead included):")
+        print(profiled)
     if args.json:
         with open(args.json, "w") as f:
             json.dump({"scene": args.scene, "start": args.start, "end": args.end, "means": means}, f, indent=1)
+    return means, profiled
 
 
 if __name__ == "__main__":

@@ -359,7 +359,7 @@ POLICY = [
         ("friction", "nonnegative", False), ("iterations", "count", False), ("tolerance", "nonnegative", False),
         ("erp", "fraction", False), ("margin", "nonnegative", True), ("push_limit", "positive", True),
         ("warm_start", "flag", False), ("body_contact", "flag", False), ("block", "count", False),
-        ("edge_contact", "flag", False))],
+        ("edge_contact", "flag", False), ("slop", "nonnegative", True))],
     *[(sa.IPC, arg, kind, none) for arg, kind, none in (
         ("dhat", "positive", True), ("kappa", "positive", True), ("friction", "nonnegative", False),
         ("epsv", "positive", True), ("self_contact", "flag", False), ("body_contact", "flag", False),

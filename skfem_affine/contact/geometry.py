@@ -9,7 +9,7 @@ d_i (negative: penetration), a normal n_i pointing from the obstacle towards the
 and two tangents. A pair becomes a contact when its gap is below ``margin + 2 h`` times its normal
 approach speed (speculative contact).
 """
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.sparse as sp
@@ -135,15 +135,19 @@ class ContactSet:
     #                          contact is the point (1 - s) a0 + s a1: vertex a0, own 1 - s, others
     #                          (a1, b0, b1) with weights (-s, 1 - t, t)
     impact: np.ndarray = None  # (k,) bool: set by the contact solver, contacts that start an impact
+    _frames: np.ndarray = field(default=None, init=False, repr=False, compare=False)
 
     @property
     def size(self):
         return self.vertex.size
 
     def frames(self):
-        """(k, 3, 3) rows n, t1, t2 of each contact."""
-        t1, t2 = tangent_basis(self.normal)
-        return np.stack([self.normal, t1, t2], axis=1)
+        """(k, 3, 3) rows n, t1, t2 of each contact (computed once per contact set; read only)."""
+        if self._frames is None:
+            t1, t2 = tangent_basis(self.normal)
+            self._frames = np.stack([self.normal, t1, t2], axis=1)
+            self._frames.flags.writeable = False
+        return self._frames
 
 
 def concat(sets):

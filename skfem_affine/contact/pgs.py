@@ -23,8 +23,13 @@ One frame, in the order of Algorithm 1:
              0 \le \lambda_n \perp u_n \ge 0, \qquad
              \|\lambda_t\| \le \mu \lambda_n \ (\text{Coulomb cone, maximal dissipation}),
 
-   with the bias ``b_n = d / h`` for a gap (speculative contact: the vertex may close it
-   within the step but not cross) and ``b_n = 0`` for a penetration (it may not deepen).
+   with the bias ``b_n = (d - slop) / h`` for a gap beyond the slop (speculative contact: the
+   vertex may close it within the step but not cross), ``b_n = 0`` for a penetration (it may not
+   deepen) and for a gap within the slop (the vertex touches: a rest offset). The slop, 1e-5 of
+   a surface edge by default, keeps resting contacts solvable: a gap of a few nanometres that a
+   solve leaves on one of an affine body's many coplanar contacts would otherwise ask for a
+   velocity no affine motion gives it alone (the contacts' W has rank 12 per body), and PGS
+   stalls on it at its sweep cap (docs/contact.md).
    Restitution is zero. ``PGS(solver="anderson")`` accelerates the sweeps by Anderson mixing of
    the last few (:func:`anderson_gauss_seidel`). The velocity correction is
    ``dv_c = A^-1 J^T lambda`` (one more solve), and v_{t+1} = v_t + dv + dv_c.
@@ -66,6 +71,7 @@ from skfem_affine.contact.delassus import Resolvent, block_solver, jacobian
 from skfem_affine.contact.schur import SchurInverse
 from skfem_affine.contact.geometry import Detector
 from skfem_affine.monitor import SimulationWarning
+from skfem_affine.reducers.affine.mapping import group_sum
 
 # The contact model this module implements, as recorded in ``sim.stats`` ("contact_model").
 MODEL = "pgs"
@@ -73,6 +79,9 @@ MODEL = "pgs"
 # A frame's contact is unresolved (a warning, ``contact_unresolved`` in ``sim.stats``) when its
 # residual after the PGS solve is above this fraction of the velocity the contacts remove.
 UNRESOLVED = 0.01
+
+# The default slop of PGS, in mean surface edge lengths.
+SLOP = 1e-5
 
 
 @dataclass(frozen=True)
@@ -100,6 +109,9 @@ class PGS:
     push_limit : float, optional
         Largest position correction of a penetration per step (m, > 0); default the mean
         surface edge length.
+    slop : float, optional
+        Gap (m, >= 0) below which a contact counts as touching (no speculative bias: the vertex
+        may not approach); default 1e-5 of the mean surface edge length (:data:`SLOP`).
     margin : float, optional
         Speculative contact distance (m); default a fifth of the mean surface edge
         length. A vertex becomes a contact when its gap is below ``margin + 2 h`` times its
@@ -141,6 +153,7 @@ class PGS:
     max_iterations: int = None
     solver: str = "gauss-seidel"
     schur: bool = True
+    slop: float = None
 
     def __post_init__(self):
         put = object.__setattr__  # frozen: store the checked values
@@ -152,6 +165,8 @@ class PGS:
             put(self, "margin", nonnegative(self.margin, "PGS margin"))
         if self.push_limit is not None:
             put(self, "push_limit", positive(self.push_limit, "PGS push_limit"))
+        if self.slop is not None:
+            put(self, "slop", nonnegative(self.slop, "PGS slop"))
         put(self, "warm_start", flag(self.warm_start, "PGS warm_start"))
         put(self, "body_contact", flag(self.body_contact, "PGS body_contact"))
         put(self, "block", integer(self.block, "PGS block", low=1))
@@ -461,10 +476,12 @@ class Contact:
         self.correction = None
         self.warned = False  # the unresolved-contact warning, once per run
         self.push_limit = self.detector.mean_edge if self.settings.push_limit is None else self.settings.push_limit
+        self.slop = SLOP * self.detector.mean_edge if self.settings.slop is None else self.settings.slop
         self._rigid_setup(sysm)
 
     def _rigid_setup(self, sysm):
-        """Which vertices belong to bodies without fixed vertices, their body and free-DOF rows."""
+        """Which vertices belong to bodies without fixed vertices, their body and free-DOF rows, and
+        the sparsity of :meth:`_rigid_motions`' G and C (the same every frame)."""
         body = np.repeat(np.arange(len(sysm.bodies)), np.diff(sysm.vertex_offsets))
         pinned = np.zeros(len(sysm.bodies), dtype=bool)
         np.logical_or.at(pinned, body, sysm.fixed)
@@ -473,14 +490,24 @@ class Contact:
         dof_map[sysm.free] = np.arange(sysm.free.size)
         rank = np.full(len(sysm.bodies), -1)
         rank[~pinned] = np.arange(int((~pinned).sum()))
-        self.rigid = (movable, rank[body[movable]], dof_map[3 * movable[:, None] + np.arange(3)],
-                      int((~pinned).sum()), sysm)
+        nb, owner, rows = int((~pinned).sum()), rank[body[movable]], dof_map[3 * movable[:, None] + np.arange(3)]
+        # G: each movable vertex's 3 free-DOF rows hold its body's 6 columns; C: a dense 6 x 6 block per body
+        order = np.argsort(rows.ravel(), kind="stable")
+        counts = np.zeros(sysm.free.size, dtype=np.int64)
+        counts[rows.ravel()] = 6
+        g_cols = (6 * np.repeat(owner, 3)[order])[:, None] + np.arange(6)
+        c_cols = (6 * np.arange(nb)).repeat(6)[:, None] + np.arange(6)
+        self.movable_bodies = nb
+        self.rigid = (movable, owner, order, (np.r_[0, np.cumsum(counts)], g_cols.ravel()),
+                      (6 * np.arange(6 * nb + 1), c_cols.ravel()), sysm)
 
     def _rigid_motions(self, x):
         """G (n_free x 6B, sparse): v_i = c_b + omega_b x (x_i - x_b) for the B movable bodies
         (x_b their centres of mass at x), and C (6B x 6B, sparse block diagonal) with
-        C C^T = M_G^-1, M_G = G^T M G (C = L^-T for the Cholesky factor L of each body's 6 x 6 block)."""
-        movable, body, rows, nb, sysm = self.rigid
+        C C^T = M_G^-1, M_G = G^T M G (C = L^-T for the Cholesky factor L of each body's 6 x 6 block).
+        Their sparsity is fixed (:meth:`_rigid_setup`); only the values are computed here."""
+        movable, body, order, g_index, c_index, sysm = self.rigid
+        nb = self.movable_bodies
         m = sysm.lumped_mass[movable]
         mass = np.bincount(body, m, nb)
         centre = np.stack([np.bincount(body, m * x[movable, k], nb) for k in range(3)], axis=1) / mass[:, None]
@@ -492,17 +519,12 @@ class Contact:
         vals[:, 0, 4], vals[:, 0, 5] = r[:, 2], -r[:, 1]
         vals[:, 1, 3], vals[:, 1, 5] = -r[:, 2], r[:, 0]
         vals[:, 2, 3], vals[:, 2, 4] = r[:, 1], -r[:, 0]
-        cols = 6 * body[:, None, None] + np.arange(6)[None, None, :]
-        G = sp.csr_matrix((vals.ravel(), (np.broadcast_to(rows[:, :, None], vals.shape).ravel(),
-                                          np.broadcast_to(cols, vals.shape).ravel())),
+        G = sp.csr_matrix((vals.reshape(-1, 6)[order].ravel(), g_index[1], g_index[0]),
                           shape=(sysm.free.size, 6 * nb))
         # the bodies' 6 x 6 blocks of M_G, sum over their vertices of m_i vals_i^T vals_i
-        blocks = np.zeros((nb, 6, 6))
-        np.add.at(blocks, body, m[:, None, None] * np.einsum("kri,krj->kij", vals, vals))
+        blocks = group_sum(body, m[:, None, None] * np.einsum("kri,krj->kij", vals, vals), nb)
         C = np.linalg.inv(np.linalg.cholesky(blocks)).transpose(0, 2, 1)  # L^-T, upper triangular
-        idx = 6 * np.arange(nb)[:, None, None] + np.arange(6)
-        C = sp.csr_matrix((C.ravel(), (np.broadcast_to(idx.transpose(0, 2, 1), C.shape).ravel(),
-                                       np.broadcast_to(idx, C.shape).ravel())), shape=(6 * nb, 6 * nb))
+        C = sp.csr_matrix((C.ravel(), c_index[1], c_index[0]), shape=(6 * nb, 6 * nb))
         return G, C
 
     # -------------------------------------------------------------- checkpoint
@@ -554,6 +576,7 @@ class Contact:
         self.current, self.prediction = cs, None
         if cs is not None:
             cs.J = jacobian(cs, sysm.n, sysm.free)
+            self.Jn = cs.J[0::3]  # the normal rows, sliced once per frame
             self.lam0 = self._warm_start(cs)
             self.bias = self._bias(cs, h)
             vf = v.reshape(-1)[sysm.free]
@@ -569,10 +592,11 @@ class Contact:
         return cs
 
     def _bias(self, cs, h):
-        """b_n = d / h for a gap (speculative), 0 for a penetration (it may not deepen); tangents 0."""
+        """b_n = (d - slop) / h for a gap beyond the slop (speculative), 0 within it and for a
+        penetration (it may not deepen); tangents 0."""
         d = cs.distance
         b = np.zeros(3 * cs.size)
-        b[0::3] = np.maximum(d, 0.0) / h
+        b[0::3] = np.maximum(d - self.slop, 0.0) / h
         return b
 
     def _warm_start(self, cs):
@@ -596,7 +620,7 @@ class Contact:
         Jacobi step on the bilateral J_n v = -b_n with the lumped-mass Delassus (sec. 3.4):
         lambda_n = max(0, -(J_n v + b_n)) / (J_n M^-1 J_n^T)."""
         lam = self.lam0.copy()
-        Jn = cs.J[0::3]
+        Jn = self.Jn
         un = Jn @ v_free + self.bias[0::3]
         wnn = np.asarray(Jn.multiply(Jn) @ self.inv_mass).ravel()
         new = (self.lam0[0::3] == 0) & (wnn > 0)
@@ -611,7 +635,7 @@ class Contact:
         impulses, and a resting vertex without one approaches at no more than gravity's step.
         A reducer under an error budget solves a frame with an impact in full space.
         """
-        un = cs.J[0::3] @ v_free + self.bias[0::3]
+        un = self.Jn @ v_free + self.bias[0::3]
         h = model.dt
         speed = max(float(np.linalg.norm(model.gravity)) * h, 1e-6 * model.size / h)
         return (self.lam0[0::3] == 0) & (un < -speed)
@@ -650,12 +674,12 @@ class Contact:
         self._report(W, u0, lam, sweeps, problem.frame, floor, rec)
         dvc = resolvent.apply(lam)
         d = cs.distance
-        if np.any(d < 0) and self.rigid[3]:  # split impulse: push penetrations out through x, rigidly
+        if np.any(d < 0) and self.movable_bodies:  # split impulse: push penetrations out through x, rigidly
             h = problem.model.dt
             bn = np.where(d < 0, np.maximum(st.erp * d, -self.push_limit), d) / h
-            u1 = cs.J[0::3] @ (v_star + dvc) + bn
+            u1 = self.Jn @ (v_star + dvc) + bn
             G, C = self._rigid_motions(problem.x)
-            B = sp.csr_matrix(cs.J[0::3] @ G @ C)  # frictionless: the normal rows; W_r = B B^T, rank <= 6 per body
+            B = sp.csr_matrix(self.Jn @ G @ C)  # frictionless: the normal rows; W_r = B B^T, rank <= 6 per body
             B.sort_indices()
             mu = np.zeros(cs.size)
             w = projected_gauss_seidel_lowrank(B.indptr, B.indices, B.data, B.shape[1], u1, mu,
