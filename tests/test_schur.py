@@ -65,6 +65,37 @@ def test_schur_inverse_keeps_its_analysis_for_subsets_and_declines_small_or_larg
     assert inv.shape == (80, 80)
 
 
+def test_schur_inverse_grows_its_set_only_once_an_analysis_has_served_a_later_frame():
+    """Contacts that move every frame (landing) are analysed on the touched unknowns alone; once a kept
+    analysis serves a later frame (settling), new unknowns grow it."""
+    A = _spd(200, seed=4)
+    schur = SchurInverse(min_size=4)
+    kept = []
+    for T in [np.arange(10, 40), np.arange(15, 45), np.arange(20, 50), np.arange(22, 48), np.arange(18, 52)]:
+        Z = schur.inverse_on(A, T)
+        ref = np.linalg.inv(A.toarray())[np.ix_(T, T)]
+        assert np.abs(Z - ref).max() <= 1e-11 * np.abs(ref).max() and np.array_equal(Z, Z.T)
+        kept.append(schur._kept_by[None].analysed(A))
+    # 15..44 and 20..49 each a new analysis on T alone; 22..47 a subset (served); 18..51 then grows it
+    assert [k.size for k in kept] == [30, 30, 30, 30, 34] and np.array_equal(kept[4], np.arange(18, 52))
+    assert np.array_equal(kept[3], kept[2]) and schur.analyses == 4
+    with pytest.raises(ValueError, match="schur_served"):
+        schur.load_state_dict({"schur_systems": np.array([[-1, -1]]), "schur0.keep": np.arange(3),
+                               "schur_served": np.zeros(2, dtype=bool)})
+
+
+def test_a_resumed_schur_inverse_grows_its_set_as_the_saved_run():
+    A = _spd(120, seed=5)
+    ahead = SchurInverse(min_size=4)
+    ahead.inverse_on(A, np.arange(10, 40))
+    ahead.inverse_on(A, np.arange(12, 38))  # served: the next new unknowns grow the kept set
+    resumed = SchurInverse(min_size=4)
+    resumed.load_state_dict({k: v.copy() for k, v in ahead.state_dict().items()})
+    T = np.arange(8, 36)
+    assert np.array_equal(ahead.inverse_on(A, T), resumed.inverse_on(A, T))
+    assert np.array_equal(resumed._kept_by[None].analysed(A), np.arange(8, 40))
+
+
 @pytest.mark.parametrize("reducer", list(REDUCERS))
 def test_delassus_from_the_schur_complement_equals_the_plain_path(reducer):
     """The falling box in full space, and reduced frames whose system has more than twice the unknowns
