@@ -173,3 +173,14 @@ def test_stress_script_survives_varied_calls_in_a_subprocess():
                          env=dict(os.environ, PYTHONPATH=ROOT))
     assert run.returncode == 0, run.stderr[-2000:]
     assert "survived 60 calls" in run.stdout
+
+
+def test_routes_script_gives_z_from_every_route_to_round_off_in_a_subprocess():
+    """benchmarks/delassus_routes.py: Z from the Schur complement and from Pardiso's partial solve against the
+    unit columns, and the frame's own solve on those factorisations (new MKL modes: run apart)."""
+    run = subprocess.run([sys.executable, os.path.join(ROOT, "benchmarks", "delassus_routes.py"), "--cube", "6",
+                          "--reps", "2"], capture_output=True, text=True, timeout=300, env=dict(os.environ, PYTHONPATH=ROOT))
+    assert run.returncode == 0, run.stderr[-2000:]
+    errors = [float(line.rsplit(" ", 1)[1]) for line in run.stdout.splitlines()
+              if "against the unit columns" in line or "residual" in line]
+    assert len(errors) == 4 and max(errors) < 1e-12, run.stdout
