@@ -3,7 +3,7 @@ r"""Z = (A^-1)_TT on the unknowns T that contacts touch, from a Schur complement
 With S the Schur complement of A on T (:class:`~skfem_affine.solvers.PardisoSchur`, one
 factorisation of A with T eliminated last), ``(A^-1)_TT = S^-1``: no solve per unknown of T.
 :class:`SchurInverse` decides, frame by frame, whether that pays: a new analysis (ordering) costs
-several numeric factorisations, so it keeps the last one while the contacts touch a subset of its
+up to a few numeric factorisations, so it keeps the last one while the contacts touch a subset of its
 unknowns at most twice as many. Once a kept analysis has served a later frame (the contacts are
 settling), new touched unknowns grow it under the same bound; while every frame needs a new one
 (bodies landing: their contacts move further than a grown set reaches), it is made on the touched
