@@ -148,7 +148,15 @@ def test_each_large_body_takes_the_schur_complement_of_its_block():
         res = delassus.Resolvent(op, cache={}, schur=schur)
         assert np.abs(res.delassus(J) - ref).max() <= 1e-9 * np.abs(ref).max()
         assert res.schur_unknowns == np.unique(J.indices).size and res.columns_solved == 0
-    assert len(schur._kept_by) == 2
+    assert len(schur._kept_by) == 2 and set(schur._served) <= set(schur._kept_by)
+
+
+def test_schur_inverse_keeps_the_analyses_of_its_last_systems_only():
+    schur = SchurInverse(min_size=1, systems=2)
+    for first in range(4):
+        A = _spd(40 + first, seed=first)
+        schur.inverse_on(A, np.arange(5, 15), key=(40 + first, 0))
+    assert list(schur._kept_by) == [(42, 0), (43, 0)] and set(schur._served) == {(42, 0), (43, 0)}
 
 
 def test_a_resumed_schur_inverse_analyses_the_saved_sets_and_gives_the_same_bits():

@@ -53,7 +53,7 @@ class SchurInverse:
         if key not in self._kept_by:
             self._kept_by[key] = PardisoSchur()
             while len(self._kept_by) > self.systems:
-                self._kept_by.popitem(last=False)
+                self._served.pop(self._kept_by.popitem(last=False)[0], None)
         self._kept_by.move_to_end(key)
         return self._kept_by[key]
 
@@ -97,7 +97,7 @@ class SchurInverse:
                 L, info = lapack.dpotri(L, lower=1, overwrite_c=1)
         if info != 0:
             raise SolverError(f"the Schur complement on {keep.size} unknowns is not positive definite "
-                              f"(LAPACK info {info}); is A?")
+                              f"(LAPACK info {info}); is A positive definite?")
         Z = np.tril(L)[np.ix_(pos, pos)]  # potri fills the lower triangle only
         return Z + np.tril(Z, -1).T
 
