@@ -192,3 +192,13 @@ def test_routes_script_gives_z_from_every_route_to_round_off_in_a_subprocess():
     errors = [float(line.rsplit(" ", 1)[1]) for line in run.stdout.splitlines()
               if "against the unit columns" in line or "residual" in line]
     assert len(errors) == 4 and max(errors) < 1e-12, run.stdout
+
+
+def test_stress_script_survives_the_schur_factorisation_serving_the_frames_solves_in_a_subprocess():
+    """benchmarks/schur_stress.py --frame-solves: mode iparm(36) = 2, whose factorisation also solves the
+    whole system (phase 33), with new patterns, sets, values and thread counts call to call."""
+    run = subprocess.run([sys.executable, os.path.join(ROOT, "benchmarks", "schur_stress.py"), "--frame-solves",
+                          "--calls", "40", "--vertices", "60"], capture_output=True, text=True, timeout=300,
+                         env=dict(os.environ, PYTHONPATH=ROOT))
+    assert run.returncode == 0, run.stderr[-2000:]
+    assert "survived 40 calls" in run.stdout
