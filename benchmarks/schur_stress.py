@@ -8,6 +8,12 @@ of the caller, and the instance (several alive at once, some dropped and collect
 
     python benchmarks/schur_stress.py --calls 2000
 
+``--frame-solves`` instead stresses the Schur factorisation in mode ``iparm(36) = 2`` serving also as
+a frame's own factorisation (phase 33 solves of the whole system, as
+``benchmarks/delassus_routes.py`` times it; not a path of the package): new patterns, sets and
+values call to call, two handles alive, each on the MKL thread count of its analysis; S and the
+solves are checked against dense ones.
+
 ``--repro threads`` instead makes the raw Pardiso calls that crash, without the guards of
 :class:`~skfem_affine.solvers.PardisoSchur`: an analysis on two MKL threads, then numeric
 factorisations of it on one (a segmentation fault within 150 calls on a 2-core machine; run it
@@ -82,6 +88,54 @@ def stress(calls, check_every, seed, vertices=400):
           f"worst relative error of Z {worst:.1e}")
 
 
+def frame_solves(calls, seed, vertices=200):
+    """Schur mode 2 with the frame's solves on the same factorisation (raw calls, guarded as
+    :class:`~skfem_affine.solvers.PardisoSchur` is: one thread count per analysis, T at most half)."""
+    from threadpoolctl import ThreadpoolController
+    from skfem_affine.solvers import _PardisoLibrary
+    control = ThreadpoolController()
+    rng = np.random.default_rng(seed)
+    handles, worst = [None, None], 0.0
+    for c in range(calls):
+        h = int(rng.integers(2))
+        if handles[h] is not None:  # the handle's next system: release the last on its thread count
+            lib, arrays, threads = handles[h]
+            with control.limit(limits=threads, user_api="blas"):
+                lib.release(arrays)
+        A = spd(rng, int(rng.integers(10, vertices)))
+        U = sp.triu(A, format="csr")
+        U.sort_indices()
+        n = A.shape[0]
+        k = int(rng.integers(1, n // 2 + 1))
+        T = np.sort(rng.choice(n, k, replace=False))
+        marks = np.zeros(n, dtype=np.int32)
+        marks[T] = 1
+        lib, threads = _PardisoLibrary(), int(rng.integers(1, 3))
+        lib._ps.set_iparm(2, 2)
+        lib._ps.set_iparm(5, 0)
+        lib._ps.set_iparm(36, 2)
+        for rep in range(int(rng.integers(1, 4))):  # a new analysis, then numeric factorisations only
+            scale = 1.0 + 0.01 * rep
+            arrays = (U.data * scale, U.indptr.astype(np.int32), U.indices.astype(np.int32), n)
+            b = rng.normal(size=(n, 2))
+            with control.limit(limits=threads, user_api="blas"):
+                S = lib.call(12 if rep == 0 else 22, arrays, np.zeros((max(n, k * k), 1)), perm=marks.copy())
+                x = lib.call(33, arrays, np.asfortranarray(b), perm=marks.copy())
+            dense = scale * A.toarray()
+            ref = np.linalg.inv(dense)[np.ix_(T, T)]
+            err = max(np.abs(np.linalg.inv(S[:k * k, 0].reshape(k, k)) - ref).max() / np.abs(ref).max(),
+                      np.abs(dense @ x - b).max() / np.abs(b).max())
+            worst = max(worst, err)
+            if err > 1e-8:
+                raise AssertionError(f"call {c}: S^-1 or the solve off by {err:.2e} (n {n}, |T| {k})")
+        handles[h] = (lib, arrays, threads)
+    for kept in handles:
+        if kept is not None:
+            with control.limit(limits=kept[2], user_api="blas"):
+                kept[0].release(kept[1])
+    print(f"survived {calls} calls (mode 2 with the frame's solves), worst relative error {worst:.1e}")
+
+
 def repro(kind, calls, seed):
     """The raw calls that corrupt memory (no guards)."""
     from threadpoolctl import ThreadpoolController
@@ -114,8 +168,12 @@ def main():
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--vertices", type=int, default=400, help="largest matrix: 3 unknowns per vertex")
     ap.add_argument("--repro", choices=("threads", "all"), help="the unguarded calls that crash")
+    ap.add_argument("--frame-solves", action="store_true",
+                    help="Schur mode 2 also solving the whole system (raw calls, not a path of the package)")
     args = ap.parse_args()
-    if args.repro:
+    if args.frame_solves:
+        frame_solves(args.calls, args.seed, args.vertices)
+    elif args.repro:
         repro(args.repro, min(args.calls, 150 if args.repro == "threads" else 3), args.seed)
     else:
         stress(args.calls, args.check_every, args.seed, args.vertices)

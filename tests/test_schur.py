@@ -65,6 +65,37 @@ def test_schur_inverse_keeps_its_analysis_for_subsets_and_declines_small_or_larg
     assert inv.shape == (80, 80)
 
 
+def test_schur_inverse_grows_its_set_only_once_an_analysis_has_served_a_later_frame():
+    """Contacts that move every frame (landing) are analysed on the touched unknowns alone; once a kept
+    analysis serves a later frame (settling), new unknowns grow it."""
+    A = _spd(200, seed=4)
+    schur = SchurInverse(min_size=4)
+    kept = []
+    for T in [np.arange(10, 40), np.arange(15, 45), np.arange(20, 50), np.arange(22, 48), np.arange(18, 52)]:
+        Z = schur.inverse_on(A, T)
+        ref = np.linalg.inv(A.toarray())[np.ix_(T, T)]
+        assert np.abs(Z - ref).max() <= 1e-11 * np.abs(ref).max() and np.array_equal(Z, Z.T)
+        kept.append(schur._kept_by[None].analysed(A))
+    # 15..44 and 20..49 each a new analysis on T alone; 22..47 a subset (served); 18..51 then grows it
+    assert [k.size for k in kept] == [30, 30, 30, 30, 34] and np.array_equal(kept[4], np.arange(18, 52))
+    assert np.array_equal(kept[3], kept[2]) and schur.analyses == 4
+    with pytest.raises(ValueError, match="schur_served"):
+        schur.load_state_dict({"schur_systems": np.array([[-1, -1]]), "schur0.keep": np.arange(3),
+                               "schur_served": np.zeros(2, dtype=bool)})
+
+
+def test_a_resumed_schur_inverse_grows_its_set_as_the_saved_run():
+    A = _spd(120, seed=5)
+    ahead = SchurInverse(min_size=4)
+    ahead.inverse_on(A, np.arange(10, 40))
+    ahead.inverse_on(A, np.arange(12, 38))  # served: the next new unknowns grow the kept set
+    resumed = SchurInverse(min_size=4)
+    resumed.load_state_dict({k: v.copy() for k, v in ahead.state_dict().items()})
+    T = np.arange(8, 36)
+    assert np.array_equal(ahead.inverse_on(A, T), resumed.inverse_on(A, T))
+    assert np.array_equal(resumed._kept_by[None].analysed(A), np.arange(8, 40))
+
+
 @pytest.mark.parametrize("reducer", list(REDUCERS))
 def test_delassus_from_the_schur_complement_equals_the_plain_path(reducer):
     """The falling box in full space, and reduced frames whose system has more than twice the unknowns
@@ -117,7 +148,15 @@ def test_each_large_body_takes_the_schur_complement_of_its_block():
         res = delassus.Resolvent(op, cache={}, schur=schur)
         assert np.abs(res.delassus(J) - ref).max() <= 1e-9 * np.abs(ref).max()
         assert res.schur_unknowns == np.unique(J.indices).size and res.columns_solved == 0
-    assert len(schur._kept_by) == 2
+    assert len(schur._kept_by) == 2 and set(schur._served) <= set(schur._kept_by)
+
+
+def test_schur_inverse_keeps_the_analyses_of_its_last_systems_only():
+    schur = SchurInverse(min_size=1, systems=2)
+    for first in range(4):
+        A = _spd(40 + first, seed=first)
+        schur.inverse_on(A, np.arange(5, 15), key=(40 + first, 0))
+    assert list(schur._kept_by) == [(42, 0), (43, 0)] and set(schur._served) == {(42, 0), (43, 0)}
 
 
 def test_a_resumed_schur_inverse_analyses_the_saved_sets_and_gives_the_same_bits():
@@ -142,3 +181,24 @@ def test_stress_script_survives_varied_calls_in_a_subprocess():
                          env=dict(os.environ, PYTHONPATH=ROOT))
     assert run.returncode == 0, run.stderr[-2000:]
     assert "survived 60 calls" in run.stdout
+
+
+def test_routes_script_gives_z_from_every_route_to_round_off_in_a_subprocess():
+    """benchmarks/delassus_routes.py: Z from the Schur complement and from Pardiso's partial solve against the
+    unit columns, and the frame's own solve on those factorisations (new MKL modes: run apart)."""
+    run = subprocess.run([sys.executable, os.path.join(ROOT, "benchmarks", "delassus_routes.py"), "--cube", "6",
+                          "--reps", "2"], capture_output=True, text=True, timeout=300, env=dict(os.environ, PYTHONPATH=ROOT))
+    assert run.returncode == 0, run.stderr[-2000:]
+    errors = [float(line.rsplit(" ", 1)[1]) for line in run.stdout.splitlines()
+              if "against the unit columns" in line or "residual" in line]
+    assert len(errors) == 4 and max(errors) < 1e-12, run.stdout
+
+
+def test_stress_script_survives_the_schur_factorisation_serving_the_frames_solves_in_a_subprocess():
+    """benchmarks/schur_stress.py --frame-solves: mode iparm(36) = 2, whose factorisation also solves the
+    whole system (phase 33), with new patterns, sets, values and thread counts call to call."""
+    run = subprocess.run([sys.executable, os.path.join(ROOT, "benchmarks", "schur_stress.py"), "--frame-solves",
+                          "--calls", "40", "--vertices", "60"], capture_output=True, text=True, timeout=300,
+                         env=dict(os.environ, PYTHONPATH=ROOT))
+    assert run.returncode == 0, run.stderr[-2000:]
+    assert "survived 40 calls" in run.stdout

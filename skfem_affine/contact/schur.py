@@ -3,18 +3,21 @@ r"""Z = (A^-1)_TT on the unknowns T that contacts touch, from a Schur complement
 With S the Schur complement of A on T (:class:`~skfem_affine.solvers.PardisoSchur`, one
 factorisation of A with T eliminated last), ``(A^-1)_TT = S^-1``: no solve per unknown of T.
 :class:`SchurInverse` decides, frame by frame, whether that pays: a new analysis (ordering) costs
-about as much as a factorisation again, so it keeps the last one while the contacts touch a subset
-of its unknowns at most twice as many, grows it by new ones under the same bound, and below
-``min_size`` unknowns (or above half of A's) it declines, and the caller solves the unit columns.
+up to a few numeric factorisations, so it keeps the last one while the contacts touch a subset of its
+unknowns at most twice as many. Once a kept analysis has served a later frame (the contacts are
+settling), new touched unknowns grow it under the same bound; while every frame needs a new one
+(bodies landing: their contacts move further than a grown set reaches), it is made on the touched
+unknowns alone, the cheaper set. Below ``min_size`` unknowns (or above half of A's) it declines,
+and the caller solves the unit columns.
 Several systems (the bodies of a scene, each its own block) each keep their analysis, by key.
 """
 from collections import OrderedDict
 
 import numpy as np
-from scipy.linalg import cho_factor, cho_solve
+from scipy.linalg import lapack
 
 from skfem_affine.checks import integer
-from skfem_affine.solvers import PardisoSchur, has_pardiso
+from skfem_affine.solvers import PardisoSchur, SolverError, has_pardiso
 from skfem_affine.threads import serial_blas
 
 # Below this many touched unknowns and without a kept analysis, solves of the unit columns with the
@@ -43,31 +46,33 @@ class SchurInverse:
         self.available = has_pardiso()
         self._kept_by = OrderedDict()  # key -> PardisoSchur, each on its own Pardiso handle
         self._resume = {}  # key -> the unknowns a checkpointed run had analysed, for the key's next call
+        self._served = {}  # key -> whether its kept analysis has served a later call (then it may grow)
         self.analyses = 0  # new analyses made (the rest were numeric factorisations only)
 
     def _handle(self, key):
         if key not in self._kept_by:
             self._kept_by[key] = PardisoSchur()
             while len(self._kept_by) > self.systems:
-                self._kept_by.popitem(last=False)
+                self._served.pop(self._kept_by.popitem(last=False)[0], None)
         self._kept_by.move_to_end(key)
         return self._kept_by[key]
 
     def _kept(self, last, n, T, key):
-        """The unknowns to take the complement on (T or a superset), or None to decline; ``last``: those
-        of the current analysis when it is of this system's pattern (:meth:`PardisoSchur.analysed`)."""
+        """The unknowns to take the complement on (T or a superset) and whether they are the kept ones,
+        or (None, False) to decline; ``last``: those of the current analysis when it is of this
+        system's pattern (:meth:`PardisoSchur.analysed`)."""
         if last is None and key in self._resume:  # as the saved run: the same set rounds the same way
             last = self._resume.pop(key)
             last = last if last.size and last[-1] < n and 2 * last.size <= n else None
         if last is not None:
             if last.size <= 2 * T.size and np.isin(T, last, assume_unique=True).all():
-                return last
+                return last, True
             grown = np.union1d(last, T)
-            if grown.size <= 2 * T.size and 2 * grown.size <= n:
-                return grown
+            if self._served.get(key, False) and grown.size <= 2 * T.size and 2 * grown.size <= n:
+                return grown, False
         if T.size < self.min_size or 2 * T.size > n:
-            return None
-        return T
+            return None, False
+        return T, False
 
     def inverse_on(self, A, T, upper=False, key=None):
         """Z = (A^-1)_TT (dense, ``|T| x |T|``) for the SPD matrix A (CSR, whole or, with ``upper=True``,
@@ -78,25 +83,30 @@ class SchurInverse:
         T = np.asarray(T, dtype=np.int64)
         schur = self._handle(key)
         current = schur.analysed(A, upper)
-        keep = self._kept(current, A.shape[0], T, key)
+        keep, kept = self._kept(current, A.shape[0], T, key)
         if keep is None:
             return None
         if keep is not current:  # a new set (or pattern): a new analysis
             self.analyses += 1
+        self._served[key] = kept
         S = schur.complement(A, keep, upper)
         pos = np.searchsorted(keep, T)
-        with serial_blas():
-            factor = cho_factor(S, lower=True, check_finite=False)
-            E = np.zeros((keep.size, T.size))
-            E[pos, np.arange(T.size)] = 1.0
-            Z = cho_solve(factor, E, check_finite=False)[pos]
-        return 0.5 * (Z + Z.T)
+        with serial_blas():  # S^-1 from its Cholesky factor (LAPACK potrf, potri: half of a solve with I)
+            L, info = lapack.dpotrf(S, lower=1, clean=0)
+            if info == 0:
+                L, info = lapack.dpotri(L, lower=1, overwrite_c=1)
+        if info != 0:
+            raise SolverError(f"the Schur complement on {keep.size} unknowns is not positive definite "
+                              f"(LAPACK info {info}); is A positive definite?")
+        Z = np.tril(L)[np.ix_(pos, pos)]  # potri fills the lower triangle only
+        return Z + np.tril(Z, -1).T
 
     def state_dict(self):
         """The unknowns each kept analysis was made on, by system: a resumed run analyses the same
         sets (another superset would round Z differently)."""
         keys = [(-1, -1) if key is None else key for key in self._kept_by]
-        out = {"schur_systems": np.array(keys, dtype=np.int64).reshape(-1, 2)}
+        out = {"schur_systems": np.array(keys, dtype=np.int64).reshape(-1, 2),
+               "schur_served": np.array([self._served.get(key, False) for key in self._kept_by], dtype=bool)}
         for i, schur in enumerate(self._kept_by.values()):
             kept = schur._pattern[2] if schur._pattern is not None else np.zeros(0, np.int64)
             out[f"schur{i}.keep"] = np.array(kept, dtype=np.int64)
@@ -105,10 +115,14 @@ class SchurInverse:
     def load_state_dict(self, state):
         self._kept_by = OrderedDict()
         systems = np.asarray(state.get("schur_systems", np.zeros((0, 2))), dtype=np.int64).reshape(-1, 2)
-        self._resume = {}
+        self._resume, self._served = {}, {}
+        served = np.asarray(state.get("schur_served", np.zeros(len(systems), dtype=bool)), dtype=bool).reshape(-1)
+        if served.size != len(systems):
+            raise ValueError(f"schur_served must hold one flag per system ({len(systems)}), got {served.size}")
         for i, (size, first) in enumerate(systems):
             key = None if size < 0 else (int(size), int(first))
             keep = np.asarray(state[f"schur{i}.keep"], dtype=np.int64)
             if keep.ndim != 1 or (keep.size > 1 and np.any(np.diff(keep) <= 0)) or (keep.size and keep[0] < 0):
                 raise ValueError(f"schur{i}.keep must be sorted distinct unknowns")
             self._resume[key] = keep
+            self._served[key] = bool(served[i])
