@@ -10,7 +10,9 @@ fewer, the right-hand sides of several bodies solved side by side (:class:`Resol
 """
 import numpy as np
 import scipy.sparse as sp
+from numba import njit
 
+from skfem_affine import _compile_notice  # noqa: F401 (one stderr line when the cached kernels compile)
 from skfem_affine.solvers import SuperLU, direct_solver
 
 # A body's block of more than SCHUR_BLOCK_MIN unknowns takes Z from its own Schur complement (when
@@ -59,6 +61,15 @@ def unknown_bodies(bodies, G):
     out = np.full(G.shape[1], -1, dtype=np.int64)
     out[G.indices] = of_entry
     return out if np.array_equal(out[G.indices], of_entry) else None
+
+
+@njit(cache=True)
+def _add_symmetric(W, rows, Wb):
+    """W[rows_i, rows_j] += (Wb_ij + Wb_ji) / 2: a body's part of W, made exactly symmetric."""
+    m = rows.size
+    for i in range(m):
+        for j in range(m):
+            W[rows[i], rows[j]] += 0.5 * (Wb[i, j] + Wb[j, i])
 
 
 def _solve(solver, R, iterative=False):
@@ -126,40 +137,45 @@ class Resolvent:
         ``schur`` is not given or declines, the solver is iterative or the block is small."""
         if self.schur is None or self.iterative or not self.touched:
             return None
-        A, key = self.operator.matrix, None
+        A, key = None, None
         if self.labels is not None:
             idx = np.flatnonzero(self.labels == label)
             if idx.size <= SCHUR_BLOCK_MIN:
                 return None
+            A = self.operator.matrix
             A = A[idx[0]:idx[-1] + 1, idx[0]:idx[-1] + 1] if idx[-1] - idx[0] + 1 == idx.size else A[idx][:, idx]
             T, key = np.searchsorted(idx, T), (idx.size, int(idx[0]))
-        Z = self.schur.inverse_on(A, T, key=key)
+        Z = self.schur.inverse_on(self.operator.matrix if A is None else A, T, key=key)
         if Z is not None:
             self.schur_unknowns += T.size
         return Z
 
     def _blocks(self, Jr):
-        """Per body whose unknowns the contacts touch: (its touched unknowns T_b, the rows of Jr on
-        them, those rows' entries Jt_b as a CSC matrix (rows x T_b)), in the order of T by body."""
+        """Per body whose unknowns the contacts touch: (the body, its touched unknowns T_b, the rows of Jr
+        on them, those rows' entries Jt_b as a CSC matrix (rows x T_b)); and T, the T_b one after another."""
         Jc = Jr.tocsc()
         Jc.eliminate_zeros()
-        T = np.flatnonzero(np.diff(Jc.indptr))
+        count = np.diff(Jc.indptr)
+        T = np.flatnonzero(count)
+        if T.size == 0:
+            return [], T
         if self.labels is None:
-            bounds, labels = [0, T.size], np.zeros(1, dtype=np.int64)
+            bounds, labels = np.array([0, T.size]), np.zeros(1, dtype=np.int64)
         else:
             lab = self.labels[T]
             order = np.argsort(lab, kind="stable")
             T, lab = T[order], lab[order]
             cuts = np.flatnonzero(np.diff(lab)) + 1
             bounds, labels = np.concatenate([[0], cuts, [T.size]]), lab[np.concatenate([[0], cuts])]
-        JT = Jc[:, T]
+        count = count[T]  # the columns T of Jc, gathered
+        ptr = np.concatenate([[0], np.cumsum(count)])
+        src = np.repeat(Jc.indptr[T] - ptr[:-1], count) + np.arange(ptr[-1])
+        indices, data = Jc.indices[src], Jc.data[src]
         out = []
         for b, (s, e) in enumerate(zip(bounds[:-1], bounds[1:])):
-            if s == e:
-                continue
-            p, q = JT.indptr[s], JT.indptr[e]
-            rows, local = np.unique(JT.indices[p:q], return_inverse=True)
-            Jt = sp.csc_matrix((JT.data[p:q], local.ravel(), JT.indptr[s:e + 1] - p), shape=(rows.size, e - s))
+            p, q = ptr[s], ptr[e]
+            rows, local = np.unique(indices[p:q], return_inverse=True)
+            Jt = sp.csc_matrix((data[p:q], local.ravel(), ptr[s:e + 1] - p), shape=(rows.size, e - s))
             out.append((labels[b], T[s:e], rows, Jt))
         return out, T
 
@@ -178,12 +194,14 @@ class Resolvent:
                 r_idx.append(T[s:e][np.repeat(np.arange(e - s), np.diff(Jt.indptr))])
                 c_idx.append(Jt.indices)
                 vals.append(Jt.data)
-        n = self.Jr.shape[1]
-        R = sp.csc_matrix((np.concatenate(vals), (np.concatenate(r_idx), np.concatenate(c_idx))), shape=(n, width))
+        r_idx, c_idx, vals = np.concatenate(r_idx), np.concatenate(c_idx), np.concatenate(vals)
         X = np.empty((T.size, width))
-        for s in range(0, width, self.block):
-            cols = slice(s, min(s + self.block, width))
-            X[:, cols] = _solve(self.solver, R[:, cols].toarray(), self.iterative)[T]
+        for s in range(0, width, self.block):  # the bodies' supports are disjoint: no entry is set twice
+            e = min(s + self.block, width)
+            R = np.zeros((self.Jr.shape[1], e - s))
+            part = (c_idx >= s) & (c_idx < e)
+            R[r_idx[part], c_idx[part] - s] = vals[part]
+            X[:, s:e] = _solve(self.solver, R, self.iterative)[T]
         self.columns_solved = width
         return X
 
@@ -208,12 +226,9 @@ class Resolvent:
             parts += [(rows, Jt, X[s:e, :Jt.shape[1] if unit else rows.size], unit)
                       for s, e, rows, Jt, unit in plans]
         for rows, Jt, X, unit in parts:
-            Wb = Jt @ (Jt @ X).T if unit else Jt @ X
-            Wb = 0.5 * (Wb + Wb.T)
-            if rows.size == k:
-                W += Wb
-            else:
-                W[np.ix_(rows, rows)] += Wb
+            if 10 * Jt.nnz >= Jt.shape[0] * Jt.shape[1]:  # e.g. an affine body's 12 unknowns: dense products
+                Jt = Jt.toarray()
+            _add_symmetric(W, rows, np.ascontiguousarray(Jt @ (Jt @ X).T if unit else Jt @ X))
         return W
 
     def apply(self, lam):
