@@ -319,6 +319,15 @@ def test_unknowns_of_reduced_frames_belong_to_the_body_of_their_rows():
     assert delassus.unknown_bodies(bodies, G) is None
 
 
+def test_bodies_must_name_every_free_dof():
+    A = _laplacian(6)
+    solver = SuperLU()
+    solver.factorize(A)
+    for bad in (np.zeros(5, dtype=int), np.zeros(6)):
+        with pytest.raises(ValueError, match="bodies"):
+            delassus.Resolvent(Operator(solver, A), bodies=bad)
+
+
 def test_several_bodies_with_an_iterative_frame_solver_are_solved_directly():
     """CG would solve the bodies' shared columns to one tolerance for all: with several bodies, an
     iterative frame's Delassus operator and apply come from one direct factorisation of A, kept in

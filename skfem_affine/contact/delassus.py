@@ -63,6 +63,15 @@ def unknown_bodies(bodies, G):
     return out if np.array_equal(out[G.indices], of_entry) else None
 
 
+def _checked_bodies(bodies, operator):
+    """``bodies`` as an int array, one entry per free DOF (the rows of G, or of A in full space)."""
+    n = operator.G.shape[0] if operator.G is not None else operator.shape[0]
+    out = np.asarray(bodies)
+    if out.shape != (n,) or not np.issubdtype(out.dtype, np.integer):
+        raise ValueError(f"bodies must be an int array of the {n} free DOFs' bodies, got {out.dtype} {out.shape}")
+    return out
+
+
 @njit(cache=True)
 def _add_symmetric(W, rows, Wb):
     """W[rows_i, rows_j] += (Wb_ij + Wb_ji) / 2: a body's part of W, made exactly symmetric."""
@@ -114,9 +123,9 @@ class Resolvent:
         self.operator, self.solver, self.G = operator, operator.solver, operator.G
         self.block, self.touched, self.schur = int(block), bool(touched), schur
         self.iterative = operator.iterative
-        labels = None if bodies is None else unknown_bodies(np.asarray(bodies), self.G)
-        several = labels is not None and np.unique(labels[labels >= 0]).size > 1
-        self.labels = labels if several else None
+        labels = None if bodies is None else unknown_bodies(_checked_bodies(bodies, operator), self.G)
+        known = labels[labels >= 0] if labels is not None else np.zeros(0, dtype=np.int64)
+        self.labels = labels if known.size and known.min() < known.max() else None
         self.parts = None if self.labels is None else int(self.labels.max()) + 1  # None: one block
         self.cache = {} if cache is None else cache
         used = set()
@@ -171,11 +180,14 @@ class Resolvent:
         ptr = np.concatenate([[0], np.cumsum(count)])
         src = np.repeat(Jc.indptr[T] - ptr[:-1], count) + np.arange(ptr[-1])
         indices, data = Jc.indices[src], Jc.data[src]
-        out = []
+        out, seen = [], np.zeros(Jr.shape[0], dtype=bool)
         for b, (s, e) in enumerate(zip(bounds[:-1], bounds[1:])):
             p, q = ptr[s], ptr[e]
-            rows, local = np.unique(indices[p:q], return_inverse=True)
-            Jt = sp.csc_matrix((data[p:q], local.ravel(), ptr[s:e + 1] - p), shape=(rows.size, e - s))
+            seen[:] = False
+            seen[indices[p:q]] = True
+            rows = np.flatnonzero(seen)
+            local = (np.cumsum(seen) - 1)[indices[p:q]]  # the body's rows, numbered in order
+            Jt = sp.csc_matrix((data[p:q], local, ptr[s:e + 1] - p), shape=(rows.size, e - s))
             out.append((labels[b], T[s:e], rows, Jt))
         return out, T
 
