@@ -14,6 +14,7 @@ from numba import njit
 
 from skfem_affine import _compile_notice  # noqa: F401 (one stderr line when the cached kernels compile)
 from skfem_affine.solvers import SuperLU, direct_solver
+from skfem_affine.threads import serial_blas
 
 # A body's block of more than SCHUR_BLOCK_MIN unknowns takes Z from its own Schur complement (when
 # the SchurInverse accepts); smaller ones are solved with the others. Below BLOCK_DIRECT_MIN
@@ -237,10 +238,11 @@ class Resolvent:
             X = self._packed(plans, T)
             parts += [(rows, Jt, X[s:e, :Jt.shape[1] if unit else rows.size], unit)
                       for s, e, rows, Jt, unit in plans]
-        for rows, Jt, X, unit in parts:
-            if 10 * Jt.nnz >= Jt.shape[0] * Jt.shape[1]:  # e.g. an affine body's 12 unknowns: dense products
-                Jt = Jt.toarray()
-            _add_symmetric(W, rows, np.ascontiguousarray(Jt @ (Jt @ X).T if unit else Jt @ X))
+        with serial_blas():  # small products: spinning BLAS threads would cost more than they do
+            for rows, Jt, X, unit in parts:
+                if 10 * Jt.nnz >= Jt.shape[0] * Jt.shape[1]:  # e.g. an affine body's 12 unknowns: dense products
+                    Jt = Jt.toarray()
+                _add_symmetric(W, rows, np.ascontiguousarray(Jt @ (Jt @ X).T if unit else Jt @ X))
         return W
 
     def apply(self, lam):
