@@ -5,8 +5,8 @@ velocity of each contact vertex against its closest point. W is applied through 
 factorisation and, for a reduced frame, through G: ``A^-1 ~ G (G^T A G)^-1 G^T``, so
 ``W = (J G) A_r^-1 (J G)^T`` costs solves of the small reduced system, one per unknown
 that the contacts touch (12 per affine body, 6 per rigid one) or per row of J, whichever is
-fewer, the right-hand sides of several bodies solved side by side (:class:`Resolvent`). What it needs of the frame comes in the reducer's
-:class:`~skfem_affine.integrators.problem.Operator`.
+fewer, the right-hand sides of several bodies solved side by side (:class:`Resolvent`). What it
+needs of the frame comes in the reducer's :class:`~skfem_affine.integrators.problem.Operator`.
 """
 import numpy as np
 import scipy.sparse as sp
