@@ -8,14 +8,15 @@ Every method runs from frame 0; the frames ``--start`` to ``--end`` are recorded
 time, the factorisation, the Delassus operator and the columns it solved, the PGS solve (with the
 velocity and position corrections), detection (the rest of contact), the contacts and the DOFs
 solved. The order of the methods rotates from frame to frame. With ``--rows`` each frame's
-Delassus operator is also built per row of J (3 solves per contact: ``Resolvent(touched=False)``)
-on the same factorisation, before or after the frame's own in turn (``delassus_rows``,
-``rows_columns``); with ``--columns`` instead from solves of the unit columns of the unknowns the
-contacts touch (no Schur complement), so that the frame's own (``delassus``, from the Schur
-complement where it is taken: ``delassus_schur`` unknowns) is compared with it. With ``--profile
-METHOD`` that method's frames in the window also run under cProfile, and the contact functions
-outside the Delassus operator (detection, the Jacobian, warm start, prediction impulses, the PGS
-sweeps and the split-impulse correction) are listed by their time per frame. Usage::
+Delassus operator is also built per row of J (3 solves per contact on the whole system:
+``Resolvent(touched=False)``) on the same factorisation, before or after the frame's own in turn
+(``delassus_rows``, ``rows_columns``); with ``--columns`` instead from solves of the unit columns of
+the unknowns the contacts touch (no Schur complement; the bodies' columns side by side), so that
+the frame's own (``delassus``, from the Schur complement where it is taken: ``delassus_schur``
+unknowns) is compared with it. With ``--profile METHOD`` that method's frames in the window also
+run under cProfile, and the contact functions outside the Delassus operator (detection, the
+Jacobian, warm start, prediction impulses, the PGS sweeps and the split-impulse correction) are
+listed by their time per frame. Usage::
 
     python benchmarks/contact_phases.py MESH_DIR --scene wheel --start 145 --end 160 --rows
     python benchmarks/contact_phases.py --scene pile --cells 4 --start 100 --end 130 --rows
@@ -64,8 +65,9 @@ def record(rec):
 
 def per_row(sim, columns=False):
     """Also build each frame's Delassus operator per row of J (``columns``: from solves of the unit
-    columns of the touched unknowns, no Schur complement) on the frame's factorisation, timed,
-    before the frame's own on even frames and after it on odd ones (``delassus_rows``, s)."""
+    columns of the touched unknowns, the bodies' side by side, no Schur complement) on the frame's
+    factorisation, timed, before the frame's own on even frames and after it on odd ones
+    (``delassus_rows``, s)."""
     original, cache = sim.contact.resolve, {}
 
     def resolve(problem, result, rec):
@@ -76,7 +78,7 @@ def per_row(sim, columns=False):
         def rows():
             t0 = time.perf_counter()
             res = delassus.Resolvent(result.operator, block=sim.contact.settings.block, cache=cache,
-                                     touched=columns)
+                                     touched=columns, bodies=sim.contact.bodies if columns else None)
             res.delassus(cs.J)
             rec.update(delassus_rows=time.perf_counter() - t0, rows_columns=res.columns_solved)
 

@@ -1,6 +1,6 @@
-"""The Delassus operator W = J A^-1 J^T (per body, through G when reduced, from the unknowns the
-contacts touch) against the plain path of 3 solves per contact on the frame's factorisation, and
-its per-block solver cache stays bounded."""
+"""The Delassus operator W = J A^-1 J^T (through G when reduced, from the unknowns the contacts touch,
+the bodies' columns solved side by side) against the plain path of 3 solves per contact on the
+frame's factorisation, and its solver cache stays bounded."""
 import numpy as np
 import pytest
 import scipy.sparse as sp
@@ -9,7 +9,8 @@ import skfem_affine as sa
 from skfem_affine.contact import delassus
 from skfem_affine.contact.pgs import projected_gauss_seidel
 from skfem_affine.integrators.problem import Operator
-from skfem_affine.solvers import SuperLU
+from skfem_affine.lab.scenes import box_mesh
+from skfem_affine.solvers import AMGCG, SuperLU
 
 
 def plain_delassus(operator, J):
@@ -148,26 +149,27 @@ def _laplacian(m):
     return sp.diags([-np.ones(m - 1), 3.0 * np.ones(m), -np.ones(m - 1)], [-1, 0, 1], format="csr")
 
 
-def test_block_solver_cache_holds_one_frames_blocks():
-    """Components (bodies, or a reduced frame's clusters) change from frame to frame: the cache of
-    per-block solvers keeps only the blocks of the current frame, however many frames pass."""
+def test_the_delassus_cache_holds_one_frames_factorisation():
+    """Bodies change from frame to frame (sizes, first unknowns): with a direct frame solver nothing is
+    factorised again (the cache stays empty), with an iterative one the cache keeps the one direct
+    factorisation of the current frame, frame after frame."""
     rng = np.random.default_rng(0)
-    cache = {}
-    for frame in range(12):
-        sizes = rng.integers(delassus.BLOCK_DENSE_MAX + 1, delassus.BLOCK_DENSE_MAX + 60, size=3)
+    caches = {"direct": {}, "iterative": {}}
+    for frame in range(6):
+        sizes = rng.integers(30, 90, size=3)
         A = sp.block_diag([_laplacian(int(m)) for m in sizes], format="csr")
-        solver = SuperLU()
-        solver.factorize(A)
+        bodies = np.repeat(np.arange(3), sizes)
         n = A.shape[0]
         cols = rng.choice(n, 6, replace=False)
         J = sp.csr_matrix((np.ones(6), (np.arange(6), cols)), shape=(6, n))
-        res = delassus.Resolvent(Operator(solver, A), cache=cache)
-        W = res.delassus(J)
-        E = np.zeros((n, 6))
-        E[cols, np.arange(6)] = 1.0
-        assert np.allclose(W, solver.solve(E)[cols], atol=1e-12)
-        touched = len({int(np.searchsorted(np.cumsum(sizes), c, side="right")) for c in cols})
-        assert len(cache) == touched <= 3
+        for kind, cache in caches.items():
+            solver = AMGCG() if kind == "iterative" else SuperLU()
+            solver.factorize(A)
+            W = delassus.Resolvent(Operator(solver, A), cache=cache, bodies=bodies).delassus(J)
+            E = np.zeros((n, 6))
+            E[cols, np.arange(6)] = 1.0
+            assert np.allclose(W, np.linalg.solve(A.toarray(), E)[cols], atol=1e-12)
+        assert len(caches["direct"]) == 0 and list(caches["iterative"]) == [(n, 0)]
 
 
 def _contacts_on(cols, rng, per_vertex):
@@ -204,8 +206,8 @@ def _spd(m, rng):
 @pytest.mark.parametrize("sizes", [(60,), (60, 900, 45), (30, 30)])
 def test_touched_unknowns_give_the_per_row_delassus(sizes, per_vertex):
     """W from Z = (A^-1)_TT on the unknowns the contacts touch equals J A^-1 J^T, with A one body or
-    several (dense-Cholesky blocks up to BLOCK_DENSE_MAX unknowns, SuperLU above), vertices with
-    several contacts and contacts between two bodies; it solves |T| columns when fewer than the rows."""
+    several (their columns solved side by side), vertices with several contacts and contacts between
+    two bodies; it solves |T| columns when fewer than the rows."""
     rng = np.random.default_rng(3)
     A = sp.block_diag([_spd(m, rng) for m in sizes], format="csr")
     n, starts = A.shape[0], np.concatenate([[0], np.cumsum(sizes)])
@@ -220,19 +222,130 @@ def test_touched_unknowns_give_the_per_row_delassus(sizes, per_vertex):
     solver = SuperLU()
     solver.factorize(A)
     ref = J @ np.linalg.solve(A.toarray(), J.T.toarray())
-    res = delassus.Resolvent(Operator(solver, A), block=5, cache={})
+    res = delassus.Resolvent(Operator(solver, A), block=5, cache={}, bodies=np.repeat(np.arange(len(sizes)), sizes))
     W = res.delassus(J)
     assert np.abs(W - ref).max() <= 1e-12 * np.abs(ref).max()
     assert np.array_equal(W, W.T)
-    # per body, the fewer of its touched unknowns and its rows: with 4 contacts per vertex, the 9
-    # unknowns of its 3 vertices (12 rows), plus in body 1 the triangle's 9 of the body-body contact
+    # per body, the fewer of its touched unknowns and its rows, solved side by side: with 4 contacts
+    # per vertex, the 9 unknowns of its 3 vertices (12 rows), plus in body 1 the triangle's 9 of the
+    # body-body contact
     count = 0
     for s, e in zip(starts[:-1], starts[1:]):
         Jb = J[:, s:e]
         touched, rows = np.unique(Jb.indices).size, np.flatnonzero(np.diff(Jb.tocsr().indptr)).size
-        count += min(touched, rows)
+        count = max(count, min(touched, rows))
     assert res.columns_solved == count
     if per_vertex == 4:
-        assert count == 9 * len(sizes) + (9 if len(sizes) > 1 else 0)
+        assert count == (18 if len(sizes) > 1 else 9)
     lam = rng.normal(size=J.shape[0])
     assert np.allclose(res.apply(lam), np.linalg.solve(A.toarray(), J.T @ lam), rtol=1e-10, atol=1e-12)
+
+
+def _mixed_pile(reducer):
+    """Five boxes: a stiff one on the ground under a soft one (affine and elastic at once under
+    affinification), a box pinned by its bottom face under a small one, and one far off and high up
+    that no contact reaches in the frames checked."""
+    stiff, soft = sa.NeoHookean(E=1e9, nu=0.3), sa.NeoHookean(E=2e4, nu=0.3)
+    pinned = box_mesh(0.2, 2, (0.5, 0.0, 0.1))
+    bodies = [sa.ElasticBody(box_mesh(0.2, 2, (0.0, 0.0, 0.101)), stiff, density=1000.0),
+              sa.ElasticBody(box_mesh(0.14, 2, (0.02, 0.01, 0.273)), soft, density=1000.0),
+              sa.ElasticBody(pinned, soft, density=1000.0, fixed=pinned.p[2] < 1e-9),
+              sa.ElasticBody(box_mesh(0.1, 2, (0.51, 0.01, 0.252)), stiff, density=1000.0),
+              sa.ElasticBody(box_mesh(0.1, 2, (3.0, 0.0, 8.0)), stiff, density=1000.0)]
+    return sa.Simulation(bodies, dt=0.01, gravity=(0.0, 0.0, -9.81), colliders=[sa.Plane()], reducer=reducer)
+
+
+def _counted(Jr, labels):
+    """Columns of the packed solve: the most, over bodies, of the fewer of a body's touched unknowns
+    and its rows of Jr."""
+    Jc = sp.csc_matrix(Jr)
+    most = 0
+    for b in np.unique(labels):
+        Jb = Jc[:, np.flatnonzero(labels == b)]
+        touched = np.flatnonzero(np.diff(Jb.indptr)).size
+        rows = np.unique(Jb.indices).size
+        most = max(most, min(touched, rows))
+    return most
+
+
+MIXED = {"full": lambda: None, "affine": lambda: sa.Affinification(tau_a=0.1, tau_e=0.2),
+         "rigid": lambda: sa.Rigidification(tau_r=0.05)}
+
+
+@pytest.mark.parametrize("reducer", list(MIXED))
+def test_several_bodies_solve_their_columns_together_with_the_frames_solver(reducer):
+    """Bodies are not coupled by A: the columns of every body are solved in one set of right-hand
+    sides with the frame's own factorisation (the unknowns of different bodies share a column), no
+    body's block factorised again. W and dv = A^-1 J^T lambda equal the plain path (3 solves per
+    contact on the whole system) to round-off, with affine and elastic bodies, a pinned body and a
+    body without contacts; the columns solved are the most any one body needs."""
+    sim = _mixed_pile(MIXED[reducer]())
+    bodies = sim.contact.bodies
+    assert bodies.shape == sim.system.free.shape
+    seen = {"mixed": False}
+
+    def check(op, J):
+        ref, Jr, Y = plain_delassus(op, J)
+        scale = np.abs(ref).max()
+        res = delassus.Resolvent(op, block=7, cache={}, bodies=bodies)
+        W = res.delassus(J)
+        assert np.abs(W - ref).max() <= 1e-12 * scale, np.abs(W - ref).max() / scale
+        assert np.array_equal(W, W.T)
+        labels = delassus.unknown_bodies(bodies, op.G)
+        assert res.columns_solved == _counted(Jr, labels)
+        assert 4 not in labels[np.unique(sp.csr_matrix(Jr).indices)]  # the far box has no contact
+        rows = delassus.Resolvent(op, block=7, cache={}, touched=False)  # one system, per row of J
+        assert np.abs(W - rows.delassus(J)).max() <= 1e-12 * scale
+        lam = np.random.default_rng(1).normal(size=J.shape[0])
+        want = Y @ lam
+        want = op.G @ want if op.G is not None else want
+        assert np.abs(res.apply(lam) - want).max() <= 1e-11 * np.abs(want).max()
+        if op.G is not None:
+            Gc = sp.csc_matrix(op.G)
+            width = np.diff(Gc.indptr)
+            seen["mixed"] |= bool(np.any(width == 1) and np.any(width > 1))
+
+    assert frames_with_contact(sim, 40, check, want=3) == 3
+    if reducer == "affine":
+        assert seen["mixed"], "no frame with both elastic and affine unknowns"
+
+
+def test_unknowns_of_reduced_frames_belong_to_the_body_of_their_rows():
+    bodies = np.array([0, 0, 0, 1, 1, 1])
+    G = sp.csr_matrix(np.array([[1, 0, 0], [0, 2, 0], [0, 1, 0], [0, 0, 1], [0, 0, 3], [0, 0, 1.0]]))
+    assert delassus.unknown_bodies(bodies, G).tolist() == [0, 0, 1]
+    assert delassus.unknown_bodies(bodies, None) is bodies
+    G = sp.csr_matrix(np.array([[1, 0], [0, 0], [0, 0], [0, 0], [1, 0], [0, 1.0]]))  # a column on two bodies
+    assert delassus.unknown_bodies(bodies, G) is None
+
+
+def test_bodies_must_name_every_free_dof():
+    A = _laplacian(6)
+    solver = SuperLU()
+    solver.factorize(A)
+    for bad in (np.zeros(5, dtype=int), np.zeros(6)):
+        with pytest.raises(ValueError, match="bodies"):
+            delassus.Resolvent(Operator(solver, A), bodies=bad)
+
+
+def test_several_bodies_with_an_iterative_frame_solver_are_solved_directly():
+    """CG would solve the bodies' shared columns to one tolerance for all: with several bodies, an
+    iterative frame's Delassus operator and apply come from one direct factorisation of A, kept in
+    the cache (one entry)."""
+    rng = np.random.default_rng(5)
+    sizes = (45, 60)
+    A = sp.block_diag([_spd(m, rng) for m in sizes], format="csr")
+    solver = AMGCG(tol=1e-4)
+    solver.factorize(A)
+    n = A.shape[0]
+    bodies = np.repeat(np.arange(2), sizes)
+    J = _jacobian(_contacts_on([3, 9, 48, 51], rng, 2), n)
+    cache = {}
+    res = delassus.Resolvent(Operator(solver, A), cache=cache, bodies=bodies)
+    W = res.delassus(J)
+    dense = np.linalg.inv(A.toarray())
+    ref = J @ dense @ J.T.toarray()
+    assert np.abs(W - ref).max() <= 1e-12 * np.abs(ref).max()
+    lam = rng.normal(size=J.shape[0])
+    assert np.allclose(res.apply(lam), dense @ (J.T @ lam), rtol=1e-10, atol=1e-12)
+    assert len(cache) == 1

@@ -118,13 +118,13 @@ def test_delassus_from_the_schur_complement_equals_the_plain_path(reducer):
     assert any(taken), "no frame took the Schur complement"
 
 
-def test_small_bodies_take_their_dense_blocks():
+def test_small_bodies_solve_their_columns_with_the_others():
     sim = sa.scenes.SCENES["stacked_beams"](resolution=1)
     schur = SchurInverse(min_size=1)
 
     def check(op, J):
         ref = plain_delassus(op, J)[0]
-        res = delassus.Resolvent(op, block=7, cache={}, schur=schur)
+        res = delassus.Resolvent(op, block=7, cache={}, schur=schur, bodies=sim.contact.bodies)
         assert np.abs(res.delassus(J) - ref).max() <= 1e-9 * np.abs(ref).max()
         assert res.parts is not None and res.schur_unknowns == 0
 
@@ -132,8 +132,8 @@ def test_small_bodies_take_their_dense_blocks():
 
 
 def test_each_large_body_takes_the_schur_complement_of_its_block():
-    """Two bodies above the dense-block size, each keeping its own analysis across frames."""
-    m = delassus.BLOCK_DENSE_MAX + 100
+    """Two bodies above SCHUR_BLOCK_MIN unknowns, each keeping its own analysis across frames."""
+    m = delassus.SCHUR_BLOCK_MIN + 100
     schur = SchurInverse(min_size=1)
     rng = np.random.default_rng(3)
     for frame in range(3):
@@ -145,7 +145,7 @@ def test_each_large_body_takes_the_schur_complement_of_its_block():
                           shape=(30, A.shape[0]))
         op = Operator(solver, A)
         ref = plain_delassus(op, J)[0]
-        res = delassus.Resolvent(op, cache={}, schur=schur)
+        res = delassus.Resolvent(op, cache={}, schur=schur, bodies=np.repeat([0, 1], [m, m + 7]))
         assert np.abs(res.delassus(J) - ref).max() <= 1e-9 * np.abs(ref).max()
         assert res.schur_unknowns == np.unique(J.indices).size and res.columns_solved == 0
     assert len(schur._kept_by) == 2 and set(schur._served) <= set(schur._kept_by)

@@ -5,24 +5,22 @@ velocity of each contact vertex against its closest point. W is applied through 
 factorisation and, for a reduced frame, through G: ``A^-1 ~ G (G^T A G)^-1 G^T``, so
 ``W = (J G) A_r^-1 (J G)^T`` costs solves of the small reduced system, one per unknown
 that the contacts touch (12 per affine body, 6 per rigid one) or per row of J, whichever is
-fewer (:class:`Resolvent`). What it needs of the frame comes in the reducer's
-:class:`~skfem_affine.integrators.problem.Operator`.
+fewer, the right-hand sides of several bodies solved side by side (:class:`Resolvent`). What it
+needs of the frame comes in the reducer's :class:`~skfem_affine.integrators.problem.Operator`.
 """
-from contextlib import nullcontext as _nothing
-
 import numpy as np
 import scipy.sparse as sp
-from scipy.linalg import cho_solve, cholesky, solve_triangular
-from scipy.sparse.csgraph import connected_components
+from numba import njit
 
-from skfem_affine.threads import serial_blas
+from skfem_affine import _compile_notice  # noqa: F401 (one stderr line when the cached kernels compile)
 from skfem_affine.solvers import SuperLU, direct_solver
+from skfem_affine.threads import serial_blas
 
-# Blocks (bodies) of the Delassus operator: up to BLOCK_DENSE_MAX unknowns a dense Cholesky
-# factor L gives R^T A_b^-1 R = X^T X, X = L^-1 R (one triangular solve; R = J_b^T, or the unit
-# columns of the unknowns its contacts touch); below BLOCK_DIRECT_MIN
-# SuperLU, else the direct solver (measurements in docs/contact.md).
-BLOCK_DENSE_MAX = 800
+# A body's block of more than SCHUR_BLOCK_MIN unknowns takes Z from its own Schur complement (when
+# the SchurInverse accepts); smaller ones are solved with the others. Below BLOCK_DIRECT_MIN
+# unknowns SuperLU factorises a system the Delassus operator factorises itself, else the direct
+# solver (measurements in docs/contact.md).
+SCHUR_BLOCK_MIN = 800
 BLOCK_DIRECT_MIN = 2000
 
 
@@ -47,44 +45,47 @@ def jacobian(contacts, n_vertices, free):
 
 
 def block_solver(size):
-    """The solver of one body's block of ``size`` unknowns: SuperLU below :data:`BLOCK_DIRECT_MIN`,
+    """A direct solver for a system of ``size`` unknowns: SuperLU below :data:`BLOCK_DIRECT_MIN`,
     else the fastest direct solver."""
     return SuperLU() if size < BLOCK_DIRECT_MIN else direct_solver()
 
 
-class DenseCholesky:
-    """A body's small block A_b = L L^T, factorised densely (up to :data:`BLOCK_DENSE_MAX` unknowns)."""
+def unknown_bodies(bodies, G):
+    """The body of each unknown of a frame's system, from ``bodies`` (n_free,), the body of each free
+    DOF: in full space ``bodies`` itself; through the reducer's G (n_free x r) the body of each
+    column's rows (-1 for a column without any). None when a column of G spans two bodies: the
+    blocks are then unknown, and the system is taken whole."""
+    if G is None:
+        return bodies
+    G = sp.csr_matrix(G)
+    of_entry = np.repeat(bodies, np.diff(G.indptr))
+    out = np.full(G.shape[1], -1, dtype=np.int64)
+    out[G.indices] = of_entry
+    return out if np.array_equal(out[G.indices], of_entry) else None
 
-    def factorize(self, A):
-        self.L = cholesky(sp.csr_matrix(A).toarray(), lower=True)
 
-    def solve(self, R):
-        return cho_solve((self.L, True), R)
+def _checked_bodies(bodies, operator):
+    """``bodies`` as an int array, one entry per free DOF (the rows of G, or of A in full space)."""
+    n = operator.G.shape[0] if operator.G is not None else operator.shape[0]
+    out = np.asarray(bodies)
+    if out.shape != (n,) or not np.issubdtype(out.dtype, np.integer):
+        raise ValueError(f"bodies must be an int array of the {n} free DOFs' bodies, got {out.dtype} {out.shape}")
+    return out
 
-    def gram(self, R):
-        """R^T A^-1 R = X^T X with X = L^-1 R: one triangular solve."""
-        X = solve_triangular(self.L, R, lower=True)
-        return X.T @ X
+
+@njit(cache=True)
+def _add_symmetric(W, rows, Wb):
+    """W[rows_i, rows_j] += (Wb_ij + Wb_ji) / 2: a body's part of W, made exactly symmetric."""
+    m = rows.size
+    for i in range(m):
+        for j in range(m):
+            W[rows[i], rows[j]] += 0.5 * (Wb[i, j] + Wb[j, i])
 
 
 def _solve(solver, R, iterative=False):
     if iterative:  # CG takes one right-hand side at a time
         return np.column_stack([solver.solve(np.ascontiguousarray(R[:, j])) for j in range(R.shape[1])])
     return np.asarray(solver.solve(R)).reshape(R.shape)
-
-
-def gram(solver, R, block=64, iterative=False):
-    """R^T A^-1 R (dense, m x m) for the matrix A that ``solver`` has factorised and R (n x m, sparse).
-
-    A^-1 R is solved ``block`` columns at a time; a :class:`DenseCholesky` takes X = L^-1 R at once."""
-    R = sp.csc_matrix(R)
-    if isinstance(solver, DenseCholesky):
-        return solver.gram(R.toarray())
-    out = np.empty((R.shape[1], R.shape[1]))
-    for s in range(0, R.shape[1], block):
-        cols = slice(s, min(s + block, R.shape[1]))
-        out[:, cols] = R.T @ _solve(solver, R[:, cols].toarray(), iterative)
-    return out
 
 
 class Resolvent:
@@ -96,132 +97,155 @@ class Resolvent:
     ``W = Jr A^-1 Jr^T`` with ``Jr = J G`` (``J`` in full space).
 
     W needs A^-1 only on the unknowns T that the contacts touch (the columns of Jr with a
-    nonzero): ``W = Jr_T Z Jr_T^T`` with ``Z = (A^-1)_TT`` (:meth:`inverse_on`), from solves of
-    the unit columns e_T. That costs ``|T|`` solves instead of one per row of Jr (3 per contact),
-    and is taken when ``|T|`` is the smaller: the contacts on an affine (rigid) body touch its 12
-    (6) reduced unknowns however many they are, and a vertex with several contacts is solved
-    once; otherwise A^-1 Jr^T is solved row by row, ``block`` columns at a time (always, with
-    ``touched=False``: the reference path). The number of columns solved by the last
-    :meth:`delassus` is ``columns_solved``.
+    nonzero): ``W = Jr_T Z Jr_T^T`` with ``Z = (A^-1)_TT``, from the solves of the unit columns
+    e_T. That costs ``|T|`` solves instead of one per row of Jr (3 per contact), and is taken when
+    ``|T|`` is the smaller: the contacts on an affine (rigid) body touch its 12 (6) reduced
+    unknowns however many they are, and a vertex with several contacts is solved once; otherwise
+    A^-1 Jr^T is solved row by row (always, with ``touched=False``: the reference path). With
+    ``schur`` (:class:`~skfem_affine.contact.schur.SchurInverse`) Z comes from the Schur
+    complement of A on T where it accepts, without a solve per unknown.
 
-    Bodies are not coupled by A, so when A has several connected components (several bodies),
-    W is built per component from a factorization of that block alone (dense Cholesky up to
-    :data:`BLOCK_DENSE_MAX` unknowns, SuperLU below :data:`BLOCK_DIRECT_MIN`, else the fastest
-    direct solver), by the smaller of the two ways for the contacts that touch it; components
-    without contacts cost nothing. ``cache`` (a dict kept across frames) holds the sparse block
-    solvers by (size, first unknown); after each frame it holds only that frame's.
+    Bodies are not coupled by A. Given ``bodies``, the body of each free DOF, the unknowns of
+    each body form a block of A (:func:`unknown_bodies`), and the right-hand sides of all bodies
+    are solved together with the frame's own factorisation: a body's j-th right-hand side shares
+    the column of every other body's j-th (their supports, and those of their solutions, are
+    disjoint), so a frame solves as many columns as its most demanding body needs, each body the
+    fewer of its touched unknowns and its rows. A block of more than :data:`SCHUR_BLOCK_MIN`
+    unknowns takes Z from its own Schur complement where ``schur`` accepts (keyed by its size and
+    first unknown); bodies without contacts cost nothing. Without ``bodies`` (or when G mixes
+    them) the system is one block. An iterative frame solver would solve the shared columns to
+    one tolerance for all bodies: with several bodies A is then factorised once by a direct
+    solver, kept in ``cache`` (a dict kept across frames) under (size, 0); after each frame the
+    cache holds only what that frame used. ``columns_solved``: the right-hand sides solved by the
+    last :meth:`delassus`; ``schur_unknowns``: the unknowns whose Z came from Schur complements.
     """
 
-    def __init__(self, operator, block=64, cache=None, touched=True, schur=None):
-        self.solver, self.A, self.G, self.block = operator.solver, operator.matrix, operator.G, int(block)
-        self.touched, self.schur = bool(touched), schur
+    def __init__(self, operator, block=64, cache=None, touched=True, schur=None, bodies=None):
+        self.operator, self.solver, self.G = operator, operator.solver, operator.G
+        self.block, self.touched, self.schur = int(block), bool(touched), schur
         self.iterative = operator.iterative
-        n_comp, labels = connected_components(self.A, directed=False)
-        self.parts = None
-        if n_comp > 1:  # renumber component by component, so that blocks are contiguous slices
-            self.order = np.argsort(labels, kind="stable")
-            self.bounds = np.concatenate([[0], np.cumsum(np.bincount(labels, minlength=n_comp))])
-            self.parts = range(n_comp)
+        labels = None if bodies is None else unknown_bodies(_checked_bodies(bodies, operator), self.G)
+        known = labels[labels >= 0] if labels is not None else np.zeros(0, dtype=np.int64)
+        self.labels = labels if known.size and known.min() < known.max() else None
+        self.parts = None if self.labels is None else int(self.labels.max()) + 1  # None: one block
         self.cache = {} if cache is None else cache
-        self.used = set()
+        used = set()
+        if self.parts is not None and self.iterative:
+            key = (operator.shape[0], 0)
+            if key not in self.cache:
+                self.cache[key] = block_solver(key[0])
+            self.solver, self.iterative = self.cache[key], False
+            self.solver.factorize(operator.matrix)
+            used.add(key)
+        for key in [key for key in self.cache if key not in used]:  # a frame's blocks are not the next one's
+            del self.cache[key]
         self.columns_solved = 0  # right-hand sides solved by the last :meth:`delassus`
         self.schur_unknowns = 0  # unknowns whose Z came from the Schur complement instead
 
-    def _block_solver(self, idx):
-        if idx.size <= BLOCK_DENSE_MAX:
-            return DenseCholesky()
-        key = (idx.size, int(idx[0]))  # components keep their unknowns while the pattern is fixed
-        if key not in self.cache:
-            self.cache[key] = block_solver(idx.size)
-        self.used.add(key)
-        return self.cache[key]
-
-    def _evict(self):
-        """Drop the cached block solvers this frame did not use: a reduced frame's components change
-        with its clusters, so the keys met over a run are unbounded; the cache holds one frame's."""
-        for key in [key for key in self.cache if key not in self.used]:
-            del self.cache[key]
-
-    def _from_schur(self, A, T, iterative, key=None):
-        """Z = (A^-1)_TT from the Schur complement of A (the whole system, or the block ``key`` of a
-        body) on T, or None when ``schur`` (:class:`~skfem_affine.contact.schur.SchurInverse`) is
-        not given or declines (an iterative solver, too few or too many unknowns)."""
-        if self.schur is None or iterative:
+    def _from_schur(self, label, T):
+        """Z = (A^-1)_TT on the unknowns T (sorted) of one block from its Schur complement, or None when
+        ``schur`` is not given or declines, the solver is iterative or the block is small."""
+        if self.schur is None or self.iterative or not self.touched:
             return None
-        Z = self.schur.inverse_on(A, T, key=key)
+        A, key = None, None
+        if self.labels is not None:
+            idx = np.flatnonzero(self.labels == label)
+            if idx.size <= SCHUR_BLOCK_MIN:
+                return None
+            A = self.operator.matrix
+            A = A[idx[0]:idx[-1] + 1, idx[0]:idx[-1] + 1] if idx[-1] - idx[0] + 1 == idx.size else A[idx][:, idx]
+            T, key = np.searchsorted(idx, T), (idx.size, int(idx[0]))
+        Z = self.schur.inverse_on(self.operator.matrix if A is None else A, T, key=key)
         if Z is not None:
             self.schur_unknowns += T.size
         return Z
 
-    def inverse_on(self, solver, A, T, iterative=False, key=None):
-        """Z = (A^-1)_TT (``|T| x |T|``, dense) for the matrix A that ``solver`` has factorised and the
-        unknowns T (sorted): from the Schur complement (:meth:`_from_schur`), else the unit
-        columns e_T solved, ``block`` at a time, rows T kept."""
-        Z = self._from_schur(A, T, iterative, key)
-        return self._columns(solver, A, T, iterative) if Z is None else Z
-
-    def _columns(self, solver, A, T, iterative):
-        self.columns_solved += T.size
-        E = sp.csc_matrix((np.ones(T.size), T, np.arange(T.size + 1)), shape=(A.shape[0], T.size))
-        return gram(solver, E, self.block, iterative)
-
-    def _product(self, solver, A, Jb, iterative=False, key=None):
-        """Jb A^-1 Jb^T for Jb (CSC, m x n) and the n x n matrix A that ``solver`` has factorised: from
-        Z = (A^-1)_TT on the touched unknowns T when the Schur complement gives it or there are fewer
-        of them than rows, else per row."""
-        counts = np.diff(Jb.indptr)
-        T = np.flatnonzero(counts)
-        dense = isinstance(solver, DenseCholesky)  # a small body's block: one triangular solve is cheaper
-        Z = self._from_schur(A, T, iterative, key) if self.touched and not dense else None
-        if Z is None and self.touched and T.size < Jb.shape[0]:
-            Z = self._columns(solver, A, T, iterative)
-        if Z is not None:
-            Jt = sp.csc_matrix((Jb.data, Jb.indices, np.concatenate([[0], np.cumsum(counts[T])])),
-                               shape=(Jb.shape[0], T.size))
-            W = Jt @ (Jt @ Z).T
+    def _blocks(self, Jr):
+        """Per body whose unknowns the contacts touch: (the body, its touched unknowns T_b, the rows of Jr
+        on them, those rows' entries Jt_b as a CSC matrix (rows x T_b)); and T, the T_b one after another."""
+        Jc = Jr.tocsc()
+        Jc.eliminate_zeros()
+        count = np.diff(Jc.indptr)
+        T = np.flatnonzero(count)
+        if T.size == 0:
+            return [], T
+        if self.labels is None:
+            bounds, labels = np.array([0, T.size]), np.zeros(1, dtype=np.int64)
         else:
-            self.columns_solved += Jb.shape[0]
-            W = gram(solver, Jb.T, self.block, iterative)
-        return 0.5 * (W + W.T)
+            lab = self.labels[T]
+            order = np.argsort(lab, kind="stable")
+            T, lab = T[order], lab[order]
+            cuts = np.flatnonzero(np.diff(lab)) + 1
+            bounds, labels = np.concatenate([[0], cuts, [T.size]]), lab[np.concatenate([[0], cuts])]
+        count = count[T]  # the columns T of Jc, gathered
+        ptr = np.concatenate([[0], np.cumsum(count)])
+        src = np.repeat(Jc.indptr[T] - ptr[:-1], count) + np.arange(ptr[-1])
+        indices, data = Jc.indices[src], Jc.data[src]
+        out, seen = [], np.zeros(Jr.shape[0], dtype=bool)
+        for b, (s, e) in enumerate(zip(bounds[:-1], bounds[1:])):
+            p, q = ptr[s], ptr[e]
+            seen[:] = False
+            seen[indices[p:q]] = True
+            rows = np.flatnonzero(seen)
+            local = (np.cumsum(seen) - 1)[indices[p:q]]  # the body's rows, numbered in order
+            Jt = sp.csc_matrix((data[p:q], local, ptr[s:e + 1] - p), shape=(rows.size, e - s))
+            out.append((labels[b], T[s:e], rows, Jt))
+        return out, T
+
+    def _packed(self, plans, T):
+        """X_T: the touched rows (of T) of A^-1 R, R (r x c) the right-hand sides of every body side by side,
+        ``block`` columns at a time. ``plans``: (s, e, rows, Jt, unit) per body, its unknowns T[s:e];
+        ``unit``: its columns are e_T[s:e], else its rows of Jr (the entries of Jt)."""
+        width = max(Jt.shape[1] if unit else Jt.shape[0] for _, _, _, Jt, unit in plans)
+        r_idx, c_idx, vals = [], [], []
+        for s, e, _, Jt, unit in plans:
+            if unit:
+                r_idx.append(T[s:e])
+                c_idx.append(np.arange(e - s))
+                vals.append(np.ones(e - s))
+            else:  # column j: row j of Jt on the body's touched unknowns
+                r_idx.append(T[s:e][np.repeat(np.arange(e - s), np.diff(Jt.indptr))])
+                c_idx.append(Jt.indices)
+                vals.append(Jt.data)
+        r_idx, c_idx, vals = np.concatenate(r_idx), np.concatenate(c_idx), np.concatenate(vals)
+        X = np.empty((T.size, width))
+        for s in range(0, width, self.block):  # the bodies' supports are disjoint: no entry is set twice
+            e = min(s + self.block, width)
+            R = np.zeros((self.Jr.shape[1], e - s))
+            part = (c_idx >= s) & (c_idx < e)
+            R[r_idx[part], c_idx[part] - s] = vals[part]
+            X[:, s:e] = _solve(self.solver, R, self.iterative)[T]
+        self.columns_solved = width
+        return X
 
     def delassus(self, J):
         """W = J A^-1 J^T (dense, symmetric), A^-1 ~ G A_r^-1 G^T in a reduced frame."""
         Jr = sp.csr_matrix(J @ self.G) if self.G is not None else sp.csr_matrix(J)
         self.Jr, self.columns_solved, self.schur_unknowns = Jr, 0, 0
-        k = J.shape[0]
-        if self.parts is None:
-            self._evict()
-            return self._product(self.solver, self.A, Jr.tocsc(), self.iterative)
+        k = Jr.shape[0]
         W = np.zeros((k, k))
-        Jc = Jr[:, self.order].tocsc()
-        Jc.eliminate_zeros()
-        Ap = sp.csr_matrix(self.A)[self.order][:, self.order].tocsr()
-        self.local = []
-        for c in self.parts:
-            s, e = self.bounds[c], self.bounds[c + 1]
-            a, b = Jc.indptr[s], Jc.indptr[e]
-            if a == b:  # no contact touches this component
-                continue
-            # its columns of J, on the rows of the contacts that touch it
-            rows, local = np.unique(Jc.indices[a:b], return_inverse=True)
-            Jb = sp.csc_matrix((Jc.data[a:b], local, Jc.indptr[s:e + 1] - a), shape=(rows.size, e - s))
-            idx = self.order[s:e]
-            solver = self._block_solver(idx)
-            Ab = Ap[s:e, s:e]
-            with serial_blas() if idx.size < BLOCK_DIRECT_MIN else _nothing():
-                solver.factorize(Ab)
-                W[np.ix_(rows, rows)] += self._product(solver, Ab, Jb, key=(e - s, int(idx[0])))
-            self.local.append((idx, rows, Jb, solver))
-        self._evict()
+        blocks, T = self._blocks(Jr)
+        parts, plans, s = [], [], 0
+        for label, Tb, rows, Jt in blocks:
+            e = s + Tb.size
+            Z = self._from_schur(label, Tb)
+            if Z is not None:
+                parts.append((rows, Jt, Z, True))
+            else:
+                plans.append((s, e, rows, Jt, self.touched and Tb.size < rows.size))
+            s = e
+        if plans:
+            X = self._packed(plans, T)
+            parts += [(rows, Jt, X[s:e, :Jt.shape[1] if unit else rows.size], unit)
+                      for s, e, rows, Jt, unit in plans]
+        with serial_blas():  # small products: spinning BLAS threads would cost more than they do
+            for rows, Jt, X, unit in parts:
+                if 10 * Jt.nnz >= Jt.shape[0] * Jt.shape[1]:  # e.g. an affine body's 12 unknowns: dense products
+                    Jt = Jt.toarray()
+                _add_symmetric(W, rows, np.ascontiguousarray(Jt @ (Jt @ X).T if unit else Jt @ X))
         return W
 
     def apply(self, lam):
-        """dv = A^-1 J^T lambda on the free DOFs (through G when reduced): one solve (per component)."""
-        if self.parts is None:
-            y = _solve(self.solver, (self.Jr.T @ lam)[:, None], self.iterative)[:, 0]
-        else:
-            y = np.zeros(self.Jr.shape[1])
-            for idx, rows, Jb, solver in self.local:
-                with serial_blas() if idx.size < BLOCK_DIRECT_MIN else _nothing():
-                    y[idx] = _solve(solver, (Jb.T @ lam[rows])[:, None])[:, 0]
+        """dv = A^-1 J^T lambda on the free DOFs (through G when reduced): one solve."""
+        y = _solve(self.solver, (self.Jr.T @ lam)[:, None], self.iterative)[:, 0]
         return self.G @ y if self.G is not None else y

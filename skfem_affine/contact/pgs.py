@@ -469,7 +469,9 @@ class Contact:
         self.colliders = self.detector.colliders
         self.inv_mass = 1.0 / np.repeat(sysm.lumped_mass, 3)[sysm.free]
         self.previous = None  # (sorted keys, world impulses)
-        self.block_solvers = {}  # per-body factorizations of the Delassus operator, reused across frames
+        self.block_solvers = {}  # the Delassus operator's own factorisation (iterative frames with several bodies)
+        # the body of each free DOF: the blocks of A the Delassus operator solves side by side
+        self.bodies = np.repeat(np.arange(len(sysm.bodies)), 3 * np.diff(sysm.vertex_offsets))[sysm.free]
         self.schur = SchurInverse() if self.settings.schur else None  # keeps its analysis across frames
         self.current = None
         self.prediction = None
@@ -660,7 +662,8 @@ class Contact:
             raise TypeError("PGS contact needs the reducer's factorised operator (StepResult.operator)")
         t0 = time.perf_counter()
         st = self.settings
-        resolvent = Resolvent(result.operator, block=st.block, cache=self.block_solvers, schur=self.schur)
+        resolvent = Resolvent(result.operator, block=st.block, cache=self.block_solvers, schur=self.schur,
+                              bodies=self.bodies)
         v_star = problem.v.reshape(-1)[problem.system.free] + dv
         W = resolvent.delassus(cs.J)
         t1 = time.perf_counter()
