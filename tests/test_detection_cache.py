@@ -83,3 +83,26 @@ def test_candidate_list_rebuilt_when_a_body_moves_beyond_the_skin():
     v[upper, 2] = -20.0
     assert _same(det.find(x, v, sim.dt), scratch.find(x, v, sim.dt))
     assert det.builds > builds
+
+
+def test_candidate_list_finds_the_edge_contacts_of_a_full_search():
+    # two bars crossing like an X, coming together from beyond the first list's reach: only edges meet
+    w, gap, speed = 0.1, 1.0, 5.0
+    first = box_mesh((w, 1.0, w), (1, 5, 1), (-(w + gap) / 2, 0, 0))
+    second = box_mesh((w, w, 1.0), (1, 1, 5), ((w + gap) / 2, 0, 0))
+    mat = sa.NeoHookean(E=1e8, nu=0.35)
+    sim = sa.Simulation([sa.ElasticBody(first, mat, density=1000.0, velocity=(speed, 0, 0)),
+                         sa.ElasticBody(second, mat, density=1000.0, velocity=(-speed, 0, 0))],
+                        dt=0.01, gravity=(0, 0, 0), contact=sa.PGS())
+    det = sim.contact.detector
+    edge = []
+    find = det.find
+
+    def count(*a):
+        cs = find(*a)
+        edge.append(0 if cs is None else int((cs.key >= det.n_vertices * det.n_kinds).sum()))
+        return cs
+
+    det.find = count
+    _compare(sim, 20)
+    assert max(edge) > 0 and edge[0] == 0, edge

@@ -245,13 +245,16 @@ class Detector:
                 fields = [v]  # a uniform acceleration (gravity alone) leaves relative approach speeds as they are
             speeds = [self._speeds(self.body_of_vertex[sv], u[sv]) for u in fields]
             reach = self._reach(x, speeds, dt)
-            vertex_sets = self._body_contacts(x, fields, dt, speeds, self._candidates(x, reach[0]), reach)
+            edges = [] if self.edge_pairs is None else [self.edge_pairs.frame(x, u, dt, self.margin, s[2])
+                                                         for u, s in zip(fields, speeds)]
+            vertex_pairs, edge_pairs = self._candidates(x, reach[0], edges)
+            vertex_sets = self._body_contacts(x, fields, dt, speeds, vertex_pairs, reach)
             held = np.zeros(len(x), dtype=bool)
             for cs in vertex_sets:
                 held[cs.vertex[np.abs(cs.distance) < self.margin]] = True
             sets += vertex_sets
-            found = None if self.edge_pairs is None else self._edge_contacts(x, fields, dt, held,
-                                                                             [s[2] for s in speeds])
+            found = None if edge_pairs is None else self._edge_contacts(x, fields, dt, held,
+                                                                        [s[2] for s in speeds], edges, edge_pairs)
             if found is not None:
                 sets.append(found)
         if not sets:
@@ -282,12 +285,13 @@ class Detector:
         np.maximum.at(max_spread, owner, spread)
         return mean_v, spread, max_spread
 
-    def _edge_contacts(self, x, fields, dt, held, max_spreads):
+    def _edge_contacts(self, x, fields, dt, held, max_spreads, frames, pairs):
         """Speculative edge-edge contacts between sharp surface edges of different bodies
-        (:mod:`~skfem_affine.contact.edges`), within reach of any of the velocity ``fields``."""
+        (:mod:`~skfem_affine.contact.edges`), within reach of any of the velocity ``fields``
+        (their edges' ``frames``), from the candidate ``pairs``."""
         ep = self.edge_pairs
-        found = [f for f in (ep.find(x, u, dt, self.margin, spread, held) for u, spread in zip(fields, max_spreads))
-                 if f is not None]
+        found = [f for f in (ep.find(x, u, dt, self.margin, spread, held, pairs, g)
+                             for u, spread, g in zip(fields, max_spreads, frames)) if f is not None]
         if not found:
             return None
         ea, eb, s, t, normal, d = (np.concatenate(parts) for parts in zip(*found))
@@ -335,21 +339,34 @@ class Detector:
             return np.zeros(0, dtype=int), np.zeros(0, dtype=int)
         return np.concatenate(rows), np.concatenate(tris)
 
-    def _candidates(self, x, R):
-        """The vertex-triangle pairs to search at x for the reach ``R``: from scratch, or (with a
-        skin) from the candidate list while it covers them."""
+    def _edge_pairs(self, frames, skin):
+        """Candidate edge pairs for the edges' ``frames`` (one per velocity field) with their
+        reach grown by ``skin``, or None (no sharp edge)."""
+        if not frames or not frames[0]["sharp"].any():
+            return None
+        return self.edge_pairs.pairs(frames[0], np.maximum.reduce([g["grow"] for g in frames]) + skin)
+
+    def _candidates(self, x, R, frames):
+        """The vertex-triangle pairs (vertex rows, triangles) and edge pairs (or None) to search at
+        x for the vertices' reach ``R`` and the edges' ``frames``: from scratch, or (with a skin)
+        from the candidate list while it covers them: no vertex has moved since its build by more
+        than half of what the reach has left of the skin, and no edge has turned sharp."""
         if self.skin <= 0.0:
-            return self._vertex_pairs(x, R)
+            return self._vertex_pairs(x, R), self._edge_pairs(frames, 0.0)
         xs, lst = x[self.body_vertices], self._list
         if lst is not None:
-            moved = float(np.sqrt(((xs - lst["x"]) ** 2).sum(axis=1).max(initial=0.0)))
-            if np.all(R + 2.0 * moved <= lst["R"]):
-                return lst["rows"], lst["tris"]
-        R = R + self.skin
-        rows, tris = self._vertex_pairs(x, R)
-        self._list = {"x": xs.copy(), "R": R, "rows": rows, "tris": tris}
+            moved = 2.0 * float(np.sqrt(((xs - lst["x"]) ** 2).sum(axis=1).max(initial=0.0)))
+            if (np.all(R + moved <= lst["R"]) and all(np.all(g["grow"] + moved <= lst["grow"]) for g in frames)
+                    and not (frames and np.any(frames[0]["sharp"] & ~lst["sharp"]))):
+                return lst["vertex"], lst["edge"]
+        lst = {"x": xs.copy(), "R": R + self.skin, "vertex": self._vertex_pairs(x, R + self.skin),
+               "edge": self._edge_pairs(frames, self.skin)}
+        if frames:
+            lst["grow"] = np.maximum.reduce([g["grow"] for g in frames]) + self.skin
+            lst["sharp"] = frames[0]["sharp"]
+        self._list = lst
         self.builds += 1
-        return rows, tris
+        return lst["vertex"], lst["edge"]
 
     def _body_contacts(self, x, fields, dt, speeds, pairs=None, reach=None):
         """Vertices ``xs`` (surface and free interior) of every body against the boundary triangles
