@@ -2,6 +2,7 @@
 contacts of a search from scratch, frame by frame, at rest, in an impact, and after a body moves
 beyond the skin."""
 import numpy as np
+import pytest
 
 import skfem_affine as sa
 from skfem_affine.contact.geometry import Detector
@@ -106,3 +107,10 @@ def test_candidate_list_finds_the_edge_contacts_of_a_full_search():
     det.find = count
     _compare(sim, 20)
     assert max(edge) > 0 and edge[0] == 0, edge
+
+
+def test_skin_is_checked():
+    sim = _boxes()
+    for skin in (-1.0, float("nan")):
+        with pytest.raises(ValueError, match="skin"):
+            Detector(sim.system, [], skin=skin)

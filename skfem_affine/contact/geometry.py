@@ -2,12 +2,14 @@
 
 Every free vertex (interior ones too) is tested against the static colliders (signed distance
 queries, :mod:`skfem_affine.contact.colliders`) and against the boundary triangles of the *other*
-bodies (a KD-tree on each body's triangle centroids as broad phase, exact point-triangle
+bodies (the nearest triangle centroids within reach as broad phase, exact point-triangle
 distance as narrow phase), and sharp surface edges of different bodies against each other
-(:mod:`skfem_affine.contact.edges`); self-contact is not detected. A contact i has a signed gap
-d_i (negative: penetration), a normal n_i pointing from the obstacle towards the vertex (or edge),
-and two tangents. A pair becomes a contact when its gap is below ``margin + 2 h`` times its normal
-approach speed (speculative contact).
+(:mod:`skfem_affine.contact.edges`); self-contact is not detected. The pairs between bodies
+come from a candidate list, searched within their reach plus a skin and kept while the bodies
+barely move (:class:`Detector`). A contact i has a signed gap d_i (negative: penetration), a
+normal n_i pointing from the obstacle towards the vertex (or edge), and two tangents. A pair
+becomes a contact when its gap is below ``margin + 2 h`` times its normal approach speed
+(speculative contact).
 """
 from dataclasses import dataclass, field
 
@@ -369,15 +371,16 @@ class Detector:
         return lst["vertex"], lst["edge"]
 
     def _body_contacts(self, x, fields, dt, speeds, pairs=None, reach=None):
-        """Vertices ``xs`` (surface and free interior) of every body against the boundary triangles
-        of each other body, with the vertex velocities of each of ``fields`` (a list of (n, 3)).
+        """The vertices :attr:`body_vertices` (surface and free interior) of every body against the
+        boundary triangles of each other body, with the vertex velocities of each of ``fields`` (a
+        list of (n, 3)) and their ``speeds`` (:meth:`_speeds`)).
 
         Broad phase: the triangles of each other body b whose centroids lie within the reach
         (:meth:`_reach`) of the vertex, the :data:`NEAREST_TRIANGLES` nearest of them (equal
         distances by triangle index), from ``pairs`` (vertex rows, triangles: any superset of
-        them, else a search from scratch; ``reach``: :meth:`_reach` at x if known). Narrow phase: :func:`closest_surface_points`; a pair is
-        a contact when its gap may close at the relative normal approach speed (the largest over
-        the fields).
+        them, else a search from scratch; ``reach``: :meth:`_reach` at x if known). Narrow phase:
+        :func:`closest_surface_points`; a pair is a contact when its gap may close at the
+        relative normal approach speed (the largest over the fields).
         """
         sv, out = self.body_vertices, []
         R, centroid = self._reach(x, speeds, dt) if reach is None else reach
