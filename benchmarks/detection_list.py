@@ -2,7 +2,8 @@
 against a search from scratch, on the same frames, timed in turn in one process.
 
 A simulation of ``--scene pile`` (the four soft boxes of ``benchmarks/budget.py``, ``--cells`` per box
-edge, at the thresholds of ``benchmarks/contact_phases.py``) is stepped with ``--method``; each frame's
+edge, at the thresholds of ``benchmarks/contact_phases.py``) or ``--scene pills`` (``--pills`` procedural
+capsules dropped into a bowl, falling and colliding) is stepped with ``--method``; each frame's
 detection input (positions, velocities, the step's) is handed to two detectors, one with the
 list (default skin) and one without (skin 0), in alternating order, each timed, their contacts
 compared field by field (any difference stops the run). Reports, over the frames ``--start`` to
@@ -10,7 +11,7 @@ compared field by field (any difference stops the run). Reports, over the frames
 Usage::
 
     python benchmarks/detection_list.py --cells 4 --start 100 --end 120
-    python benchmarks/detection_list.py --cells 4 --start 0 --end 40    # falling and landing
+    python benchmarks/detection_list.py --scene pills --pills 8 --start 0 --end 60 --method full
 """
 import argparse
 import os
@@ -26,6 +27,7 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.dirname(HERE))  # measure the checkout this script sits in
 sys.path.insert(0, HERE)
 import contact_phases  # noqa: E402
+import skfem_affine as sa  # noqa: E402
 from skfem_affine.contact.geometry import Detector  # noqa: E402
 
 FIELDS = ("vertex", "others", "weights", "normal", "distance", "key", "own")
@@ -39,10 +41,15 @@ def same(cs, ref):
                or np.array_equal(getattr(cs, f), getattr(ref, f)) for f in FIELDS)
 
 
-def run(cells, method, start, end):
+def run(cells, method, start, end, scene="pile", pills=8):
     """ms per frame of detection with the list and from scratch, contacts and list builds, over
     the frames ``start`` to ``end - 1``."""
-    sim = contact_phases.builders(None, "pile", end, cells)[contact_phases.METHODS.index(method)]
+    if scene == "pills":
+        reducer = {"full": None, "affinification": sa.Affinification(tau_a=1e-4, tau_e=2e-4),
+                   "rigidification": sa.Rigidification(tau_r=1e-4, tau_e=2e-4)}[method]
+        sim = sa.scenes.pills(n=pills, reducer=reducer)
+    else:
+        sim = contact_phases.builders(None, "pile", end, cells)[contact_phases.METHODS.index(method)]
     own = sim.contact.detector
     listed, scratch = (Detector(sim.system, own.colliders, own.margin, skin=s) for s in (None, 0.0))
     times, contacts, frame = {"list": [], "scratch": []}, [], [0]
@@ -74,13 +81,16 @@ def run(cells, method, start, end):
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--cells", type=int, default=4)
+    ap.add_argument("--scene", choices=["pile", "pills"], default="pile")
+    ap.add_argument("--cells", type=int, default=4, help="cells per box edge of the pile")
+    ap.add_argument("--pills", type=int, default=8, help="capsules in the bowl")
     ap.add_argument("--method", choices=contact_phases.METHODS, default="affinification")
     ap.add_argument("--start", type=int, default=100)
     ap.add_argument("--end", type=int, default=120)
     args = ap.parse_args(argv)
-    out = run(args.cells, args.method, args.start, args.end)
-    print(f"pile {args.cells} cells, {args.method}, frames {args.start}-{args.end - 1}: detection "
+    out = run(args.cells, args.method, args.start, args.end, args.scene, args.pills)
+    what = f"pile {args.cells} cells" if args.scene == "pile" else f"{args.pills} pills"
+    print(f"{what}, {args.method}, frames {args.start}-{args.end - 1}: detection "
           f"{out['list_ms']:.2f} ms with the list, {out['scratch_ms']:.2f} from scratch (ratio {out['ratio']:.2f}), "
           f"{out['contacts']:.0f} contacts, list built {out['builds']} times")
     return out
