@@ -91,53 +91,51 @@ class EdgePairs:
         self.starts = np.searchsorted(self.edge_body, np.arange(self.n_bodies))
         self.cos_sharp = np.cos(SHARP_ANGLE)
 
-    def find(self, x, v, dt, margin, speed_bound, held=None):
-        """Edge-edge contacts at x (n, 3) with velocities v (n, 3).
+    def frame(self, x, v, dt, margin, speed_bound):
+        """The edges at x (n, 3) with velocities v (n, 3): a dict of their face normals ``n0``,
+        ``n1``, ``sharp`` (E,) mask, ``outward`` directions, end points ``e0``, ``e1``, midpoints
+        ``mid``, half lengths ``half`` and the broad phase's ``grow`` (B, B): ``margin + 2 h``
+        times a bound on the relative speed of each pair of bodies plus the longest edge.
 
         ``speed_bound`` (n_bodies,) bounds each body's vertex speeds relative to its mean, and
-        the means are taken from v, so that ``margin + 2 h`` times a bound on any pair's
-        relative speed is the reach of the broad phase.
-
-        ``held`` (n,) marks vertices touching another body (a vertex contact within ``margin``):
-        a slow pair with an edge held at both ends is skipped (see the module docstring).
-
-        Returns ``(edge_a, edge_b, s, t, normal, distance)`` (edge a is the one whose closest
-        point the normal points to) or None."""
+        the means are taken from v."""
         edges, body = self.edges, self.edge_body
         p = x[self.tris]
         fn = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
         fn /= np.maximum(np.linalg.norm(fn, axis=1, keepdims=True), 1e-300)
         n0, n1 = fn[self.faces[:, 0]], fn[self.faces[:, 1]]
-        sharp = np.einsum("ij,ij->i", n0, n1) < self.cos_sharp
-        if not sharp.any():
-            return None
-        outward = n0 + n1
         e0, e1 = x[edges[:, 0]], x[edges[:, 1]]
-        mid = 0.5 * (e0 + e1)
         half = 0.5 * np.linalg.norm(e1 - e0, axis=1)
-        nb, starts = self.n_bodies, self.starts
-        count = np.maximum(np.diff(np.append(starts, len(body))), 1)[:, None]
+        count = np.maximum(np.diff(np.append(self.starts, len(body))), 1)[:, None]
         vm = 0.5 * (v[edges[:, 0]] + v[edges[:, 1]])
-        mean_v = np.add.reduceat(vm, starts) / count
+        mean_v = np.add.reduceat(vm, self.starts) / count
         # reach of each pair of bodies: margin + 2 h |relative speed| bound
         rel = np.linalg.norm(mean_v[:, None] - mean_v[None], axis=2) + speed_bound[:, None] + speed_bound[None]
-        grow = margin + 2.0 * dt * rel + 2.0 * half.max()
+        return {"n0": n0, "n1": n1, "sharp": np.einsum("ij,ij->i", n0, n1) < self.cos_sharp, "outward": n0 + n1,
+                "e0": e0, "e1": e1, "mid": 0.5 * (e0 + e1), "half": half,
+                "grow": margin + 2.0 * dt * rel + 2.0 * half.max()}
+
+    def pairs(self, g, grow):
+        """Every pair (edge a, edge b) (k,) each of sharp surface edges of bodies a < b whose
+        midpoints lie within ``grow`` (B, B) of each other, edges as in :meth:`frame`'s ``g``."""
+        body, starts, nb, mid = self.edge_body, self.starts, self.n_bodies, g["mid"]
+        none = np.zeros(0, dtype=int), np.zeros(0, dtype=int)
         lo, hi = np.minimum.reduceat(mid, starts), np.maximum.reduceat(mid, starts)
         # pairs of bodies whose grown boxes overlap, then the sharp edges of each inside the other's
-        g = grow[:, :, None]
-        touch = np.all((lo[:, None] <= hi[None] + g) & (hi[:, None] >= lo[None] - g), axis=2)
+        gg = grow[:, :, None]
+        touch = np.all((lo[:, None] <= hi[None] + gg) & (hi[:, None] >= lo[None] - gg), axis=2)
         np.fill_diagonal(touch, False)
         if not touch.any():
-            return None
+            return none
         # per body: its sharp edges inside the grown box of a body it may touch, in one KD-tree
         trees = {}
         for b in np.flatnonzero(touch.any(axis=1)):
             r = slice(starts[b], starts[b + 1] if b + 1 < nb else len(body))
             o = np.flatnonzero(touch[b])
             m = mid[r]
-            g = grow[b, o][:, None]
-            inside = np.any(np.all((m[:, None] >= lo[o] - g) & (m[:, None] <= hi[o] + g), axis=2), axis=1)
-            idx = r.start + np.flatnonzero(sharp[r] & inside)
+            gb = grow[b, o][:, None]
+            inside = np.any(np.all((m[:, None] >= lo[o] - gb) & (m[:, None] <= hi[o] + gb), axis=2), axis=1)
+            idx = r.start + np.flatnonzero(g["sharp"][r] & inside)
             if idx.size:
                 trees[b] = (idx, cKDTree(mid[idx]))
         found = []
@@ -147,12 +145,36 @@ class EdgePairs:
                 m = t1.sparse_distance_matrix(t2, grow[b1, b2], output_type="ndarray")
                 if len(m):
                     found.append(np.column_stack([i1[m["i"]], i2[m["j"]]]))
-        if not found:
+        return tuple(np.concatenate(found).T) if found else none
+
+    def find(self, x, v, dt, margin, speed_bound, held=None, pairs=None, g=None):
+        """Edge-edge contacts at x (n, 3) with velocities v (n, 3).
+
+        ``speed_bound`` (n_bodies,) bounds each body's vertex speeds relative to its mean, and
+        the means are taken from v, so that ``margin + 2 h`` times a bound on any pair's
+        relative speed is the reach of the broad phase.
+
+        ``held`` (n,) marks vertices touching another body (a vertex contact within ``margin``):
+        a slow pair with an edge held at both ends is skipped (see the module docstring).
+
+        ``pairs`` (edge a, edge b), optional: candidate pairs (bodies a < b) holding every pair
+        of sharp edges within the broad phase's reach (else :meth:`pairs` searches them); ``g``:
+        :meth:`frame` at (x, v) if known.
+
+        Returns ``(edge_a, edge_b, s, t, normal, distance)`` (edge a is the one whose closest
+        point the normal points to) or None."""
+        g = self.frame(x, v, dt, margin, speed_bound) if g is None else g
+        if not g["sharp"].any():
             return None
-        ea, eb = np.concatenate(found).T
+        ea, eb = self.pairs(g, g["grow"]) if pairs is None else pairs
+        edges, body, half, mid, grow = self.edges, self.edge_body, g["half"], g["mid"], g["grow"]
         reach = grow - 2.0 * half.max()
-        near = np.linalg.norm(mid[ea] - mid[eb], axis=1) <= reach[body[ea], body[eb]] + half[ea] + half[eb]
+        near = (np.linalg.norm(mid[ea] - mid[eb], axis=1) <= reach[body[ea], body[eb]] + half[ea] + half[eb])
+        near &= g["sharp"][ea] & g["sharp"][eb]
         ea, eb = ea[near], eb[near]
+        if not ea.size:
+            return None
+        n0, n1, outward, e0, e1 = g["n0"], g["n1"], g["outward"], g["e0"], g["e1"]
         # edges sharing a vertex cannot belong to different bodies; no check needed
         a0, a1, b0, b1 = e0[ea], e1[ea], e0[eb], e1[eb]
         s, t, parallel = segment_closest_points(a0, a1, b0, b1)

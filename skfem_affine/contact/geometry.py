@@ -2,12 +2,14 @@
 
 Every free vertex (interior ones too) is tested against the static colliders (signed distance
 queries, :mod:`skfem_affine.contact.colliders`) and against the boundary triangles of the *other*
-bodies (a KD-tree on each body's triangle centroids as broad phase, exact point-triangle
+bodies (the nearest triangle centroids within reach as broad phase, exact point-triangle
 distance as narrow phase), and sharp surface edges of different bodies against each other
-(:mod:`skfem_affine.contact.edges`); self-contact is not detected. A contact i has a signed gap
-d_i (negative: penetration), a normal n_i pointing from the obstacle towards the vertex (or edge),
-and two tangents. A pair becomes a contact when its gap is below ``margin + 2 h`` times its normal
-approach speed (speculative contact).
+(:mod:`skfem_affine.contact.edges`); self-contact is not detected. The pairs between bodies
+come from a candidate list, searched within their reach plus a skin and kept while the bodies
+barely move (:class:`Detector`). A contact i has a signed gap d_i (negative: penetration), a
+normal n_i pointing from the obstacle towards the vertex (or edge), and two tangents. A pair
+becomes a contact when its gap is below ``margin + 2 h`` times its normal approach speed
+(speculative contact).
 """
 from dataclasses import dataclass, field
 
@@ -179,9 +181,15 @@ class Detector:
         Detect contact between different bodies.
     edge_contact : bool
         Detect edge-edge contacts between different bodies too.
+    skin : float or None
+        The pairs between bodies are searched within their reach plus this distance and kept
+        (a candidate list) until a vertex has moved by half of it since, less any growth of the
+        reach: resting bodies skip the broad phase, and the contacts are exactly those of a
+        search from scratch (0: search every frame). None: a quarter of the mean surface edge.
+        The list is a cache, rebuilt when needed (it is not part of a checkpoint).
     """
 
-    def __init__(self, system, colliders, margin=None, body_contact=True, edge_contact=True):
+    def __init__(self, system, colliders, margin=None, body_contact=True, edge_contact=True, skin=None):
         self.colliders = colliders
         self.tris, self.tri_body = boundary_surface(system)
         self.surface = np.unique(self.tris)
@@ -200,6 +208,12 @@ class Detector:
         self.body_pairs = bool(body_contact) and len(system.bodies) > 1
         self.n_vertices = system.n
         self.edge_pairs = EdgePairs(self.tris, self.tri_body) if self.body_pairs and edge_contact else None
+        self.tri_start = np.searchsorted(self.tri_body, np.arange(len(system.bodies)))  # tris are body by body
+        self.skin = 0.25 * self.mean_edge if skin is None else float(skin)
+        if not np.isfinite(self.skin) or self.skin < 0.0:
+            raise ValueError(f"skin must be a finite distance >= 0, got {skin!r}")
+        self._list = None   # the candidate list (vertex pairs) and where the vertices were at its build
+        self.builds = 0     # how many times the list was built
 
     def body_contacts(self, cs, edges=True):
         """Mask (k,) of the contacts of ``cs`` between two bodies (not with a collider), with or
@@ -232,13 +246,17 @@ class Detector:
             if w is not None and _uniform(w[sv] - v[sv], np.abs(w[sv]).max(initial=0.0)):
                 fields = [v]  # a uniform acceleration (gravity alone) leaves relative approach speeds as they are
             speeds = [self._speeds(self.body_of_vertex[sv], u[sv]) for u in fields]
-            vertex_sets = self._body_contacts(x, fields, x[sv], dt, speeds)
+            reach = self._reach(x, speeds, dt)
+            edges = [] if self.edge_pairs is None else [self.edge_pairs.frame(x, u, dt, self.margin, s[2])
+                                                         for u, s in zip(fields, speeds)]
+            vertex_pairs, edge_pairs = self._candidates(x, reach[0], edges)
+            vertex_sets = self._body_contacts(x, fields, dt, speeds, vertex_pairs, reach)
             held = np.zeros(len(x), dtype=bool)
             for cs in vertex_sets:
                 held[cs.vertex[np.abs(cs.distance) < self.margin]] = True
             sets += vertex_sets
-            found = None if self.edge_pairs is None else self._edge_contacts(x, fields, dt, held,
-                                                                             [s[2] for s in speeds])
+            found = None if edge_pairs is None else self._edge_contacts(x, fields, dt, held,
+                                                                        [s[2] for s in speeds], edges, edge_pairs)
             if found is not None:
                 sets.append(found)
         if not sets:
@@ -253,8 +271,9 @@ class Detector:
             d, _ = col.query(x[self.collider_vertices])
             depth = max(depth, float(-d.min(initial=0.0)))
         if bodies and self.body_pairs:
-            xs = x[self.body_vertices]
-            for cs in self._body_contacts(x, [np.zeros_like(x)], xs, 0.0):
+            zero = np.zeros_like(x)
+            speeds = [self._speeds(self.body_of_vertex[self.body_vertices], zero[self.body_vertices])]
+            for cs in self._body_contacts(x, [zero], 0.0, speeds):
                 depth = max(depth, float(-cs.distance.min(initial=0.0)))
         return depth
 
@@ -268,12 +287,13 @@ class Detector:
         np.maximum.at(max_spread, owner, spread)
         return mean_v, spread, max_spread
 
-    def _edge_contacts(self, x, fields, dt, held, max_spreads):
+    def _edge_contacts(self, x, fields, dt, held, max_spreads, frames, pairs):
         """Speculative edge-edge contacts between sharp surface edges of different bodies
-        (:mod:`~skfem_affine.contact.edges`), within reach of any of the velocity ``fields``."""
+        (:mod:`~skfem_affine.contact.edges`), within reach of any of the velocity ``fields``
+        (their edges' ``frames``), from the candidate ``pairs``."""
         ep = self.edge_pairs
-        found = [f for f in (ep.find(x, u, dt, self.margin, spread, held) for u, spread in zip(fields, max_spreads))
-                 if f is not None]
+        found = [f for f in (ep.find(x, u, dt, self.margin, spread, held, pairs, g)
+                             for u, spread, g in zip(fields, max_spreads, frames)) if f is not None]
         if not found:
             return None
         ea, eb, s, t, normal, d = (np.concatenate(parts) for parts in zip(*found))
@@ -286,60 +306,108 @@ class Detector:
         key = self.n_vertices * self.n_kinds + ea * len(ep.edges) + eb
         return ContactSet(a0, others, weights, normal, d, key, own=1.0 - s)
 
-    def _body_contacts(self, x, fields, xs, dt, speeds=None):
-        """Vertices ``xs`` (surface and free interior) of every body against the boundary triangles
-        of each other body, with the vertex velocities of each of ``fields`` (a list of (n, 3)).
+    def _reach(self, x, speeds, dt):
+        """Broad-phase reach (B, B) of each pair of bodies (vertices of a, triangle centroids of b):
+        ``margin + 2 h`` times a bound on their relative speed (the largest over the velocity
+        fields ``speeds``) plus b's largest centroid-to-corner distance; -inf on the diagonal.
+        Also the triangles' centroids (T, 3) at x."""
+        corners = x[self.tris]
+        centroid = corners.mean(axis=1)
+        reach = np.maximum.reduceat(((corners - centroid[:, None]) ** 2).sum(axis=2).max(axis=1), self.tri_start)
+        # |v_i - v_j| <= |v_i - vbar_a| + |vbar_a - vbar_b| + max_j |v_j - vbar_b| for i in a, j in b
+        bound = np.maximum.reduce([ms[:, None] + np.linalg.norm(mv[:, None] - mv[None], axis=2) + ms[None]
+                                   for mv, _, ms in speeds])
+        R = self.margin + 2.0 * dt * bound + np.sqrt(reach)[None]
+        np.fill_diagonal(R, -np.inf)
+        return R, centroid
 
-        Broad phase: the other body's bounding box grown by a bound on the relative
-        motion within the step, then a KD-tree on its triangle centroids (the
-        :data:`NEAREST_TRIANGLES` nearest within reach). Narrow phase:
+    def _vertex_pairs(self, x, R):
+        """Every pair (vertex row of :attr:`body_vertices`, triangle) of different bodies whose
+        distance to the centroid may be within ``R`` (B, B) (a superset: a KD-tree per body)."""
+        xs, owner = x[self.body_vertices], self.body_of_vertex[self.body_vertices]
+        rows, tris = [], []
+        for b, (t0, t1) in enumerate(zip(self.tri_start, np.append(self.tri_start[1:], len(self.tris)))):
+            corners = x[self.tris[t0:t1]]
+            r = R[owner, b] * (1.0 + 1e-9) + 1e-9 * self.mean_edge
+            lo, hi = corners.min(axis=(0, 1)), corners.max(axis=(0, 1))
+            cand = np.flatnonzero(np.all((xs >= lo - r[:, None]) & (xs <= hi + r[:, None]), axis=1))
+            if not cand.size:
+                continue
+            m = cKDTree(xs[cand]).sparse_distance_matrix(cKDTree(corners.mean(axis=1)), r[cand].max(),
+                                                          output_type="ndarray")
+            rows.append(cand[m["i"]])
+            tris.append(t0 + m["j"])
+        if not rows:
+            return np.zeros(0, dtype=int), np.zeros(0, dtype=int)
+        return np.concatenate(rows), np.concatenate(tris)
+
+    def _edge_pairs(self, frames, skin):
+        """Candidate edge pairs for the edges' ``frames`` (one per velocity field) with their
+        reach grown by ``skin``, or None (no sharp edge)."""
+        if not frames or not frames[0]["sharp"].any():
+            return None
+        return self.edge_pairs.pairs(frames[0], np.maximum.reduce([g["grow"] for g in frames]) + skin)
+
+    def _candidates(self, x, R, frames):
+        """The vertex-triangle pairs (vertex rows, triangles) and edge pairs (or None) to search at
+        x for the vertices' reach ``R`` and the edges' ``frames``: from scratch, or (with a skin)
+        from the candidate list while it covers them: no vertex has moved since its build by more
+        than half of what the reach has left of the skin, and no edge has turned sharp."""
+        if self.skin <= 0.0:
+            return self._vertex_pairs(x, R), self._edge_pairs(frames, 0.0)
+        xs, lst = x[self.body_vertices], self._list
+        if lst is not None:
+            moved = 2.0 * float(np.sqrt(((xs - lst["x"]) ** 2).sum(axis=1).max(initial=0.0)))
+            if (np.all(R + moved <= lst["R"]) and all(np.all(g["grow"] + moved <= lst["grow"]) for g in frames)
+                    and not (frames and np.any(frames[0]["sharp"] & ~lst["sharp"]))):
+                return lst["vertex"], lst["edge"]
+        lst = {"x": xs.copy(), "R": R + self.skin, "vertex": self._vertex_pairs(x, R + self.skin),
+               "edge": self._edge_pairs(frames, self.skin)}
+        if frames:
+            lst["grow"] = np.maximum.reduce([g["grow"] for g in frames]) + self.skin
+            lst["sharp"] = frames[0]["sharp"]
+        self._list = lst
+        self.builds += 1
+        return lst["vertex"], lst["edge"]
+
+    def _body_contacts(self, x, fields, dt, speeds, pairs=None, reach=None):
+        """The vertices :attr:`body_vertices` (surface and free interior) of every body against the
+        boundary triangles of each other body, with the vertex velocities of each of ``fields`` (a
+        list of (n, 3)) and their ``speeds`` (:meth:`_speeds`)).
+
+        Broad phase: the triangles of each other body b whose centroids lie within the reach
+        (:meth:`_reach`) of the vertex, the :data:`NEAREST_TRIANGLES` nearest of them (equal
+        distances by triangle index), from ``pairs`` (vertex rows, triangles: any superset of
+        them, else a search from scratch; ``reach``: :meth:`_reach` at x if known). Narrow phase:
         :func:`closest_surface_points`; a pair is a contact when its gap may close at the
         relative normal approach speed (the largest over the fields).
         """
         sv, out = self.body_vertices, []
-        owner = self.body_of_vertex[sv]
-        # |v_i - v_j| <= |v_i - vbar_a| + |vbar_a - vbar_b| + max_j |v_j - vbar_b| for i in a, j in b
-        if speeds is None:
-            speeds = [self._speeds(owner, u[sv]) for u in fields]
-        # broad phase body by body, then one narrow phase over every body's candidate pairs
-        points, rows, tris, bodies, start = [], [], [], [], 0
-        for b in np.unique(self.tri_body):
-            mine = np.flatnonzero(self.tri_body == b)
-            corners = x[self.tris[mine]]                                  # (T, 3 corners, 3)
-            bound = np.maximum.reduce([spread + np.linalg.norm(mean_v[owner] - mean_v[b], axis=1) + max_spread[b]
-                                       for mean_v, spread, max_spread in speeds])
-            radius = self.margin + 2.0 * dt * bound
-            lo, hi = corners.min(axis=(0, 1)), corners.max(axis=(0, 1))
-            cand = np.flatnonzero((owner != b) & np.all((xs >= lo - radius[:, None]) & (xs <= hi + radius[:, None]),
-                                                        axis=1))
-            if not cand.size:
-                continue
-            centroid = corners.mean(axis=1)
-            reach = np.sqrt(((corners - centroid[:, None]) ** 2).sum(axis=2).max())
-            kq = min(NEAREST_TRIANGLES, len(mine))
-            _, idx = cKDTree(centroid).query(xs[cand], k=kq, distance_upper_bound=radius[cand].max() + reach)
-            r, c = np.nonzero(idx.reshape(len(cand), kq) < len(mine))
-            if not r.size:
-                continue
-            points.append(cand)
-            rows.append(start + r)
-            tris.append(mine[idx.reshape(len(cand), kq)[r, c]])
-            bodies.append(b)
-            start += cand.size
-        if not points:
+        R, centroid = self._reach(x, speeds, dt) if reach is None else reach
+        i, t = self._vertex_pairs(x, R) if pairs is None else pairs
+        xs, owner = x[sv], self.body_of_vertex[sv]
+        b = self.tri_body[t]
+        dist = np.sqrt(((xs[i] - centroid[t]) ** 2).sum(axis=1))
+        ok = dist <= R[owner[i], b]
+        i, t, b, dist = i[ok], t[ok], b[ok], dist[ok]
+        if not i.size:
             return out
-        cand = np.concatenate(points)
-        found, tri, W, d, normal = closest_surface_points(xs[cand], np.concatenate(rows), np.concatenate(tris),
-                                                          x[self.tris], 1e-9 * self.mean_edge)
-        pairs = sv[cand[found]]
+        group = b * len(sv) + i                                   # one point per (other body, vertex)
+        order = np.lexsort((t, dist, group))
+        i, t, group = i[order], t[order], group[order]
+        new = np.r_[True, group[1:] != group[:-1]]
+        rows = np.cumsum(new) - 1
+        starts = np.flatnonzero(new)
+        near = np.arange(len(group)) - starts[rows] < NEAREST_TRIANGLES
+        found, tri, W, d, normal = closest_surface_points(xs[i[starts]], rows[near], t[near], x[self.tris],
+                                                          1e-9 * self.mean_edge)
+        pairs, body = sv[i[starts[found]]], group[starts[found]] // len(sv)
         approach = np.maximum.reduce([np.maximum(0.0, -np.einsum("ij,ij->i", u[pairs] - np.einsum(
             "kj,kjc->kc", W, u[self.tris[tri]]), normal)) for u in fields])
         hit = d < self.margin + 2.0 * dt * approach
-        ends = np.searchsorted(found, np.cumsum([p.size for p in points]))  # found is sorted: body by body
-        for b, part in zip(bodies, np.split(np.arange(found.size), ends[:-1])):
-            part = part[hit[part]]
-            if part.size:
-                vtx = pairs[part]
-                out.append(ContactSet(vtx, self.tris[tri[part]], W[part], normal[part], d[part],
-                                      vtx * self.n_kinds + len(self.colliders) + b))
+        for bb in np.unique(body[hit]):
+            part = np.flatnonzero(hit & (body == bb))
+            vtx = pairs[part]
+            out.append(ContactSet(vtx, self.tris[tri[part]], W[part], normal[part], d[part],
+                                  vtx * self.n_kinds + len(self.colliders) + bb))
         return out
