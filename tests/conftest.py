@@ -1,4 +1,6 @@
+import importlib.util
 import os
+import sys
 
 import pytest
 
@@ -13,3 +15,22 @@ def shared_meshes():
     if not os.path.isdir(SHARED_MESHES):
         pytest.skip("../shared/meshes not present")
     return os.path.abspath(SHARED_MESHES)
+
+
+BENCHMARKS = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "benchmarks")
+
+
+@pytest.fixture
+def benchmark_script():
+    """``load(name)``: the module of benchmarks/NAME.py, run with benchmarks/ importable (the scripts
+    import their neighbours)."""
+    def load(name):
+        sys.path.insert(0, BENCHMARKS)
+        try:
+            spec = importlib.util.spec_from_file_location(name, os.path.join(BENCHMARKS, f"{name}.py"))
+            module = importlib.util.module_from_spec(spec)
+            spec.loader.exec_module(module)
+        finally:
+            sys.path.remove(BENCHMARKS)
+        return module
+    return load

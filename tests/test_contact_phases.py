@@ -1,19 +1,8 @@
 """benchmarks/contact_phases.py: a few frames of the smallest pile, with the contact functions profiled."""
-import importlib.util
-import os
-
-SCRIPT = os.path.join(os.path.dirname(__file__), "..", "benchmarks", "contact_phases.py")
 
 
-def load():
-    spec = importlib.util.spec_from_file_location("contact_phases", SCRIPT)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
-
-
-def test_profile_lists_the_contact_functions_of_one_method():
-    bench = load()
+def test_profile_lists_the_contact_functions_of_one_method(benchmark_script):
+    bench = benchmark_script("contact_phases")
     means, table = bench.main(["--scene", "pile", "--cells", "1", "--start", "3", "--end", "5",
                                "--profile", "affinification"])
     assert set(means) == set(bench.METHODS) and means["affinification"]["n_contacts"] > 0

@@ -1,23 +1,14 @@
 """benchmarks/paper_table1.py: a tiny run (2 frames) writes the paper's columns with its numbers beside ours."""
-import importlib.util
 import json
 import os
 
 import numpy as np
 import pytest
 
-SCRIPT = os.path.join(os.path.dirname(__file__), "..", "benchmarks", "paper_table1.py")
 
 
-def load():
-    spec = importlib.util.spec_from_file_location("paper_table1", SCRIPT)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
-
-
-def test_a_two_frame_run_writes_the_table(shared_meshes, tmp_path):
-    bench = load()
+def test_a_two_frame_run_writes_the_table(shared_meshes, tmp_path, benchmark_script):
+    bench = benchmark_script("paper_table1")
     out = str(tmp_path / "t1")
     rows = bench.main([shared_meshes, "--frames", "2", "--scenes", "beam_neo", "armadillo", "--out", out])
     beam, arma = rows
@@ -34,19 +25,12 @@ def test_a_two_frame_run_writes_the_table(shared_meshes, tmp_path):
     assert json.load(open(out + ".json"))[0]["scene"] == "beam_neo"
 
 
-def test_every_row_is_a_row_of_the_paper_and_missing_meshes_are_refused(tmp_path):
-    bench = load()
+def test_every_row_is_a_row_of_the_paper_and_missing_meshes_are_refused(tmp_path, benchmark_script):
+    bench = benchmark_script("paper_table1")
     assert {row for row, *_ in bench.SCENES.values()} <= set(bench.PAPER)
     assert set(bench.NOT_RUN) <= set(bench.PAPER)
     with pytest.raises(SystemExit):
         bench.main([str(tmp_path), "--scenes", "beam_neo", "--frames", "1"])
-
-
-def load_resumable():
-    spec = importlib.util.spec_from_file_location("resumable", os.path.join(os.path.dirname(SCRIPT), "resumable.py"))
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
 
 
 def _tiny(reducer):
@@ -59,8 +43,8 @@ def _tiny_reducers():
     return [sa.Affinification(tau_a=1e-2, tau_e=1e-1), sa.Rigidification(tau_r=1e-2, tau_e=1e-1)]
 
 
-def test_a_run_stopped_and_resumed_equals_an_uninterrupted_one(tmp_path):
-    res = load_resumable()
+def test_a_run_stopped_and_resumed_equals_an_uninterrupted_one(tmp_path, benchmark_script):
+    res = benchmark_script("resumable")
     sims, whole = res.run(_tiny, _tiny_reducers(), 8, log=open(os.devnull, "w"))
     folder = str(tmp_path / "ck")
     saved = []
@@ -82,8 +66,8 @@ def test_a_run_stopped_and_resumed_equals_an_uninterrupted_one(tmp_path):
         res.run(_tiny, _tiny_reducers(), 9, checkpoint=folder, log=open(os.devnull, "w"))
 
 
-def test_the_rest_phase_and_its_summary():
-    res = load_resumable()
+def test_the_rest_phase_and_its_summary(benchmark_script):
+    res = benchmark_script("resumable")
     assert res.rest_start([0.0, 5.0, 10.0, 2.0, 0.05, 0.01, 0.02]) == 4
     assert res.rest_start([0.0, 5.0, 10.0, 2.0]) is None
     rec = {"wall": 1.0, "factorization": 0.2, "contact": 0.5, "delassus": 0.3, "pgs": 0.1, "dofs": 10,
@@ -103,8 +87,8 @@ def test_the_rest_phase_and_its_summary():
     assert "| rest 3-4 | affinification | 1.0 | 2.00 | 2.0e-02 | 0.500 |" in res.tables(split)
 
 
-def test_report_only_rewrites_a_saved_run_with_another_rest_phase(tmp_path, capsys):
-    bench, res = load(), load_resumable()
+def test_report_only_rewrites_a_saved_run_with_another_rest_phase(tmp_path, capsys, benchmark_script):
+    bench, res = benchmark_script("paper_table1"), benchmark_script("resumable")
     folder = tmp_path / "wheel"
     folder.mkdir()
     rec = {"wall": 1.0, "factorization": 0.2, "contact": 0.5, "delassus": 0.3, "pgs": 0.1, "dofs": 10,
