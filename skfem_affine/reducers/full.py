@@ -31,14 +31,18 @@ class FullSpace(Reducer):
         Contact's :class:`~skfem_affine.contact.schur.SchurInverse`: with a Pardiso ``solver`` and its
         ``frame`` setting, a frame with contacts is factorised with their unknowns last where its
         rules accept (the Schur complement then rides in the :class:`Operator`), else plainly.
+    bodies : (n_free,) int array, optional
+        The body of each free DOF. A frame whose contacts touch several bodies is factorised plainly:
+        Pardiso treats the whole Schur set as one dense block, dearer than each body's complement on
+        its own block (the Delassus operator's path then; measured in ``docs/contact.md``).
     """
 
     name = "full"
     integrators = ("linearized", "implicit_euler", "bdf2")
     iterates_linearized = True
 
-    def __init__(self, solver, schur=None):
-        self.solver, self.schur = solver, schur
+    def __init__(self, solver, schur=None, bodies=None):
+        self.solver, self.schur, self.bodies = solver, schur, bodies
 
     def _frame_schur(self, problem, A, b, stats):
         """dv and the Operator from the factorisation with the contacts' unknowns last, or None."""
@@ -47,7 +51,10 @@ class FullSpace(Reducer):
                 or not isinstance(self.solver, Pardiso) or isinstance(self.solver, PardisoSchur)):
             return None
         t0 = time.perf_counter()
-        out = schur.factorize_on(A, touched_unknowns(contacts.J))
+        T = touched_unknowns(contacts.J)
+        if self.bodies is not None and T.size and self.bodies[T].min() != self.bodies[T].max():
+            return None
+        out = schur.factorize_on(A, T)
         if out is None:
             return None
         handle, keep, S = out
