@@ -272,7 +272,7 @@ class PardisoSchur(Pardiso):
             pass
 
     def factorize(self, A, upper=False, order=None):
-        raise TypeError("PardisoSchur factorises through complement, with the unknowns of the complement")
+        raise TypeError("PardisoSchur factorises in complement, with the unknowns it eliminates last")
 
     def solve(self, b):
         """x = A^-1 b with the last :meth:`complement`'s factorisation (only with ``solves=True``)."""

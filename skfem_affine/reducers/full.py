@@ -11,7 +11,7 @@ import numpy as np
 
 from skfem_affine.integrators.problem import Operator, StepProblem, StepResult
 from skfem_affine.reducers.base import Reducer
-from skfem_affine.solvers import Pardiso, PardisoSchur, factorize_and_solve
+from skfem_affine.solvers import Pardiso, factorize_and_solve
 
 
 def touched_unknowns(J):
@@ -48,7 +48,7 @@ class FullSpace(Reducer):
         """dv and the Operator from the factorisation with the contacts' unknowns last, or None."""
         schur, contacts = self.schur, problem.contacts
         if (schur is None or not schur.frame or not schur.available or getattr(contacts, "J", None) is None
-                or not isinstance(self.solver, Pardiso) or isinstance(self.solver, PardisoSchur)):
+                or not isinstance(self.solver, Pardiso)):
             return None
         t0 = time.perf_counter()
         T = touched_unknowns(contacts.J)
