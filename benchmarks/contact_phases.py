@@ -16,11 +16,15 @@ the frame's own (``delassus``, from the Schur complement where it is taken: ``de
 unknowns) is compared with it. With ``--profile METHOD`` that method's frames in the window also
 run under cProfile, and the contact functions outside the Delassus operator (detection, the
 Jacobian, warm start, prediction impulses, the PGS sweeps and the split-impulse correction) are
-listed by their time per frame. Usage::
+listed by their time per frame. With ``--frame-schur`` the methods are instead two full-space runs
+stepped in turn: the frame factorised plainly (the Schur complement on a handle of its own) and the
+frame factorised with the contacts' unknowns last, its complement giving the Delassus operator
+(``SchurInverse.frame``). Usage::
 
     python benchmarks/contact_phases.py MESH_DIR --scene wheel --start 145 --end 160 --rows
     python benchmarks/contact_phases.py --scene pile --cells 4 --start 100 --end 130 --rows
     python benchmarks/contact_phases.py --scene pile --cells 4 --start 100 --end 119 --profile affinification
+    python benchmarks/contact_phases.py MESH_DIR --scene wheel --start 145 --end 151 --frame-schur
 """
 import argparse
 import cProfile
@@ -46,7 +50,9 @@ import skfem_affine as sa  # noqa: E402
 from skfem_affine.contact import delassus  # noqa: E402
 
 METHODS = ("full", "affinification", "rigidification")
-COLUMNS = ("wall", "factorization", "delassus", "delassus_columns", "delassus_schur", "pgs", "detection", "contact",
+FRAME_METHODS = ("full, own handle", "full, frame's Schur")  # --frame-schur
+COLUMNS = ("wall", "factorization", "delassus", "delassus_columns", "delassus_schur", "frame_schur", "pgs",
+           "detection", "contact",
            "n_contacts",
            "pgs_iterations", "dofs")
 ROWS = ("delassus_rows", "rows_columns")
@@ -59,7 +65,7 @@ def record(rec):
     out["detection"] = out["contact"] - out["delassus"] - out["pgs"]
     out["wall"] -= out["delassus_rows"]  # the frame without the extra per-row Delassus operator
     out.update({k: float(rec.get(k, 0)) for k in ("n_contacts", "pgs_iterations", "dofs", "delassus_columns",
-                                                  "delassus_schur", "rows_columns")})
+                                                  "delassus_schur", "frame_schur", "rows_columns")})
     return out
 
 
@@ -115,40 +121,51 @@ def profile_table(profile, frames):
     return "\n".join(lines) + "\n"
 
 
-def builders(mesh_dir, scene, end, cells):
-    """full space, affinification, rigidification of the scene (at the paper's thresholds)."""
+def builders(mesh_dir, scene, end, cells, frame_schur=False):
+    """full space, affinification, rigidification of the scene (at the paper's thresholds); with
+    ``frame_schur`` two full-space runs, the second factorising with the contacts' unknowns last."""
     if scene == "pile":
         from budget import pile
-        return [pile(cells), pile(cells, sa.Affinification(tau_a=1e-4, tau_e=2e-4)),
-                pile(cells, sa.Rigidification(tau_r=1e-4, tau_e=2e-4))]
-    if mesh_dir is None:
-        raise ValueError(f"--scene {scene} needs MESH_DIR (the paper's meshes)")
-    row, _, factory, fraction = paper_table1.SCENES[scene]
-    build = factory(mesh_dir, end)
-    return [build(None)] + [build(r) for r in paper_table1.reducers(row, fraction)]
+        if frame_schur:
+            sims = [pile(cells), pile(cells)]
+        else:
+            return [pile(cells), pile(cells, sa.Affinification(tau_a=1e-4, tau_e=2e-4)),
+                    pile(cells, sa.Rigidification(tau_r=1e-4, tau_e=2e-4))]
+    else:
+        if mesh_dir is None:
+            raise ValueError(f"--scene {scene} needs MESH_DIR (the paper's meshes)")
+        row, _, factory, fraction = paper_table1.SCENES[scene]
+        build = factory(mesh_dir, end)
+        if not frame_schur:
+            return [build(None)] + [build(r) for r in paper_table1.reducers(row, fraction)]
+        sims = [build(None), build(None)]
+    sims[0].contact.schur.frame = False
+    return sims
 
 
-def run(mesh_dir, scene, start, end, cells=4, compare_rows=False, compare_columns=False, profile=None):
+def run(mesh_dir, scene, start, end, cells=4, compare_rows=False, compare_columns=False, profile=None,
+        frame_schur=False):
     """The per-phase means of each method over the frames ``start`` to ``end - 1``; with ``profile``
     (a method), also that method's :func:`profile_table` over them (else None)."""
-    sims = builders(mesh_dir, scene, end, cells)
+    sims = builders(mesh_dir, scene, end, cells, frame_schur)
+    methods = FRAME_METHODS if frame_schur else METHODS
     profiler = cProfile.Profile() if profile else None
     if compare_rows or compare_columns:
         for sim in sims:
             per_row(sim, columns=compare_columns)
-    rows = {m: [] for m in METHODS}
+    rows = {m: [] for m in methods}
     t0 = time.perf_counter()
     for frame in range(end):
         turn = [(frame + i) % len(sims) for i in range(len(sims))]  # rotate who steps first
         for i in turn:
-            timed = profiler is not None and frame >= start and METHODS[i] == profile
+            timed = profiler is not None and frame >= start and methods[i] == profile
             if timed:
                 profiler.enable()
             sims[i].step()
             if timed:
                 profiler.disable()
             if frame >= start:
-                rows[METHODS[i]].append(record(sims[i].stats[-1]))
+                rows[methods[i]].append(record(sims[i].stats[-1]))
         if frame % 10 == 0:
             print(f"{scene} frame {frame}/{end} ({time.perf_counter() - t0:.0f} s)", file=sys.stderr, flush=True)
     means = {m: {c: float(np.mean([r[c] for r in rs])) for c in COLUMNS + ROWS} for m, rs in rows.items()}
@@ -156,10 +173,11 @@ def run(mesh_dir, scene, start, end, cells=4, compare_rows=False, compare_column
 
 
 def markdown(scene, means):
-    lines = [f"| {scene} | " + " | ".join(METHODS) + " |", "|---|---|---|---|"]
-    for c in COLUMNS + (ROWS if any(means[m]["rows_columns"] for m in METHODS) else ()):
-        lines.append(f"| {c} | " + " | ".join(f"{means[m][c]:.0f}" for m in METHODS) + " |")
-    share = [means[m]["contact"] / max(means[m]["wall"], 1e-300) for m in METHODS]
+    methods = list(means)
+    lines = [f"| {scene} | " + " | ".join(methods) + " |", "|---" * (len(methods) + 1) + "|"]
+    for c in COLUMNS + (ROWS if any(means[m]["rows_columns"] for m in methods) else ()):
+        lines.append(f"| {c} | " + " | ".join(f"{means[m][c]:.0f}" for m in methods) + " |")
+    share = [means[m]["contact"] / max(means[m]["wall"], 1e-300) for m in methods]
     lines.append("| contact share of the frame | " + " | ".join(f"{100 * s:.0f} %" for s in share) + " |")
     return "\n".join(lines) + "\n"
 
@@ -172,6 +190,8 @@ def main(argv=None):
     ap.add_argument("--rows", action="store_true", help="also time the Delassus operator built per row of J")
     ap.add_argument("--columns", action="store_true",
                     help="also time it built from solves of the touched unknowns' columns (no Schur complement)")
+    ap.add_argument("--frame-schur", action="store_true",
+                    help="compare two full-space runs: the Schur complement on its own handle, and the frame's own")
     ap.add_argument("--start", type=int, required=True)
     ap.add_argument("--end", type=int, required=True)
     ap.add_argument("--threads", default="1", help="BLAS/MKL threads (read before numpy is imported)")
@@ -180,7 +200,7 @@ def main(argv=None):
                     help="also profile this method's frames: its contact functions' ms per frame")
     args = ap.parse_args(argv)
     means, profiled = run(args.mesh_dir, args.scene, args.start, args.end, args.cells, args.rows, args.columns,
-                          args.profile)
+                          args.profile, args.frame_schur)
     print(f"frames {args.start}-{args.end - 1}, ms per frame (means)")
     print(markdown(args.scene, means))
     if profiled:

@@ -4,13 +4,15 @@ wrong Z here and not later in a test session.
 
 Calls vary the matrix (new patterns from time to time, new values every call), the touched set T
 (its size, a subset of the last one, more than half the unknowns: declined), the MKL thread count
-of the caller, and the instance (several alive at once, some dropped and collected)::
+of the caller, the instance (several alive at once, some dropped and collected) and the mode: Z
+from the complement alone (``SchurInverse.inverse_on``) or from the frame's own factorisation
+(``SchurInverse.factorize_on``, which then also solves a right-hand side, checked too)::
 
     python benchmarks/schur_stress.py --calls 2000
 
 ``--frame-solves`` instead stresses the Schur factorisation in mode ``iparm(36) = 2`` serving also as
 a frame's own factorisation (phase 33 solves of the whole system, as
-``benchmarks/delassus_routes.py`` times it; not a path of the package): new patterns, sets and
+``benchmarks/delassus_routes.py`` times it) in raw calls: new patterns, sets and
 values call to call, two handles alive, each on the MKL thread count of its analysis; S and the
 solves are checked against dense ones.
 
@@ -45,7 +47,7 @@ def spd(rng, vertices):
 
 def stress(calls, check_every, seed, vertices=400):
     from threadpoolctl import ThreadpoolController
-    from skfem_affine.contact.schur import SchurInverse
+    from skfem_affine.contact.schur import SchurInverse, inverse_on_positions
     control = ThreadpoolController()
     rng = np.random.default_rng(seed)
     providers = [SchurInverse(min_size=1) for _ in range(3)]
@@ -70,8 +72,15 @@ def stress(calls, check_every, seed, vertices=400):
             T = np.sort(rng.choice(last[h][1], max(1, int(0.7 * last[h][1].size)), replace=False))
         else:
             T = np.sort(rng.choice(n, int(rng.integers(1, int(0.6 * n) + 2)), replace=False))
+        frame, x = rng.random() < 0.4, None  # the frame's own factorisation, which also solves
+        b = rng.normal(size=n)
         with control.limit(limits=int(rng.integers(1, 3)), user_api="blas"):
-            Z = providers[h].inverse_on(A, T)
+            if frame:
+                out = providers[h].factorize_on(A, T)
+                Z = None if out is None else inverse_on_positions(out[2], np.searchsorted(out[1], T))
+                x = None if out is None else out[0].solve(b)
+            else:
+                Z = providers[h].inverse_on(A, T)
         if Z is None:
             declined += 1
             if 2 * T.size <= n:
@@ -81,11 +90,13 @@ def stress(calls, check_every, seed, vertices=400):
         if c % check_every == 0:
             ref = np.linalg.inv(A.toarray())[np.ix_(T, T)]
             err = np.abs(Z - ref).max() / np.abs(ref).max()
+            if x is not None:
+                err = max(err, np.abs(A @ x - b).max() / np.abs(b).max())
             worst = max(worst, err)
             if err > 1e-8:
                 raise AssertionError(f"call {c}: Z off by {err:.2e} (n {n}, |T| {T.size})")
     print(f"survived {calls} calls ({declined} declined: more than half the unknowns), "
-          f"worst relative error of Z {worst:.1e}")
+          f"worst relative error of Z and the solves {worst:.1e}")
 
 
 def frame_solves(calls, seed, vertices=200):

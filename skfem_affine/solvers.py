@@ -207,9 +207,21 @@ class PardisoSchur(Pardiso):
     buffer), and an analysis' factorisations and release run on the MKL thread count it ran on
     (an analysis on two threads and a factorisation on one segfaulted). Both were reproduced by
     ``benchmarks/schur_stress.py``, which also checks that this class survives varied calls.
+
+    Parameters
+    ----------
+    solves : bool
+        Factorise in the mode (``iparm(36) = 2``) whose factorisation also solves the whole system
+        (:meth:`solve`, phase 33): then it can be a frame's own factorisation. The default mode
+        (``iparm(36) = 1``) leaves the complement's block unfactorised and does not solve.
     """
 
     name = "pardiso-schur"
+
+    def __init__(self, solves=False):
+        super().__init__()
+        self.solves = flag(solves, "solves")
+        self._marks = None  # the Schur set's marks of the current analysis (Pardiso's perm argument)
 
     def complement(self, A, keep, upper=False):
         """S (``|keep| x |keep|``, dense) of A (full symmetric CSR, or its upper triangle with
@@ -224,12 +236,13 @@ class PardisoSchur(Pardiso):
         if not same:
             self._release()
             self._threads = 1 if n < PARDISO_THREADED_MIN else self._lib.max_threads
-        marks = np.zeros(n, dtype=np.int32)  # given afresh: Pardiso writes its ordering into perm
+        marks = np.zeros(n, dtype=np.int32)
         marks[keep] = 1
+        self._marks = marks
         self._arrays = (np.ascontiguousarray(data, dtype=float), indptr, indices, n)
         try:
-            with threads.mkl_threads(self._threads):
-                x = self._lib.schur(12 if not same else 22, self._arrays, marks, k)
+            with threads.mkl_threads(self._threads):  # marks given afresh: Pardiso writes its ordering into perm
+                x = self._lib.schur(12 if not same else 22, self._arrays, marks.copy(), k, 2 if self.solves else 1)
         except Exception as err:
             self._release()
             raise SolverError(f"Pardiso Schur complement failed ({err}); is the system positive definite?") from err
@@ -259,10 +272,18 @@ class PardisoSchur(Pardiso):
             pass
 
     def factorize(self, A, upper=False, order=None):
-        raise TypeError("PardisoSchur computes Schur complements (complement), it does not solve")
+        raise TypeError("PardisoSchur factorises in complement, with the unknowns it eliminates last")
 
     def solve(self, b):
-        raise TypeError("PardisoSchur computes Schur complements (complement), it does not solve")
+        """x = A^-1 b with the last :meth:`complement`'s factorisation (only with ``solves=True``)."""
+        if not self.solves:
+            raise TypeError("PardisoSchur(solves=False) computes Schur complements, it does not solve")
+        if self._pattern is None:
+            raise TypeError("PardisoSchur.solve needs a factorisation first (complement)")
+        b = np.asarray(b, dtype=float)
+        with threads.mkl_threads(self._threads):  # the analysis' thread count
+            x = self._lib.call(33, self._arrays, np.asfortranarray(b.reshape(b.shape[0], -1)), perm=self._marks.copy())
+        return np.ascontiguousarray(x).reshape(b.shape)
 
 
 class _PardisoLibrary:
@@ -313,12 +334,13 @@ class _PardisoLibrary:
         self.call(-1, arrays, np.zeros((n, 1)), perm=np.zeros(n, dtype=np.int32))
         self._ps.pt[:] = 0  # a fresh handle for the next analysis
 
-    def schur(self, phase, arrays, marks, k):
+    def schur(self, phase, arrays, marks, k, mode=1):
         """Factorise (``phase`` 12 or 22, METIS ordering) with the unknowns marked 1 in ``marks``
-        (int32, n) eliminated last; returns their dense Schur complement (k * k, row-major)."""
+        (int32, n) eliminated last; returns their dense Schur complement (k * k, row-major).
+        ``mode`` (``iparm(36)``): 1 the complement only, 2 the whole system factorised too (it solves)."""
         self._ps.set_iparm(2, 2)
         self._ps.set_iparm(5, 0)
-        self._ps.set_iparm(36, 1)
+        self._ps.set_iparm(36, mode)
         n = arrays[3]
         return self.call(phase, arrays, np.zeros((max(n, k * k), 1)), perm=marks)[:k * k, 0]
 

@@ -9,3 +9,11 @@ def test_profile_lists_the_contact_functions_of_one_method(benchmark_script):
     assert "| pgs.py:detect |" in table and "| geometry.py:find |" in table and "| pgs.py:resolve |" in table
     # one detection and one resolve per profiled frame
     assert "| pgs.py:detect | 1.0 |" in table and "| pgs.py:resolve | 1.0 |" in table
+
+
+def test_frame_schur_steps_two_full_space_runs_in_turn():
+    bench = load()
+    means, _ = bench.main(["--scene", "pile", "--cells", "1", "--start", "3", "--end", "5", "--frame-schur"])
+    assert list(means) == list(bench.FRAME_METHODS)
+    own, framed = (means[m] for m in bench.FRAME_METHODS)
+    assert own["n_contacts"] == framed["n_contacts"] > 0 and own["frame_schur"] == 0

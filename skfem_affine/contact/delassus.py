@@ -13,6 +13,7 @@ import scipy.sparse as sp
 from numba import njit
 
 from skfem_affine import _compile_notice  # noqa: F401 (one stderr line when the cached kernels compile)
+from skfem_affine.contact.schur import inverse_on_positions
 from skfem_affine.solvers import SuperLU, direct_solver
 from skfem_affine.threads import serial_blas
 
@@ -142,10 +143,28 @@ class Resolvent:
         self.columns_solved = 0  # right-hand sides solved by the last :meth:`delassus`
         self.schur_unknowns = 0  # unknowns whose Z came from the Schur complement instead
 
+    def _from_frame(self, label, T):
+        """Z = (A^-1)_TT on the unknowns T (sorted) of one block from the Schur complement S the frame's
+        own factorisation left (:attr:`Operator.schur`), inverting the block's part of S only (A does
+        not couple bodies, so neither does S); None without it or when T is not within its unknowns."""
+        keep, S = self.operator.schur
+        part = np.arange(keep.size) if self.labels is None else np.flatnonzero(self.labels[keep] == label)
+        pos = np.searchsorted(keep[part], T)
+        if pos.size and (pos[-1] >= part.size or not np.array_equal(keep[part][pos], T)):
+            return None
+        self.schur_unknowns += T.size
+        return inverse_on_positions(np.ascontiguousarray(S[np.ix_(part, part)]), pos)
+
     def _from_schur(self, label, T):
-        """Z = (A^-1)_TT on the unknowns T (sorted) of one block from its Schur complement, or None when
+        """Z = (A^-1)_TT on the unknowns T (sorted) of one block from a Schur complement, or None when
         ``schur`` is not given or declines, the solver is iterative or the block is small."""
-        if self.schur is None or self.iterative or not self.touched:
+        if not self.touched:
+            return None
+        if self.operator.schur is not None and self.G is None:
+            Z = self._from_frame(label, T)
+            if Z is not None:
+                return Z
+        if self.schur is None or self.iterative:
             return None
         A, key = None, None
         if self.labels is not None:

@@ -137,7 +137,9 @@ class PGS:
     schur : bool
         Build the Delassus operator of a one-body system from the Schur complement of the frame's
         matrix on the unknowns the contacts touch (MKL Pardiso, :mod:`~skfem_affine.contact.schur`)
-        where that is cheaper than solving their unit columns; False always solves them.
+        where that is cheaper than solving their unit columns; False always solves them. In full
+        space that complement comes from the frame's own factorisation, made with those unknowns last
+        (``SchurInverse.frame``).
     """
 
     friction: float = 0.5

@@ -10,13 +10,18 @@ settling), new touched unknowns grow it under the same bound; while every frame 
 unknowns alone, the cheaper set. Below ``min_size`` unknowns (or above half of A's) it declines,
 and the caller solves the unit columns.
 Several systems (the bodies of a scene, each its own block) each keep their analysis, by key.
+
+In full space the contacts are found before the frame's solve, so the frame's own factorisation can
+be the one with T last (:meth:`SchurInverse.factorize_on`, Pardiso's mode that also solves the whole
+system): Z then costs S^-1 on top of the frame's factorisation, not a second factorisation. That
+handle is the whole system's (key None), under the same rules.
 """
 from collections import OrderedDict
 
 import numpy as np
 from scipy.linalg import lapack
 
-from skfem_affine.checks import integer
+from skfem_affine.checks import flag, integer
 from skfem_affine.solvers import PardisoSchur, SolverError, has_pardiso
 from skfem_affine.threads import serial_blas
 
@@ -35,23 +40,28 @@ class SchurInverse:
         Fewest touched unknowns for which a new analysis is made (:data:`SCHUR_MIN`).
     systems : int
         Most systems (keys) whose analyses are kept; the least recently used goes first.
+    frame : bool
+        Whether the full-space frame factorises with the touched unknowns last and solves with that
+        factorisation (:meth:`factorize_on`, used by :class:`~skfem_affine.reducers.full.FullSpace`);
+        False: the frame factorises plainly and Z takes a factorisation of its own.
 
     ``available`` is False without MKL Pardiso; :meth:`inverse_on` then always returns None.
     Hold one instance per simulation, not per frame: it keeps the analyses.
     """
 
-    def __init__(self, min_size=SCHUR_MIN, systems=16):
+    def __init__(self, min_size=SCHUR_MIN, systems=16, frame=True):
         self.min_size = integer(min_size, "min_size", low=1)
         self.systems = integer(systems, "systems", low=1)
+        self.frame = flag(frame, "frame")
         self.available = has_pardiso()
         self._kept_by = OrderedDict()  # key -> PardisoSchur, each on its own Pardiso handle
         self._resume = {}  # key -> the unknowns a checkpointed run had analysed, for the key's next call
         self._served = {}  # key -> whether its kept analysis has served a later call (then it may grow)
         self.analyses = 0  # new analyses made (the rest were numeric factorisations only)
 
-    def _handle(self, key):
-        if key not in self._kept_by:
-            self._kept_by[key] = PardisoSchur()
+    def _handle(self, key, solves):
+        if key not in self._kept_by or self._kept_by[key].solves != solves:
+            self._kept_by[key] = PardisoSchur(solves=solves)
             while len(self._kept_by) > self.systems:
                 self._served.pop(self._kept_by.popitem(last=False)[0], None)
         self._kept_by.move_to_end(key)
@@ -74,32 +84,39 @@ class SchurInverse:
             return None, False
         return T, False
 
-    def inverse_on(self, A, T, upper=False, key=None):
-        """Z = (A^-1)_TT (dense, ``|T| x |T|``) for the SPD matrix A (CSR, whole or, with ``upper=True``,
-        its upper triangle) and the sorted unknowns T; None when the Schur complement declines.
-        ``key`` names the system (e.g. a body's block), whose analysis is kept for its next call."""
+    def _complement(self, A, T, upper, key, solves):
+        """(handle, keep, S): the factorisation of A with ``keep`` (T or a kept superset) last and its
+        Schur complement S on them, or None when declining. A handle of the other mode is replaced
+        only when the complement is taken."""
         if not self.available:
             return None
         T = np.asarray(T, dtype=np.int64)
-        schur = self._handle(key)
-        current = schur.analysed(A, upper)
+        handle = self._kept_by.get(key)
+        current = handle.analysed(A, upper) if handle is not None and handle.solves == solves else None
         keep, kept = self._kept(current, A.shape[0], T, key)
         if keep is None:
             return None
         if keep is not current:  # a new set (or pattern): a new analysis
             self.analyses += 1
         self._served[key] = kept
-        S = schur.complement(A, keep, upper)
-        pos = np.searchsorted(keep, T)
-        with serial_blas():  # S^-1 from its Cholesky factor (LAPACK potrf, potri: half of a solve with I)
-            L, info = lapack.dpotrf(S, lower=1, clean=0)
-            if info == 0:
-                L, info = lapack.dpotri(L, lower=1, overwrite_c=1)
-        if info != 0:
-            raise SolverError(f"the Schur complement on {keep.size} unknowns is not positive definite "
-                              f"(LAPACK info {info}); is A positive definite?")
-        Z = np.tril(L)[np.ix_(pos, pos)]  # potri fills the lower triangle only
-        return Z + np.tril(Z, -1).T
+        schur = self._handle(key, solves)
+        return schur, keep, schur.complement(A, keep, upper)
+
+    def inverse_on(self, A, T, upper=False, key=None):
+        """Z = (A^-1)_TT (dense, ``|T| x |T|``) for the SPD matrix A (CSR, whole or, with ``upper=True``,
+        its upper triangle) and the sorted unknowns T; None when the Schur complement declines.
+        ``key`` names the system (e.g. a body's block), whose analysis is kept for its next call."""
+        out = self._complement(A, T, upper, key, solves=False)
+        if out is None:
+            return None
+        _, keep, S = out
+        return inverse_on_positions(S, np.searchsorted(keep, np.asarray(T, dtype=np.int64)))
+
+    def factorize_on(self, A, T, upper=False):
+        """The whole system's factorisation with T (or a kept superset ``keep``) last, which also solves
+        A x = b: (solver, keep, S) with S the Schur complement on ``keep`` (``(A^-1)_keep,keep = S^-1``),
+        or None when the rules above decline (the caller factorises plainly)."""
+        return self._complement(A, T, upper, None, solves=True)
 
     def state_dict(self):
         """The unknowns each kept analysis was made on, by system: a resumed run analyses the same
@@ -126,3 +143,17 @@ class SchurInverse:
                 raise ValueError(f"schur{i}.keep must be sorted distinct unknowns")
             self._resume[key] = keep
             self._served[key] = bool(served[i])
+
+
+def inverse_on_positions(S, pos):
+    """(S^-1)[pos][:, pos] for the SPD matrix S (dense), from its Cholesky factor (LAPACK potrf, potri:
+    half of a solve with I)."""
+    with serial_blas():
+        L, info = lapack.dpotrf(S, lower=1, clean=0)
+        if info == 0:
+            L, info = lapack.dpotri(L, lower=1, overwrite_c=1)
+    if info != 0:
+        raise SolverError(f"the Schur complement on {S.shape[0]} unknowns is not positive definite "
+                          f"(LAPACK info {info}); is A positive definite?")
+    Z = np.tril(L)[np.ix_(pos, pos)]  # potri fills the lower triangle only
+    return Z + np.tril(Z, -1).T

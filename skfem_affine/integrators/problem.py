@@ -198,10 +198,14 @@ class Operator:
         given and :attr:`matrix` returns the whole symmetric matrix, built on first use.
     G : sparse matrix, optional
         The frame's mapping (free DOFs x reduced DOFs); None in full space.
+    schur : (keep, S), optional
+        When the factorisation had the sorted unknowns ``keep`` last: their Schur complement S
+        (dense), so that ``(A^-1)_keep,keep = S^-1`` without a solve
+        (:meth:`~skfem_affine.contact.schur.SchurInverse.factorize_on`).
     """
 
-    def __init__(self, solver, matrix, G=None, upper=False):
-        self.solver, self.G = solver, G
+    def __init__(self, solver, matrix, G=None, upper=False, schur=None):
+        self.solver, self.G, self.schur = solver, G, schur
         self._matrix, self._upper = matrix, bool(upper)
         # solvers without the attribute (user objects) are taken as direct
         self.iterative = bool(getattr(solver, "iterative", False))
