@@ -1,4 +1,4 @@
-"""benchmarks/contact_phases.py: a few frames of the smallest pile, with the contact functions profiled."""
+"""benchmarks/contact_phases.py: a few frames of the smallest pile, profiled, and with both full-space routes."""
 
 
 def test_profile_lists_the_contact_functions_of_one_method(benchmark_script):
@@ -11,8 +11,8 @@ def test_profile_lists_the_contact_functions_of_one_method(benchmark_script):
     assert "| pgs.py:detect | 1.0 |" in table and "| pgs.py:resolve | 1.0 |" in table
 
 
-def test_frame_schur_steps_two_full_space_runs_in_turn():
-    bench = load()
+def test_frame_schur_steps_two_full_space_runs_in_turn(benchmark_script):
+    bench = benchmark_script("contact_phases")
     means, _ = bench.main(["--scene", "pile", "--cells", "1", "--start", "3", "--end", "5", "--frame-schur"])
     assert list(means) == list(bench.FRAME_METHODS)
     own, framed = (means[m] for m in bench.FRAME_METHODS)
