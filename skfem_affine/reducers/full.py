@@ -47,7 +47,7 @@ class FullSpace(Reducer):
     def _frame_schur(self, problem, A, b, stats):
         """dv and the Operator from the factorisation with the contacts' unknowns last, or None."""
         schur, contacts = self.schur, problem.contacts
-        if (schur is None or not schur.frame or not schur.available or getattr(contacts, "J", None) is None
+        if (schur is None or not schur.frame or not schur.available or contacts is None or contacts.J is None
                 or not isinstance(self.solver, Pardiso)):
             return None
         t0 = time.perf_counter()
