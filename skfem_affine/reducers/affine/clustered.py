@@ -301,6 +301,7 @@ class ClusteringReducer(Reducer):
         self.vertex_rank = reduction.nested_dissection_rank(sysm) if self.upper else None
         self.mdiag = sysm.Mff.diagonal()
         self.gravity_dv = np.tile(model.gravity, sysm.n)[sysm.free] * model.dt
+        self.translations = oracle.body_translations(sysm)
         self._setup_controllers()
 
     def _setup_controllers(self):
@@ -535,7 +536,11 @@ class ClusteringReducer(Reducer):
         apply_A = oracle.system_operator(self.mdiag, problem.Hmat, model.coefficients)
         if self._pending is not None:
             self._swap_if_ready(stats)
-        dv_pred = oracle.predict(apply_A, b_ng, self.precond, gravity_dv=self.gravity_dv, stats=stats)
+        # with contact, from the bodies' mean response (two-level guess): a body at rest on its support
+        # is predicted at rest, its support and elastic forces balancing its weight
+        x0 = (oracle.coarse_guess(self.translations, self.mdiag, problem.Hmat, model.coefficients, b_ng)
+              if np.any(problem.contact_impulse) else None)
+        dv_pred = oracle.predict(apply_A, b_ng, self.precond, gravity_dv=self.gravity_dv, stats=stats, x0=x0)
         t2 = time.perf_counter()
         stats["prediction"] = t2 - t1
         if self.refresh and "oracle_residual" in stats:
