@@ -4,7 +4,8 @@ One frame, with the phase names of ``sim.stats`` (``assembly``, f and H at x_t, 
 integrator's, in the :class:`~skfem_affine.integrators.problem.StepProblem`):
 
 1. ``prediction``: one PCG iteration (eq. 13-14), dv_approx, the contact impulses of
-   the problem taken as explicit forces (sec. 3.4);
+   the problem taken as explicit forces (sec. 3.4), started from the bodies' mean
+   response when there are any (:func:`oracle.coarse_guess`);
 2. ``clustering``: which elements are reduced and how they group (the subclass's
    :meth:`ClusteringReducer._labels`);
 3. ``map_assembly``: G (eq. 7-8, the subclass's body kind), projection
