@@ -13,11 +13,15 @@ Two scenes:
   resumed from an affinification checkpoint of that benchmark (``--checkpoint``), a few frames.
 
 ``--paper-oracle`` predicts as the paper (one PCG step from zero) instead of from the bodies' mean
-response, for comparison::
+response, for comparison. ``--interleave FULL_CHECKPOINT`` (``--scene paper``) steps, in turn, full
+space from its checkpoint and affinification from ``--checkpoint`` with either oracle, and reports
+their mean frame times and DOFs::
 
     python benchmarks/resting_pills.py --scene small --frames 500 --start 400
     python benchmarks/resting_pills.py --scene small --frames 500 --start 400 --paper-oracle
     python benchmarks/resting_pills.py MESH_DIR --scene paper --checkpoint RUNS/affinification-000400.npz --frames 6
+    python benchmarks/resting_pills.py MESH_DIR --scene paper --checkpoint RUNS/affinification-000400.npz \
+        --interleave RUNS/full-000400.npz --frames 6
 """
 import argparse
 import os
@@ -67,7 +71,10 @@ def main(argv=None):
     ap.add_argument("--frames", type=int, default=500)
     ap.add_argument("--start", type=int, default=0, help="first frame reported")
     ap.add_argument("--paper-oracle", action="store_true", help="one PCG step from zero, as the paper")
+    ap.add_argument("--interleave", metavar="FULL_CHECKPOINT", help="full space's checkpoint of the same run")
     args = ap.parse_args(argv)
+    if args.interleave:
+        return interleave(args)
     if args.paper_oracle:
         oracle.coarse_guess = lambda *a: None  # predict() then starts from zero
     reducer = sa.Affinification(TAU_A, TAU_E)
@@ -93,6 +100,34 @@ def main(argv=None):
             print(f"{frame:5d}  {r['affine']:.3f}  {r['seen']:.2e}  {r['even']:.2e}/{r['odd']:.2e}  "
                   f"{r['pred_on_affine']:.2e}  {r['v_median']:.2e}  {r['v_max']:.2e}  {sim.stats[-1]['dofs']}  {sim.stats[-1].get('prediction', 0.0):.3f}  {wall:.2f}",
                   flush=True)
+
+
+def interleave(args):
+    """Full space and affinification with the mean-response and the paper's oracle, stepped in turn."""
+    import paper_table1
+    build = paper_table1.pills(args.mesh_dir)
+    sims = {"full": build(None)}
+    sims["full"].load_state(args.interleave)
+    for name in ("mean-response oracle", "paper's oracle"):
+        sims[name] = build(sa.Affinification(TAU_A, TAU_E))
+        sims[name].load_state(args.checkpoint)
+    guess, names, wall = oracle.coarse_guess, list(sims), {k: [] for k in sims}
+    for k in range(args.frames):
+        for name in names[k % 3:] + names[:k % 3]:  # the order rotates, so that load slows each alike
+            oracle.coarse_guess = (lambda *a: None) if name == "paper's oracle" else guess
+            t0 = time.perf_counter()
+            sims[name].step()
+            wall[name].append(time.perf_counter() - t0)
+        print(sims["full"].state.frame, {name: (round(wall[name][-1], 2), sims[name].stats[-1]["dofs"]) for name in names},
+              flush=True)
+    oracle.coarse_guess = guess
+    full = np.mean(wall["full"])
+    for name in names[1:]:
+        dofs = np.mean([r["dofs"] for r in sims[name].stats[-args.frames:]]) / sims["full"].stats[-1]["dofs"]
+        print(f"{name}: speed vs full {full / np.mean(wall[name]):.2f}, DOF ratio {dofs:.3f}")
+    x = [sims[name].state.x for name in names[1:]]
+    print(f"the two oracles' largest vertex distance: {np.linalg.norm(x[0] - x[1], axis=1).max() / sims['full'].model.size:.1e}"
+          " of the scene's size")
 
 
 if __name__ == "__main__":
