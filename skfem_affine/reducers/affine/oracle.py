@@ -21,9 +21,10 @@ the scalar (vertex) matrix ``(1 + h alpha) M_s + (h^2 + h beta) sum_e w_e g_e^T 
 Only S (a ninth of the nonzeros of A_p) is factorised, and each application
 solves it for the three components.
 
-With contact impulses in b, the iteration starts from the bodies' mean response,
-:func:`coarse_guess` (a two-level CG's first step): a body resting on its support is
-then predicted at rest, where a single step from zero keeps most of gravity's step.
+With warm-started contact support (and explicit thresholds), the reducers start the
+iteration from the bodies' mean response to it, :func:`coarse_guess` (a two-level CG's
+first step): a body resting on its support is then predicted at rest, where a single
+step from zero keeps most of gravity's step.
 """
 import time
 
