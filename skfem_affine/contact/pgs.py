@@ -648,6 +648,14 @@ class Contact:
         """J^T lambda_pred on the free DOFs for the oracle's right-hand side (eq. 13), or 0."""
         return 0.0 if self.prediction is None else self.prediction
 
+    def support_impulse(self):
+        """J^T lambda_0 on the free DOFs, the warm-started impulses (the support carried over from the
+        last frame), or 0."""
+        cs = self.current
+        if cs is None or not np.any(self.lam0):
+            return 0.0
+        return cs.J.T @ self.lam0
+
     def resolve(self, problem, result, rec):
         """PGS contact solve after the elastic step (Algorithm 1): returns dv_c on the free DOFs.
 

@@ -50,7 +50,7 @@ class LinearizedEuler:
         """One frame from ``state``; returns (x, v, result) with x, v (n, 3) at t + 1."""
         model, contact = self.model, self.contact
         free = model.system.free
-        contacts, impulse = None, 0.0
+        contacts, impulse, support = None, 0.0, 0.0
         motion, self.last_motion = {}, None
         if getattr(model, "motion", None) is not None and model.motion.active:  # the frame's prescribed positions and forces
             motion = dict(targets=model.motion.targets(state.time + model.dt, state.x, model.dt),
@@ -59,15 +59,18 @@ class LinearizedEuler:
         if contact is not None:  # Algorithm 1: find contacts at x_t, within reach of the step's forces too
             contacts = contact.detect(model, state.x, state.v, rec, f_ext=motion.get("f_ext"))
             impulse = contact.prediction_impulse()
+            support = contact.support_impulse()
         if not free.size:  # every vertex fixed or prescribed: nothing to solve
-            problem = StepProblem(model, state.x, state.v, state.frame + 1, None, None, impulse, contacts, **motion)
+            problem = StepProblem(model, state.x, state.v, state.frame + 1, None, None, impulse, contacts,
+                                  support_impulse=support, **motion)
             result = StepResult(dv=np.zeros(0))
         elif self.newton_iters == 1:
             problem = StepProblem.at(model, state.x, state.v, state.frame + 1, rec=rec,
-                                     contact_impulse=impulse, contacts=contacts, **motion)
+                                     contact_impulse=impulse, contacts=contacts, support_impulse=support, **motion)
             result = self.reducer.solve(problem)
         else:
-            problem = StepProblem(model, state.x, state.v, state.frame + 1, None, None, impulse, contacts, **motion)
+            problem = StepProblem(model, state.x, state.v, state.frame + 1, None, None, impulse, contacts,
+                                  support_impulse=support, **motion)
             result = self._newton(state, problem)
         merge_stats(rec, result.stats)
         dv = result.dv

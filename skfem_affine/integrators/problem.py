@@ -119,6 +119,9 @@ class StepProblem:
         their motion enters :meth:`rhs` through the coupling blocks (:func:`skfem_affine.motion.coupling`).
     f_ext : (3n,) array or None
         The frame's vertex forces (:class:`skfem_affine.motion.VertexForce`), already in ``data.f``.
+    support_impulse : (n_free,) array or 0.0
+        J^T lambda_0, the part of ``contact_impulse`` warm-started from the last frame: the steady
+        support of bodies at rest (new contacts carry none).
     """
 
     model: Model
@@ -131,6 +134,7 @@ class StepProblem:
     contacts: object = None
     targets: object = None
     f_ext: np.ndarray = None
+    support_impulse: object = 0.0
     _b: np.ndarray = field(default=None, init=False, repr=False)
     _coupling: np.ndarray = field(default=None, init=False, repr=False)
 

@@ -20,6 +20,11 @@ displacement components: in the node-major DOF order, ``A_p = S (x) I_3`` with S
 the scalar (vertex) matrix ``(1 + h alpha) M_s + (h^2 + h beta) sum_e w_e g_e^T g_e``.
 Only S (a ninth of the nonzeros of A_p) is factorised, and each application
 solves it for the three components.
+
+With warm-started contact support (and explicit thresholds), the reducers start the
+iteration from the bodies' mean response to it, :func:`coarse_guess` (a two-level CG's
+first step): a body resting on its support is then predicted at rest, where a single
+step from zero keeps most of gravity's step.
 """
 import time
 
@@ -300,8 +305,32 @@ def system_operator(mdiag, H, coefficients):
     return lambda p: cm * mdiag * p + ck * (H @ p)
 
 
-def predict(apply_A, b, precond, gravity_dv=None, stats=None):
-    r"""One PCG iteration from zero on A dv = b, plus the split-out gravity (eq. 13).
+def body_translations(system):
+    """(n_free, k) sparse basis of the bodies' translations on the free DOFs: per body and axis a
+    column of ones on its free DOFs along that axis (columns without a free DOF are left out)."""
+    body = np.repeat(np.arange(len(system.vertex_offsets) - 1), np.diff(system.vertex_offsets))
+    col = 3 * np.repeat(body, 3) + np.tile(np.arange(3), system.n)  # per DOF of the 3n
+    col = col[system.free]
+    used, col = np.unique(col, return_inverse=True)
+    return sp.csr_matrix((np.ones(col.size), (np.arange(col.size), col)), shape=(col.size, used.size))
+
+
+def coarse_guess(T, mdiag, H, coefficients, b):
+    r"""The Galerkin guess in the span of ``T``: :math:`T (T^T A T)^{-1} T^T b`, A = c_M M + c_K H.
+
+    With T the bodies' translations (:func:`body_translations`) this is the guess of a two-level
+    (deflated) CG: each body's mean velocity change under the net force on it. A body resting
+    on its support is then predicted at rest, its support impulses and elastic forces balancing
+    its weight, which a single PCG step from zero does not see (the part of z along a body's
+    translation is scaled by the same alpha as its stiff, local parts).
+    """
+    cm, ck = coefficients
+    TAT = (cm * (T.T @ sp.diags(mdiag) @ T) + ck * (T.T @ (H @ T))).toarray()
+    return T @ np.linalg.solve(TAT, T.T @ b)
+
+
+def predict(apply_A, b, precond, gravity_dv=None, stats=None, x0=None):
+    r"""One PCG iteration from zero (or from ``x0``) on A dv = b, plus the split-out gravity (eq. 13).
 
     Parameters
     ----------
@@ -313,21 +342,30 @@ def predict(apply_A, b, precond, gravity_dv=None, stats=None):
         r -> z ~ A_p^{-1} r (eq. 14).
     gravity_dv : (n_free,) array, optional
         h g on the free DOFs, added to the result.
+    x0 : (n_free,) array, optional
+        Initial guess (e.g. :func:`coarse_guess`): the iteration then runs on b - A x0 and the
+        result is ``x0 + alpha z + gravity_dv``; the residual stays relative to ||b||.
     stats : dict, optional
-        Receives ``oracle_residual``, the relative residual ||b - A alpha z|| / ||b|| of the
+        Receives ``oracle_residual``, the relative residual ||b - A (x0 + alpha z)|| / ||b|| of the
         iteration (how well the preconditioner predicts; computed from b.b, b.Az and Az.Az,
         no extra product with A), when b is not zero.
 
     Returns
     -------
     dv : (n_free,) array
-        ``alpha z + gravity_dv`` with ``z = P^{-1} b``, ``alpha = (b.z) / (z.A z)``; just
-        ``gravity_dv`` (or zeros) when b = 0 or z.A z <= 0.
+        ``x0 + alpha z + gravity_dv`` with ``r = b - A x0``, ``z = P^{-1} r``, ``alpha = (r.z) / (z.A z)``;
+        ``alpha = 0`` when b = 0, r = 0 or z.A z <= 0.
     """
     b = np.asarray(b, dtype=float)
     dv = np.zeros_like(b) if gravity_dv is None else np.array(gravity_dv, dtype=float)
     if not np.any(b):
         return dv
+    bb = float(b @ b)
+    if x0 is not None:
+        dv += x0
+        b = b - (apply_A(x0) if callable(apply_A) else apply_A @ x0)
+        if not np.any(b):
+            return dv
     z = getattr(precond, "apply", precond)(b)
     Az = apply_A(z) if callable(apply_A) else apply_A @ z
     zAz = float(z @ Az)
@@ -335,7 +373,6 @@ def predict(apply_A, b, precond, gravity_dv=None, stats=None):
         return dv
     alpha = float(b @ z) / zAz
     if stats is not None:
-        bb = float(b @ b)
-        rr = bb - 2.0 * alpha * float(b @ Az) + alpha * alpha * float(Az @ Az)
+        rr = float(b @ b) - 2.0 * alpha * float(b @ Az) + alpha * alpha * float(Az @ Az)
         stats["oracle_residual"] = float(np.sqrt(max(rr, 0.0) / bb))
     return dv + alpha * z
