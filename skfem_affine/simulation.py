@@ -294,12 +294,9 @@ class Simulation:
         v0 = np.concatenate([b.velocity for b in bodies])
         self.state = State(x0, v0)
         self.stats = Stats()
-        if reducer is not None:
-            active = reducer
-        elif self.contact is None:
-            active = FullSpace(self.solver)
-        else:  # in full space the contacts' Schur complement may come from the frame's own factorisation
-            active = FullSpace(self.solver, schur=self.contact.schur, bodies=self.contact.bodies)
+        active = reducer if reducer is not None else FullSpace(self.solver)
+        if self.contact is not None:  # the contacts' Schur complement may come from the frame's own factorisation
+            active.use_contact(self.contact.schur, self.contact.bodies)
         active.check_integrator(integrator, self.newton_iters)
         if linearized:
             self.integrator = LinearizedEuler(self.model, active, self.solver, self.contact, self.newton_iters,

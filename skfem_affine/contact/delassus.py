@@ -160,7 +160,7 @@ class Resolvent:
         ``schur`` is not given or declines, the solver is iterative or the block is small."""
         if not self.touched:
             return None
-        if self.operator.schur is not None and self.G is None:
+        if self.operator.schur is not None:  # on A's unknowns, or A_r's of a reduced frame
             Z = self._from_frame(label, T)
             if Z is not None:
                 return Z

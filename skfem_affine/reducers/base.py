@@ -57,6 +57,8 @@ class Reducer(abc.ABC):
         Attributes that carry state from one frame to the next (arrays, numbers, None, or
         JSON-like values); :meth:`state_dict` saves them for a checkpoint
         (:mod:`skfem_affine.checkpoint`). A subclass extends the tuple of its base.
+    _contact_schur, _contact_bodies : SchurInverse and int array, or None
+        What contact gives the reducer (:meth:`use_contact`); None without contact.
     """
 
     name = "reducer"
@@ -66,6 +68,7 @@ class Reducer(abc.ABC):
     model = None
     newton_tol = max_newton = default_newton_tol = default_max_newton = None
     _state_keys = ()
+    _contact_schur = _contact_bodies = None
 
     def state_dict(self):
         """The state later frames depend on: ``{key: copy of self.key}`` over :attr:`_state_keys`
@@ -88,6 +91,21 @@ class Reducer(abc.ABC):
                 setattr(self, key, value.copy() if isinstance(value, np.ndarray) else copy.deepcopy(value))
             except Exception as err:
                 raise ValueError(f"{type(self).__name__} {key}: {type(err).__name__}: {err}") from None
+
+    def use_contact(self, schur, bodies):
+        """Take contact's Schur inverse and the body of each free DOF, once, before :meth:`attach`.
+
+        Parameters
+        ----------
+        schur : SchurInverse or None
+            The contact model's :class:`~skfem_affine.contact.schur.SchurInverse`: a reducer that
+            factorises its frame with a Pardiso solver may do so with the unknowns the contacts touch
+            last (:func:`~skfem_affine.reducers.full.contact_factorization`), so that the Delassus
+            operator takes their Schur complement from the frame's factorisation.
+        bodies : (n_free,) int array or None
+            The body of each free DOF: a frame whose contacts touch several bodies factorises plainly.
+        """
+        self._contact_schur, self._contact_bodies = schur, bodies
 
     def attach(self, model):
         """Rest-state set-up, once per run, before the first frame.

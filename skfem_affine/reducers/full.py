@@ -9,6 +9,7 @@ import time
 
 import numpy as np
 
+from skfem_affine.contact.delassus import unknown_bodies
 from skfem_affine.integrators.problem import Operator, StepProblem, StepResult
 from skfem_affine.reducers.base import Reducer
 from skfem_affine.solvers import Pardiso, factorize_and_solve
@@ -18,6 +19,45 @@ def touched_unknowns(J):
     """The sorted columns of J (sparse) with a nonzero: the unknowns the contacts touch."""
     J = J.tocsr()
     return np.unique(J.indices[J.data != 0]).astype(np.int64)
+
+
+def contact_factorization(reducer, solver, contacts, A, G=None, upper=False):
+    """A factorised with the unknowns the frame's contacts touch last, from the reducer's contact Schur
+    inverse (:meth:`~skfem_affine.reducers.base.Reducer.use_contact`), or None: factorise plainly.
+
+    Parameters
+    ----------
+    reducer : Reducer
+        Holds contact's :class:`~skfem_affine.contact.schur.SchurInverse` and the free DOFs' bodies.
+    solver : solver object
+        The reducer's solver: only a :class:`~skfem_affine.solvers.Pardiso` takes this route.
+    contacts : Contacts or None
+        The frame's contacts (``J``, free DOFs x 3 rows per contact), found before its solve.
+    A : sparse matrix
+        The frame's matrix: full A, or A_r = G^T A G (its upper triangle with ``upper=True``).
+    G : sparse matrix, optional
+        The reduced frame's mapping (free DOFs x reduced unknowns): the touched unknowns are the
+        columns of J G with a nonzero, and their bodies those of G's rows.
+
+    Returns
+    -------
+    (handle, keep, S) or None
+        The factorisation (it solves A x = b), the sorted unknowns it eliminated last (the touched
+        ones or a kept superset) and their Schur complement S; None when there is no Schur inverse
+        (or its ``frame`` setting is off, or no MKL), no contact, another solver, contacts on
+        several bodies (one dense block of all their unknowns is dearer than each body's own), or the
+        Schur inverse's rules decline.
+    """
+    schur, bodies = reducer._contact_schur, reducer._contact_bodies
+    if (schur is None or not schur.frame or not schur.available or contacts is None or contacts.J is None
+            or not isinstance(solver, Pardiso)):
+        return None
+    T = touched_unknowns(contacts.J if G is None else contacts.J @ G)
+    if bodies is not None and T.size:
+        of = unknown_bodies(bodies, G)
+        if of is None or of[T].min() != of[T].max():
+            return None
+    return schur.factorize_on(A, T, upper=upper)
 
 
 class FullSpace(Reducer):
@@ -42,19 +82,13 @@ class FullSpace(Reducer):
     iterates_linearized = True
 
     def __init__(self, solver, schur=None, bodies=None):
-        self.solver, self.schur, self.bodies = solver, schur, bodies
+        self.solver = solver
+        self.use_contact(schur, bodies)
 
     def _frame_schur(self, problem, A, b, stats):
         """dv and the Operator from the factorisation with the contacts' unknowns last, or None."""
-        schur, contacts = self.schur, problem.contacts
-        if (schur is None or not schur.frame or not schur.available or contacts is None or contacts.J is None
-                or not isinstance(self.solver, Pardiso)):
-            return None
         t0 = time.perf_counter()
-        T = touched_unknowns(contacts.J)
-        if self.bodies is not None and T.size and self.bodies[T].min() != self.bodies[T].max():
-            return None
-        out = schur.factorize_on(A, T)
+        out = contact_factorization(self, self.solver, problem.contacts, A)
         if out is None:
             return None
         handle, keep, S = out

@@ -38,7 +38,7 @@ from skfem_affine.reducers import budget as budgets
 from skfem_affine.reducers.affine import clustering, oracle, pinned
 from skfem_affine.reducers.affine import mapping as reduction
 from skfem_affine.reducers.base import Reducer
-from skfem_affine.reducers.full import factorize_and_solve
+from skfem_affine.reducers.full import contact_factorization, factorize_and_solve
 from skfem_affine.solvers import make_solver
 
 SEEDINGS = ("random", "index", "temporal")
@@ -585,20 +585,26 @@ class ClusteringReducer(Reducer):
         t5 = time.perf_counter()
         stats["reduced_assembly"] = t5 - t4
         upper = bool(self.upper and n_bodies)
-        if upper:
-            self.solver.factorize(Ar, upper=True, order=order)
+        # with contacts on one body, the factorisation with the unknowns they touch last (through G)
+        # also leaves the Schur complement the Delassus operator needs
+        solver, schur = self.solver, contact_factorization(self, self.solver, problem.contacts, Ar, G, upper=upper)
+        if schur is not None:
+            solver, schur = schur[0], schur[1:]
+            stats["frame_schur"] = int(schur[0].size)
+        elif upper:
+            solver.factorize(Ar, upper=True, order=order)
         else:
-            self.solver.factorize(Ar)
+            solver.factorize(Ar)
         t6 = time.perf_counter()
-        dq = self.solver.solve(br)
+        dq = solver.solve(br)
         t7 = time.perf_counter()
         stats.update(factorization=t6 - t5, solve=t7 - t6, dofs=Ar.shape[0], solver=self.solver.name,
-                     iterations=self.solver.last_iterations, n_clusters=n_bodies, elastic_dofs=int(gmap.n_elastic),
+                     iterations=solver.last_iterations, n_clusters=n_bodies, elastic_dofs=int(gmap.n_elastic),
                      reduced_fraction=float(np.mean(labels >= 0)) if labels.size else 0.0)
         self.was_reduced = labels >= 0
         self.labels = labels
-        return StepResult(dv=reduction.lift(G, dq, d), operator=Operator(self.solver, Ar, G, upper=upper),  # eq. 12
-                          mapping=gmap, clusters=labels, stats=stats)
+        return StepResult(dv=reduction.lift(G, dq, d), operator=Operator(solver, Ar, G, upper=upper, schur=schur),
+                          mapping=gmap, clusters=labels, stats=stats)  # eq. 12
 
     # -------------------------------------------------------------- bodies with pinned vertices
     def _pinned_frame(self, problem, labels, gmap, stats, t3):

@@ -1,0 +1,120 @@
+"""A reduced frame (affinification, rigidification) factorised with the reduced unknowns its contacts
+touch last: its dq against the plain factorisation's, W against unit-column solves, a run against the
+run with the route off, and contacts on several bodies declining."""
+import numpy as np
+import pytest
+
+pytest.importorskip("pypardiso")
+
+import skfem_affine as sa  # noqa: E402
+from skfem_affine.contact import delassus  # noqa: E402
+from skfem_affine.integrators.problem import Operator  # noqa: E402
+from skfem_affine.reducers.full import touched_unknowns  # noqa: E402
+from skfem_affine.solvers import Pardiso, PardisoSchur  # noqa: E402
+
+from test_delassus import REDUCERS, plain_delassus  # noqa: E402
+
+
+def _scene(reducer, name="drop", **kw):
+    kw = kw or dict(resolution=1, shape="box")
+    sim = sa.scenes.SCENES[name](**kw, reducer=REDUCERS[reducer]())
+    sim.contact.schur.min_size = 1  # these small scenes touch fewer unknowns than a new analysis needs
+    return sim
+
+
+def _spy_solves(sim, check=None):
+    """The reducer's results, frame by frame; ``check(result)`` called while its factorisation holds."""
+    reducer, seen = sim.integrator.reducer, []
+    original = reducer.solve
+
+    def spy(problem):
+        result = original(problem)
+        if check is not None:
+            check(result)
+        seen.append(result)
+        return result
+
+    reducer.solve = spy
+    return seen
+
+
+@pytest.mark.parametrize("reducer", ["affine", "rigid"])
+def test_the_reduced_frame_with_the_contacts_unknowns_last_solves_as_the_plain_factorisation(reducer):
+    """The frame's factorisation of A_r with the touched reduced unknowns last solves as a plain
+    factorisation of the same A_r."""
+    plain, taken = Pardiso(), []
+
+    def check(result):
+        op = result.operator
+        if op is None or op.schur is None:
+            return
+        assert op.G is not None and isinstance(op.solver, PardisoSchur)
+        Ar = op.matrix
+        rhs = np.random.default_rng(len(taken)).normal(size=Ar.shape[0])
+        plain.factorize(Ar)
+        ref = plain.solve(rhs)
+        assert np.abs(op.solver.solve(rhs) - ref).max() <= 1e-10 * np.abs(ref).max()
+        taken.append(True)
+
+    sim = _scene(reducer)
+    _spy_solves(sim, check)
+    list(sim.run(60))
+    assert taken, "no reduced frame was factorised with its contacts' unknowns last"
+    assert any(rec.get("frame_schur", 0) > 0 for rec in sim.stats)
+
+
+@pytest.mark.parametrize("reducer", ["affine", "rigid"])
+def test_w_from_the_reduced_frames_complement_equals_the_unit_columns(reducer):
+    sim = _scene(reducer)
+    taken = []
+
+    def check(op, J):
+        if op.schur is None:
+            return
+        keep, S = op.schur
+        Jr = J @ op.G
+        T = touched_unknowns(Jr)
+        assert np.isin(T, keep).all()
+        ref = plain_delassus(op, J)[0]
+        res = delassus.Resolvent(op, block=7, cache={}, bodies=sim.contact.bodies)
+        W = res.delassus(J)
+        assert np.abs(W - ref).max() <= 1e-10 * np.abs(ref).max()
+        assert res.schur_unknowns == T.size and res.columns_solved == 0
+        columns = delassus.Resolvent(Operator(op.solver, op.matrix, op.G), block=7, cache={},
+                                     bodies=sim.contact.bodies)
+        assert np.abs(W - columns.delassus(J)).max() <= 1e-10 * np.abs(ref).max() and columns.columns_solved > 0
+        taken.append(True)
+
+    original = sim.contact.resolve
+
+    def spy(problem, result, rec):  # while the frame's factorisation holds
+        cs = sim.contact.current
+        if cs is not None and cs.size:
+            check(result.operator, cs.J)
+        return original(problem, result, rec)
+
+    sim.contact.resolve = spy
+    for _ in sim.run(150):
+        if len(taken) >= 4:
+            break
+    assert taken, "no reduced frame took its own Schur complement"
+
+
+def test_an_affinified_contact_run_is_the_run_with_the_route_off_to_round_off():
+    runs = []
+    for frame in (True, False):
+        sim = _scene("affine")
+        sim.contact.schur.frame = frame
+        runs.append([s.x.copy() for s in sim.run(50)])
+        assert frame == any(rec.get("frame_schur", 0) > 0 for rec in sim.stats)
+    scale = sim.size
+    for xa, xb in zip(*runs):
+        assert np.abs(xa - xb).max() <= 1e-9 * scale
+
+
+def test_reduced_contacts_on_several_bodies_factorise_plainly():
+    sim = _scene("affine", "stacked_beams", resolution=1)
+    seen = _spy_solves(sim)
+    list(sim.run(40))
+    assert any(rec.get("n_contacts", 0) for rec in sim.stats)
+    assert all(r.operator is None or r.operator.schur is None for r in seen)
