@@ -19,12 +19,15 @@ Jacobian, warm start, prediction impulses, the PGS sweeps and the split-impulse 
 listed by their time per frame. With ``--frame-schur`` the methods are instead two full-space runs
 stepped in turn: the frame factorised plainly (the Schur complement on a handle of its own) and the
 frame factorised with the contacts' unknowns last, its complement giving the Delassus operator
-(``SchurInverse.frame``). Usage::
+(``SchurInverse.frame``); ``--frame-schur affinification`` (or ``rigidification``) compares the same two
+routes of that reducer's frames (A_r factorised with the reduced unknowns the contacts touch last).
+Usage::
 
     python benchmarks/contact_phases.py MESH_DIR --scene wheel --start 145 --end 160 --rows
     python benchmarks/contact_phases.py --scene pile --cells 4 --start 100 --end 130 --rows
     python benchmarks/contact_phases.py --scene pile --cells 4 --start 100 --end 119 --profile affinification
     python benchmarks/contact_phases.py MESH_DIR --scene wheel --start 145 --end 151 --frame-schur
+    python benchmarks/contact_phases.py MESH_DIR --scene wheel --start 145 --end 151 --frame-schur affinification
 """
 import argparse
 import cProfile
@@ -123,11 +126,16 @@ def profile_table(profile, frames):
 
 def builders(mesh_dir, scene, end, cells, frame_schur=False):
     """full space, affinification, rigidification of the scene (at the paper's thresholds); with
-    ``frame_schur`` two full-space runs, the second factorising with the contacts' unknowns last."""
+    ``frame_schur`` (True or "full", or a reducer's name) two runs of that method, the second
+    factorising with the contacts' unknowns last."""
+    which = METHODS.index("full" if frame_schur is True else frame_schur) if frame_schur else 0
     if scene == "pile":
         from budget import pile
         if frame_schur:
-            sims = [pile(cells), pile(cells)]
+            pair = [None, None] if which == 0 else [
+                (sa.Affinification(tau_a=1e-4, tau_e=2e-4) if which == 1 else sa.Rigidification(tau_r=1e-4, tau_e=2e-4))
+                for _ in range(2)]
+            sims = [pile(cells, r) for r in pair]
         else:
             return [pile(cells), pile(cells, sa.Affinification(tau_a=1e-4, tau_e=2e-4)),
                     pile(cells, sa.Rigidification(tau_r=1e-4, tau_e=2e-4))]
@@ -138,7 +146,7 @@ def builders(mesh_dir, scene, end, cells, frame_schur=False):
         build = factory(mesh_dir, end)
         if not frame_schur:
             return [build(None)] + [build(r) for r in paper_table1.reducers(row, fraction)]
-        sims = [build(None), build(None)]
+        sims = [build(None if which == 0 else paper_table1.reducers(row, fraction)[which - 1]) for _ in range(2)]
     sims[0].contact.schur.frame = False
     return sims
 
@@ -148,7 +156,10 @@ def run(mesh_dir, scene, start, end, cells=4, compare_rows=False, compare_column
     """The per-phase means of each method over the frames ``start`` to ``end - 1``; with ``profile``
     (a method), also that method's :func:`profile_table` over them (else None)."""
     sims = builders(mesh_dir, scene, end, cells, frame_schur)
-    methods = FRAME_METHODS if frame_schur else METHODS
+    methods = METHODS
+    if frame_schur:
+        name = "full" if frame_schur is True else frame_schur
+        methods = FRAME_METHODS if name == "full" else (f"{name}, own handle", f"{name}, frame's Schur")
     profiler = cProfile.Profile() if profile else None
     if compare_rows or compare_columns:
         for sim in sims:
@@ -190,8 +201,9 @@ def main(argv=None):
     ap.add_argument("--rows", action="store_true", help="also time the Delassus operator built per row of J")
     ap.add_argument("--columns", action="store_true",
                     help="also time it built from solves of the touched unknowns' columns (no Schur complement)")
-    ap.add_argument("--frame-schur", action="store_true",
-                    help="compare two full-space runs: the Schur complement on its own handle, and the frame's own")
+    ap.add_argument("--frame-schur", nargs="?", const="full", default=None, choices=METHODS,
+                    help="compare two runs of a method (default full): the Schur complement on its own handle, "
+                         "and the frame's own")
     ap.add_argument("--start", type=int, required=True)
     ap.add_argument("--end", type=int, required=True)
     ap.add_argument("--threads", default="1", help="BLAS/MKL threads (read before numpy is imported)")

@@ -17,3 +17,12 @@ def test_frame_schur_steps_two_full_space_runs_in_turn(benchmark_script):
     assert list(means) == list(bench.FRAME_METHODS)
     own, framed = (means[m] for m in bench.FRAME_METHODS)
     assert own["n_contacts"] == framed["n_contacts"] > 0 and own["frame_schur"] == 0
+
+
+def test_frame_schur_of_a_reducer_steps_two_runs_of_it_in_turn(benchmark_script):
+    bench = benchmark_script("contact_phases")
+    means, _ = bench.main(["--scene", "pile", "--cells", "1", "--start", "3", "--end", "5",
+                           "--frame-schur", "affinification"])
+    assert list(means) == ["affinification, own handle", "affinification, frame's Schur"]
+    own, framed = means.values()
+    assert own["n_contacts"] == framed["n_contacts"] > 0 and own["frame_schur"] == 0
