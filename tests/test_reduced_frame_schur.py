@@ -132,3 +132,27 @@ def test_a_resumed_affinified_run_with_the_frames_complement_is_bit_identical(tm
     for (xa, va), (xb, vb) in zip(ahead, after):
         assert np.array_equal(xa, xb) and np.array_equal(va, vb)
     assert any(rec.get("frame_schur", 0) > 0 for rec in list(resumed.stats)[-8:])
+
+
+def test_a_changed_pattern_is_factorised_with_few_touched_unknowns_last():
+    """Below min_size a new analysis is declined while the pattern stays (the plain factorisation keeps
+    its analysis), taken when it changed (the plain one analyses anew as well), and a resumed
+    SchurInverse remembers the last pattern."""
+    from skfem_affine.contact.schur import SchurInverse, pattern_key
+    from test_schur import _spd
+    A, B = _spd(60, seed=1), _spd(60, seed=2)
+    assert not np.array_equal(pattern_key(A), pattern_key(B))
+    T = np.arange(5, 25, 2)
+    schur = SchurInverse(min_size=128)
+    assert schur.factorize_on(A, T) is None and schur.factorize_on(A, T) is None
+    state = schur.state_dict()
+    handle, keep, S = schur.factorize_on(B, T)
+    assert np.array_equal(keep, T)
+    Z = np.linalg.inv(B.toarray())[np.ix_(T, T)]
+    assert np.abs(np.linalg.inv(S) - Z).max() <= 1e-12 * np.abs(Z).max()
+    resumed = SchurInverse(min_size=128)
+    resumed.load_state_dict(state)
+    assert resumed.factorize_on(B, T) is not None
+    again = SchurInverse(min_size=128)
+    again.load_state_dict(state)
+    assert again.factorize_on(A, T) is None

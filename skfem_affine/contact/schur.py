@@ -14,8 +14,11 @@ Several systems (the bodies of a scene, each its own block) each keep their anal
 In full space the contacts are found before the frame's solve, so the frame's own factorisation can
 be the one with T last (:meth:`SchurInverse.factorize_on`, Pardiso's mode that also solves the whole
 system): Z then costs S^-1 on top of the frame's factorisation, not a second factorisation. That
-handle is the whole system's (key None), under the same rules.
+handle is the whole system's (key None), under the same rules but one: when the matrix's pattern
+differs from the previous frame's (a reduced frame whose bodies changed), the plain factorisation
+would make a new analysis too, so one on fewer than ``min_size`` unknowns is not declined.
 """
+import zlib
 from collections import OrderedDict
 
 import numpy as np
@@ -58,6 +61,7 @@ class SchurInverse:
         self._resume = {}  # key -> the unknowns a checkpointed run had analysed, for the key's next call
         self._served = {}  # key -> whether its kept analysis has served a later call (then it may grow)
         self.analyses = 0  # new analyses made (the rest were numeric factorisations only)
+        self._seen = None  # the pattern of the last matrix given to :meth:`factorize_on` (pattern_key)
 
     def _handle(self, key, solves):
         if key not in self._kept_by or self._kept_by[key].solves != solves:
@@ -67,7 +71,7 @@ class SchurInverse:
         self._kept_by.move_to_end(key)
         return self._kept_by[key]
 
-    def _kept(self, last, n, T, key):
+    def _kept(self, last, n, T, key, floor=True):
         """The unknowns to take the complement on (T or a superset) and whether they are the kept ones,
         or (None, False) to decline; ``last``: those of the current analysis when it is of this
         system's pattern (:meth:`PardisoSchur.analysed`)."""
@@ -80,11 +84,11 @@ class SchurInverse:
             grown = np.union1d(last, T)
             if self._served.get(key, False) and grown.size <= 2 * T.size and 2 * grown.size <= n:
                 return grown, False
-        if T.size < self.min_size or 2 * T.size > n:
+        if T.size == 0 or (floor and T.size < self.min_size) or 2 * T.size > n:
             return None, False
         return T, False
 
-    def _complement(self, A, T, upper, key, solves):
+    def _complement(self, A, T, upper, key, solves, floor=True):
         """(handle, keep, S): the factorisation of A with ``keep`` (T or a kept superset) last and its
         Schur complement S on them, or None when declining. A handle of the other mode is replaced
         only when the complement is taken."""
@@ -93,7 +97,7 @@ class SchurInverse:
         T = np.asarray(T, dtype=np.int64)
         handle = self._kept_by.get(key)
         current = handle.analysed(A, upper) if handle is not None and handle.solves == solves else None
-        keep, kept = self._kept(current, A.shape[0], T, key)
+        keep, kept = self._kept(current, A.shape[0], T, key, floor)
         if keep is None:
             return None
         if keep is not current:  # a new set (or pattern): a new analysis
@@ -115,8 +119,13 @@ class SchurInverse:
     def factorize_on(self, A, T, upper=False):
         """The whole system's factorisation with T (or a kept superset ``keep``) last, which also solves
         A x = b: (solver, keep, S) with S the Schur complement on ``keep`` (``(A^-1)_keep,keep = S^-1``),
-        or None when the rules above decline (the caller factorises plainly)."""
-        return self._complement(A, T, upper, None, solves=True)
+        or None when the rules above decline (the caller factorises plainly). A matrix whose pattern
+        differs from the last one given here is taken at any size: its plain factorisation would
+        analyse anew as well (on the wheel at rest a reduced frame's pattern changes every frame)."""
+        seen = pattern_key(A)
+        fresh = self._seen is not None and not np.array_equal(seen, self._seen)
+        self._seen = seen
+        return self._complement(A, T, upper, None, solves=True, floor=not fresh)
 
     def state_dict(self):
         """The unknowns each kept analysis was made on, by system: a resumed run analyses the same
@@ -124,6 +133,8 @@ class SchurInverse:
         keys = [(-1, -1) if key is None else key for key in self._kept_by]
         out = {"schur_systems": np.array(keys, dtype=np.int64).reshape(-1, 2),
                "schur_served": np.array([self._served.get(key, False) for key in self._kept_by], dtype=bool)}
+        if self._seen is not None:
+            out["schur_seen"] = self._seen.copy()
         for i, schur in enumerate(self._kept_by.values()):
             kept = schur._pattern[2] if schur._pattern is not None else np.zeros(0, np.int64)
             out[f"schur{i}.keep"] = np.array(kept, dtype=np.int64)
@@ -133,6 +144,8 @@ class SchurInverse:
         self._kept_by = OrderedDict()
         systems = np.asarray(state.get("schur_systems", np.zeros((0, 2))), dtype=np.int64).reshape(-1, 2)
         self._resume, self._served = {}, {}
+        seen = state.get("schur_seen")
+        self._seen = None if seen is None else np.asarray(seen, dtype=np.int64).reshape(-1).copy()
         served = np.asarray(state.get("schur_served", np.zeros(len(systems), dtype=bool)), dtype=bool).reshape(-1)
         if served.size != len(systems):
             raise ValueError(f"schur_served must hold one flag per system ({len(systems)}), got {served.size}")
@@ -143,6 +156,12 @@ class SchurInverse:
                 raise ValueError(f"schur{i}.keep must be sorted distinct unknowns")
             self._resume[key] = keep
             self._served[key] = bool(served[i])
+
+
+def pattern_key(A):
+    """A sparse matrix's pattern in four numbers: its shape, its entries and a checksum of its indices."""
+    indptr, indices = np.ascontiguousarray(A.indptr), np.ascontiguousarray(A.indices)
+    return np.array([A.shape[0], indices.size, zlib.crc32(indptr), zlib.crc32(indices)], dtype=np.int64)
 
 
 def inverse_on_positions(S, pos):
