@@ -21,14 +21,16 @@ def touched_unknowns(J):
     return np.unique(J.indices[J.data != 0]).astype(np.int64)
 
 
-def contact_factorization(reducer, solver, contacts, A, G=None, upper=False):
-    """A factorised with the unknowns the frame's contacts touch last, from the reducer's contact Schur
-    inverse (:meth:`~skfem_affine.reducers.base.Reducer.use_contact`), or None: factorise plainly.
+def contact_factorization(schur, bodies, solver, contacts, A, G=None, upper=False):
+    """A factorised with the unknowns the frame's contacts touch last, or None: factorise plainly.
 
     Parameters
     ----------
-    reducer : Reducer
-        Holds contact's :class:`~skfem_affine.contact.schur.SchurInverse` and the free DOFs' bodies.
+    schur : SchurInverse or None
+        Contact's :class:`~skfem_affine.contact.schur.SchurInverse`, as a reducer is given it
+        (:meth:`~skfem_affine.reducers.base.Reducer.use_contact`).
+    bodies : (n_free,) int array or None
+        The body of each free DOF.
     solver : solver object
         The reducer's solver: only a :class:`~skfem_affine.solvers.Pardiso` takes this route.
     contacts : Contacts or None
@@ -48,7 +50,6 @@ def contact_factorization(reducer, solver, contacts, A, G=None, upper=False):
         several bodies (one dense block of all their unknowns is dearer than each body's own), or the
         Schur inverse's rules decline.
     """
-    schur, bodies = reducer._contact_schur, reducer._contact_bodies
     if (schur is None or not schur.frame or not schur.available or contacts is None or contacts.J is None
             or not isinstance(solver, Pardiso)):
         return None
@@ -88,7 +89,7 @@ class FullSpace(Reducer):
     def _frame_schur(self, problem, A, b, stats):
         """dv and the Operator from the factorisation with the contacts' unknowns last, or None."""
         t0 = time.perf_counter()
-        out = contact_factorization(self, self.solver, problem.contacts, A)
+        out = contact_factorization(self._contact_schur, self._contact_bodies, self.solver, problem.contacts, A)
         if out is None:
             return None
         handle, keep, S = out

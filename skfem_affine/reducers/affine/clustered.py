@@ -587,7 +587,8 @@ class ClusteringReducer(Reducer):
         upper = bool(self.upper and n_bodies)
         # with contacts on one body, the factorisation with the unknowns they touch last (through G)
         # also leaves the Schur complement the Delassus operator needs
-        solver, schur = self.solver, contact_factorization(self, self.solver, problem.contacts, Ar, G, upper=upper)
+        solver, schur = self.solver, contact_factorization(self._contact_schur, self._contact_bodies, self.solver,
+                                                           problem.contacts, Ar, G, upper=upper)
         if schur is not None:
             solver, schur = schur[0], schur[1:]
             stats["frame_schur"] = int(schur[0].size)
