@@ -113,11 +113,29 @@ def test_an_affinified_contact_run_is_the_run_with_the_route_off_to_round_off():
 
 
 def test_reduced_contacts_on_several_bodies_factorise_plainly():
-    sim = _scene("affine", "stacked_beams", resolution=1)
-    seen = _spy_solves(sim)
-    list(sim.run(40))
-    assert any(rec.get("n_contacts", 0) for rec in sim.stats)
-    assert all(r.operator is None or r.operator.schur is None for r in seen)
+    """Through G (two bodies of 40 DOFs, each with a 12-column affine part and 10 elastic DOFs), contacts
+    touching one body take the route, contacts touching both do not (unless no bodies are given)."""
+    from types import SimpleNamespace
+
+    import scipy.sparse as sp
+
+    from skfem_affine.contact.schur import SchurInverse
+    from skfem_affine.reducers.full import contact_factorization
+    from test_schur import _spd
+    rng = np.random.default_rng(3)
+    body = sp.bmat([[sp.csr_matrix(rng.normal(size=(30, 12))), None], [None, sp.identity(10)]])
+    G = sp.block_diag([body, body], format="csr")  # 80 free DOFs x 44 reduced unknowns
+    bodies = np.repeat([0, 1], 40)
+    Ar = _spd(44, seed=7)
+    Ar = sp.csr_matrix(sp.block_diag([Ar[:22, :22], Ar[22:, 22:]]))
+    rows = {1: [0, 35], 2: [35, 75]}  # free DOFs in contact: on body 0 only, or on both bodies
+
+    def route(which, bodies):
+        J = sp.csr_matrix((np.ones(2), (np.arange(2), rows[which])), shape=(2, 80))
+        return contact_factorization(SchurInverse(min_size=1), bodies, Pardiso(), SimpleNamespace(J=J), Ar, G)
+
+    assert route(1, bodies) is not None and route(2, None) is not None
+    assert route(2, bodies) is None
 
 
 def test_a_resumed_affinified_run_with_the_frames_complement_is_bit_identical(tmp_path):
