@@ -116,8 +116,10 @@ def test_ctrl_c_on_a_sweep_prints_one_line_and_the_sweep_resumes(tmp_path):
     argv = [sys.executable, "-m", "skfem_affine", "sweep", "sleepy.py", "--frames", "3", "--grid", "1", "--workers",
             "1", "--no-step-error", "--no-residual", "--out", str(out)]
     env = dict(os.environ, PYTHONPATH=ROOT, SLOW="1")
+    # a terminal's foreground job takes Ctrl-C; a test runner started in the background of a script
+    # inherits SIGINT ignored, which exec keeps: restore the terminal's disposition for the sweep
     proc = subprocess.Popen(argv, cwd=tmp_path, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            start_new_session=True)
+                            start_new_session=True, preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     deadline = time.time() + 240
     while not list(out.glob("sweep/*/reference_*.npz")) and proc.poll() is None and time.time() < deadline:
         time.sleep(0.2)
