@@ -174,5 +174,5 @@ def inverse_on_positions(S, pos):
     if info != 0:
         raise SolverError(f"the Schur complement on {S.shape[0]} unknowns is not positive definite "
                           f"(LAPACK info {info}); is A positive definite?")
-    Z = np.tril(L)[np.ix_(pos, pos)]  # potri fills the lower triangle only
+    Z = np.tril(L[np.ix_(pos, pos)])  # potri fills the lower triangle only (pos is increasing)
     return Z + np.tril(Z, -1).T
