@@ -81,7 +81,7 @@ def test_schur_inverse_grows_its_set_only_once_an_analysis_has_served_a_later_fr
     assert np.array_equal(kept[3], kept[2]) and schur.analyses == 4
     with pytest.raises(ValueError, match="schur_served"):
         schur.load_state_dict({"schur_systems": np.array([[-1, -1]]), "schur0.keep": np.arange(3),
-                               "schur_served": np.zeros(2, dtype=bool)})
+                               "schur_served": np.zeros(2, dtype=bool), "schur_seen": np.zeros(0, np.int64)})
 
 
 def test_a_resumed_schur_inverse_grows_its_set_as_the_saved_run():
@@ -171,7 +171,8 @@ def test_a_resumed_schur_inverse_analyses_the_saved_sets_and_gives_the_same_bits
     T = np.arange(14, 24)
     assert np.array_equal(ahead.inverse_on(A, T), resumed.inverse_on(A, T))
     with pytest.raises(ValueError, match="schur0.keep"):
-        resumed.load_state_dict({"schur_systems": np.array([[-1, -1]]), "schur0.keep": np.array([3, 2])})
+        resumed.load_state_dict({"schur_systems": np.array([[-1, -1]]), "schur0.keep": np.array([3, 2]),
+                                 "schur_served": np.zeros(1, dtype=bool), "schur_seen": np.zeros(0, np.int64)})
 
 
 def test_stress_script_survives_varied_calls_in_a_subprocess():
@@ -202,3 +203,13 @@ def test_stress_script_survives_the_schur_factorisation_serving_the_frames_solve
                          env=dict(os.environ, PYTHONPATH=ROOT))
     assert run.returncode == 0, run.stderr[-2000:]
     assert "survived 40 calls" in run.stdout
+
+
+def test_a_state_without_its_served_flags_or_last_pattern_is_refused():
+    state = SchurInverse(min_size=4).state_dict()
+    assert state["schur_seen"].size == 0  # saved even before any frame's factorisation
+    for key in ("schur_served", "schur_seen"):
+        with pytest.raises(KeyError, match=key):
+            SchurInverse().load_state_dict({k: v for k, v in state.items() if k != key})
+    with pytest.raises(ValueError, match="schur_seen"):
+        SchurInverse().load_state_dict(dict(state, schur_seen=np.arange(3)))

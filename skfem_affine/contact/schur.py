@@ -133,8 +133,7 @@ class SchurInverse:
         keys = [(-1, -1) if key is None else key for key in self._kept_by]
         out = {"schur_systems": np.array(keys, dtype=np.int64).reshape(-1, 2),
                "schur_served": np.array([self._served.get(key, False) for key in self._kept_by], dtype=bool)}
-        if self._seen is not None:
-            out["schur_seen"] = self._seen.copy()
+        out["schur_seen"] = np.zeros(0, np.int64) if self._seen is None else self._seen.copy()
         for i, schur in enumerate(self._kept_by.values()):
             kept = schur._pattern[2] if schur._pattern is not None else np.zeros(0, np.int64)
             out[f"schur{i}.keep"] = np.array(kept, dtype=np.int64)
@@ -144,9 +143,11 @@ class SchurInverse:
         self._kept_by = OrderedDict()
         systems = np.asarray(state.get("schur_systems", np.zeros((0, 2))), dtype=np.int64).reshape(-1, 2)
         self._resume, self._served = {}, {}
-        seen = state.get("schur_seen")
-        self._seen = None if seen is None else np.asarray(seen, dtype=np.int64).reshape(-1).copy()
-        served = np.asarray(state.get("schur_served", np.zeros(len(systems), dtype=bool)), dtype=bool).reshape(-1)
+        seen = np.asarray(state["schur_seen"], dtype=np.int64).reshape(-1)
+        if seen.size not in (0, 4):
+            raise ValueError(f"schur_seen must be empty or a pattern's 4 numbers, got {seen.size}")
+        self._seen = seen.copy() if seen.size else None
+        served = np.asarray(state["schur_served"], dtype=bool).reshape(-1)
         if served.size != len(systems):
             raise ValueError(f"schur_served must hold one flag per system ({len(systems)}), got {served.size}")
         for i, (size, first) in enumerate(systems):
