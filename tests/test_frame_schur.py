@@ -101,14 +101,17 @@ def test_several_bodies_invert_their_blocks_of_the_frames_complement(touched):
     assert np.abs(W - columns.delassus(J)).max() <= 1e-12 * np.abs(ref).max() and columns.columns_solved > 0
 
 
-def test_contacts_on_several_bodies_factorise_plainly():
-    """Pardiso's complement of several bodies' unknowns is one dense block: those frames keep the plain
-    factorisation (and each large body's own complement in the Delassus operator)."""
+def test_contacts_on_several_bodies_never_take_one_complement_of_all_their_unknowns():
+    """Pardiso's complement of several bodies' unknowns is one dense block: those frames are factorised body
+    by body (each body's complement on its own, a list; tests/test_frame_blocks.py), never whole."""
     sim = _scene("stacked_beams", resolution=1)
     seen = _spy_solves(sim)
     list(sim.run(40))
     assert any(rec.get("n_contacts", 0) for rec in sim.stats)
-    assert all(op.schur is None for *_, op in seen)
+    bodies = sim.contact.bodies
+    whole = [op for *_, op in seen if op.schur is not None and not isinstance(op.schur[1], list)]
+    assert all(bodies[op.schur[0]].min() == bodies[op.schur[0]].max() for op in whole)
+    assert any(op.schur is not None and isinstance(op.schur[1], list) for *_, op in seen)
 
 
 def test_a_contact_run_is_the_run_without_schur_complements_to_round_off():

@@ -146,8 +146,20 @@ class Resolvent:
     def _from_frame(self, label, T):
         """Z = (A^-1)_TT on the unknowns T (sorted) of one block from the Schur complement S the frame's
         own factorisation left (:attr:`Operator.schur`), inverting the block's part of S only (A does
-        not couple bodies, so neither does S); None without it or when T is not within its unknowns."""
+        not couple bodies, so neither does S); None without it or when T is not within its unknowns.
+        S may be a list of the blocks' complements, one after another in ``keep`` (a frame factorised
+        body by body)."""
         keep, S = self.operator.schur
+        if isinstance(S, list):
+            ends = np.cumsum([Sb.shape[0] for Sb in S])
+            pos = np.searchsorted(keep, T)
+            if not pos.size or pos[-1] >= keep.size or not np.array_equal(keep[pos], T):
+                return None
+            b = int(np.searchsorted(ends, pos[0], side="right"))
+            if pos[-1] >= ends[b]:
+                return None
+            self.schur_unknowns += T.size
+            return inverse_on_positions(S[b], pos - (ends[b] - S[b].shape[0]))
         part = np.arange(keep.size) if self.labels is None else np.flatnonzero(self.labels[keep] == label)
         pos = np.searchsorted(keep[part], T)
         if pos.size and (pos[-1] >= part.size or not np.array_equal(keep[part][pos], T)):
@@ -162,8 +174,8 @@ class Resolvent:
             return None
         if self.operator.schur is not None:  # on A's unknowns, or A_r's of a reduced frame
             Z = self._from_frame(label, T)
-            if Z is not None:
-                return Z
+            if Z is not None or isinstance(self.operator.schur[1], list):
+                return Z  # a body the frame factorised plainly: no second factorisation, its columns are solved
         if self.schur is None or self.iterative:
             return None
         A, key = None, None

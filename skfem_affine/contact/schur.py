@@ -16,7 +16,9 @@ be the one with T last (:meth:`SchurInverse.factorize_on`, Pardiso's mode that a
 system): Z then costs S^-1 on top of the frame's factorisation, not a second factorisation. That
 handle is the whole system's (key None), under the same rules but one: when the matrix's pattern
 differs from the previous frame's (a reduced frame whose bodies changed), the plain factorisation
-would make a new analysis too, so one on fewer than ``min_size`` unknowns is not declined.
+would make a new analysis too, so one on fewer than ``min_size`` unknowns is not declined. A frame
+whose contacts touch several bodies is factorised body by body, each body's block with its touched
+unknowns last (:meth:`SchurInverse.factorize_blocks`, :mod:`~skfem_affine.contact.blocks`).
 """
 import zlib
 from collections import OrderedDict
@@ -25,7 +27,8 @@ import numpy as np
 from scipy.linalg import lapack
 
 from skfem_affine.checks import flag, integer
-from skfem_affine.solvers import PardisoSchur, SolverError, has_pardiso
+from skfem_affine.contact.blocks import UpperBlocks, body_bounds, factorize_blocks
+from skfem_affine.solvers import Pardiso, PardisoSchur, SolverError, has_pardiso
 from skfem_affine.threads import serial_blas
 
 # Below this many touched unknowns and without a kept analysis, solves of the unit columns with the
@@ -62,6 +65,8 @@ class SchurInverse:
         self._served = {}  # key -> whether its kept analysis has served a later call (then it may grow)
         self.analyses = 0  # new analyses made (the rest were numeric factorisations only)
         self._seen = None  # the pattern of the last matrix given to :meth:`factorize_on` (pattern_key)
+        self._plain_by = OrderedDict()  # key -> Pardiso: blocks of :meth:`factorize_blocks` factorised plainly
+        self._split = UpperBlocks()
 
     def _handle(self, key, solves):
         if key not in self._kept_by or self._kept_by[key].solves != solves:
@@ -126,6 +131,33 @@ class SchurInverse:
         fresh = self._seen is not None and not np.array_equal(seen, self._seen)
         self._seen = seen
         return self._complement(A, T, upper, None, solves=True, floor=not fresh)
+
+    def complement_block(self, A, T, key):
+        """One block's factorisation in the solving mode with T (or a kept superset) last: (handle, keep, S),
+        or None when the rules above decline (A: the block's upper triangle, CSR)."""
+        return self._complement(A, np.asarray(T, dtype=np.int64), True, key, solves=True)
+
+    def factorize_blocks(self, A, T, bodies):
+        """The frame's factorisation body by body, each body's block (keyed by its size and first unknown)
+        with its touched unknowns last where the rules above accept, plainly where they decline:
+        (solver, keep, [S_b]), the complements in the order of ``keep``; None when the bodies' unknowns
+        are not contiguous ranges, A couples them, or no block's complement is taken (the caller
+        factorises A whole). ``bodies``: the body of each unknown of A."""
+        if not self.available:
+            return None
+        bounds = body_bounds(bodies)
+        if bounds is None or bounds[-1] != A.shape[0]:
+            return None
+        return factorize_blocks(self, A, np.asarray(T, dtype=np.int64), bounds, self._split, self._plain)
+
+    def _plain(self, key):
+        """The plain Pardiso handle of a block (the least recently used of more than ``systems`` goes)."""
+        if key not in self._plain_by:
+            self._plain_by[key] = Pardiso()
+            while len(self._plain_by) > self.systems:
+                self._plain_by.popitem(last=False)
+        self._plain_by.move_to_end(key)
+        return self._plain_by[key]
 
     def state_dict(self):
         """The unknowns each kept analysis was made on, by system: a resumed run analyses the same

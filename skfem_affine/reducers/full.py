@@ -46,9 +46,12 @@ def contact_factorization(schur, bodies, solver, contacts, A, G=None, upper=Fals
     (handle, keep, S) or None
         The factorisation (it solves A x = b), the sorted unknowns it eliminated last (the touched
         ones or a kept superset) and their Schur complement S; None when there is no Schur inverse
-        (or its ``frame`` setting is off, or no MKL), no contact, another solver, contacts on
-        several bodies (one dense block of all their unknowns is dearer than each body's own), or the
-        Schur inverse's rules decline.
+        (or its ``frame`` setting is off, or no MKL), no contact, another solver, or the Schur
+        inverse's rules decline. Contacts on several bodies in full space: A factorised body by
+        body, each body's block with its touched unknowns last
+        (:meth:`~skfem_affine.contact.schur.SchurInverse.factorize_blocks`; one dense block of all
+        their unknowns would be dearer than each body's own), S then the list of the bodies'
+        complements in the order of ``keep``; in a reduced frame None.
     """
     if (schur is None or not schur.frame or not schur.available or contacts is None or contacts.J is None
             or not isinstance(solver, Pardiso)):
@@ -56,8 +59,10 @@ def contact_factorization(schur, bodies, solver, contacts, A, G=None, upper=Fals
     T = touched_unknowns(contacts.J if G is None else contacts.J @ G)
     if bodies is not None and T.size:
         of = unknown_bodies(bodies, G)
-        if of is None or of[T].min() != of[T].max():
+        if of is None:
             return None
+        if of[T].min() != of[T].max():  # several bodies: each body's block on its own (full space)
+            return schur.factorize_blocks(A, T, of) if G is None and not upper else None
     return schur.factorize_on(A, T, upper=upper)
 
 
@@ -73,9 +78,10 @@ class FullSpace(Reducer):
         ``frame`` setting, a frame with contacts is factorised with their unknowns last where its
         rules accept (the Schur complement then rides in the :class:`Operator`), else plainly.
     bodies : (n_free,) int array, optional
-        The body of each free DOF. A frame whose contacts touch several bodies is factorised plainly:
-        Pardiso treats the whole Schur set as one dense block, dearer than each body's complement on
-        its own block (the Delassus operator's path then; measured in ``docs/contact.md``).
+        The body of each free DOF. A frame whose contacts touch several bodies is factorised body by
+        body, each body's block with its touched unknowns last: Pardiso treats a Schur set as one
+        dense block, so the whole system's would be dearer than each body's complement on its own
+        block (measured in ``docs/contact.md``).
     """
 
     name = "full"
