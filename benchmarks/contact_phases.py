@@ -21,6 +21,9 @@ stepped in turn: the frame factorised plainly (the Schur complement on a handle 
 frame factorised with the contacts' unknowns last, its complement giving the Delassus operator
 (``SchurInverse.frame``); ``--frame-schur affinification`` (or ``rigidification``) compares the same two
 routes of that reducer's frames (A_r factorised with the reduced unknowns the contacts touch last).
+With ``--blocks`` the methods are two full-space runs stepped in turn whose frames' contacts touch
+several bodies: factorised plainly, each large body's complement on a handle of its own
+(``SchurInverse.blocks`` off), and factorised body by body with each body's touched unknowns last.
 Usage::
 
     python benchmarks/contact_phases.py MESH_DIR --scene wheel --start 145 --end 160 --rows
@@ -28,6 +31,7 @@ Usage::
     python benchmarks/contact_phases.py --scene pile --cells 4 --start 100 --end 119 --profile affinification
     python benchmarks/contact_phases.py MESH_DIR --scene wheel --start 145 --end 151 --frame-schur
     python benchmarks/contact_phases.py MESH_DIR --scene wheel --start 145 --end 151 --frame-schur affinification
+    python benchmarks/contact_phases.py MESH_DIR --scene pills --start 50 --end 56 --blocks
 """
 import argparse
 import cProfile
@@ -54,6 +58,7 @@ from skfem_affine.contact import delassus  # noqa: E402
 
 METHODS = ("full", "affinification", "rigidification")
 FRAME_METHODS = ("full, own handle", "full, frame's Schur")  # --frame-schur
+BLOCK_METHODS = ("full, plain + own complements", "full, body by body")  # --blocks
 COLUMNS = ("wall", "factorization", "delassus", "delassus_columns", "delassus_schur", "frame_schur", "pgs",
            "detection", "contact",
            "n_contacts",
@@ -152,11 +157,15 @@ def builders(mesh_dir, scene, end, cells, frame_schur=False):
 
 
 def run(mesh_dir, scene, start, end, cells=4, compare_rows=False, compare_columns=False, profile=None,
-        frame_schur=False):
+        frame_schur=False, blocks=False):
     """The per-phase means of each method over the frames ``start`` to ``end - 1``; with ``profile``
     (a method), also that method's :func:`profile_table` over them (else None)."""
-    sims = builders(mesh_dir, scene, end, cells, frame_schur)
+    sims = builders(mesh_dir, scene, end, cells, frame_schur or blocks)
     methods = METHODS
+    if blocks:
+        sims[0].contact.schur.frame = True
+        sims[0].contact.schur.blocks = False
+        methods, frame_schur = BLOCK_METHODS, False
     if frame_schur:
         name = "full" if frame_schur is True else frame_schur
         methods = FRAME_METHODS if name == "full" else (f"{name}, own handle", f"{name}, frame's Schur")
@@ -204,6 +213,9 @@ def main(argv=None):
     ap.add_argument("--frame-schur", nargs="?", const="full", default=None, choices=METHODS,
                     help="compare two runs of a method (default full): the Schur complement on its own handle, "
                          "and the frame's own")
+    ap.add_argument("--blocks", action="store_true",
+                    help="compare two full-space runs: plain frames with each body's own complement, and frames "
+                         "factorised body by body")
     ap.add_argument("--start", type=int, required=True)
     ap.add_argument("--end", type=int, required=True)
     ap.add_argument("--threads", default="1", help="BLAS/MKL threads (read before numpy is imported)")
@@ -212,7 +224,7 @@ def main(argv=None):
                     help="also profile this method's frames: its contact functions' ms per frame")
     args = ap.parse_args(argv)
     means, profiled = run(args.mesh_dir, args.scene, args.start, args.end, args.cells, args.rows, args.columns,
-                          args.profile, args.frame_schur)
+                          args.profile, args.frame_schur, args.blocks)
     print(f"frames {args.start}-{args.end - 1}, ms per frame (means)")
     print(markdown(args.scene, means))
     if profiled:

@@ -143,3 +143,20 @@ def test_a_resumed_run_factorised_body_by_body_is_bit_identical(tmp_path):
     assert any(rec.get("frame_schur", 0) > 0 for rec in sim.stats)
     resumed = resume_bit_identically(sim, _beams, tmp_path / "run.npz")
     assert any(rec.get("frame_schur", 0) > 0 for rec in list(resumed.stats)[-8:])
+
+
+def test_the_blocks_setting_off_factorises_several_bodies_plainly():
+    sim = _beams()
+    sim.contact.schur.blocks = False
+    ops = []
+    resolve = sim.contact.resolve
+
+    def spy(problem, result, rec):
+        ops.append(result.operator)
+        return resolve(problem, result, rec)
+
+    sim.contact.resolve = spy
+    list(sim.run(30))
+    assert ops and not any(op.schur is not None and isinstance(op.schur[1], list) for op in ops)
+    with pytest.raises(TypeError, match="blocks"):
+        SchurInverse(blocks="yes")

@@ -16,7 +16,8 @@ import scipy.sparse as sp
 
 class BlockSolver:
     """The frame's solver when A is factorised block by block: ``solve(b)`` solves each block's rows of b
-    with that block's handle. ``bounds``: the blocks' first unknowns and the end, increasing."""
+    with that block's handle (a block whose rows of b are zero has x = 0 there, unsolved: the Delassus
+    operator's columns of one body). ``bounds``: the blocks' first unknowns and the end, increasing."""
 
     name = "pardiso-blocks"
     iterative = False
@@ -27,9 +28,10 @@ class BlockSolver:
 
     def solve(self, b):
         b = np.asarray(b, dtype=float)
-        x = np.empty_like(b)
+        x = np.zeros_like(b)
         for s, e, handle in zip(self.bounds[:-1], self.bounds[1:], self.handles):
-            x[s:e] = handle.solve(b[s:e])
+            if np.any(b[s:e]):
+                x[s:e] = handle.solve(b[s:e])
         return x
 
 

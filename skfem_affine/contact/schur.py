@@ -50,15 +50,20 @@ class SchurInverse:
         Whether the full-space frame factorises with the touched unknowns last and solves with that
         factorisation (:meth:`factorize_on`, used by :class:`~skfem_affine.reducers.full.FullSpace`);
         False: the frame factorises plainly and Z takes a factorisation of its own.
+    blocks : bool
+        Whether a full-space frame whose contacts touch several bodies is factorised body by body, each
+        body's block with its touched unknowns last (:meth:`factorize_blocks`); False: plainly, and
+        each large body's Z from a complement on a handle of its own.
 
     ``available`` is False without MKL Pardiso; :meth:`inverse_on` then always returns None.
     Hold one instance per simulation, not per frame: it keeps the analyses.
     """
 
-    def __init__(self, min_size=SCHUR_MIN, systems=16, frame=True):
+    def __init__(self, min_size=SCHUR_MIN, systems=16, frame=True, blocks=True):
         self.min_size = integer(min_size, "min_size", low=1)
         self.systems = integer(systems, "systems", low=1)
         self.frame = flag(frame, "frame")
+        self.blocks = flag(blocks, "blocks")
         self.available = has_pardiso()
         self._kept_by = OrderedDict()  # key -> PardisoSchur, each on its own Pardiso handle
         self._resume = {}  # key -> the unknowns a checkpointed run had analysed, for the key's next call
@@ -143,7 +148,7 @@ class SchurInverse:
         (solver, keep, [S_b]), the complements in the order of ``keep``; None when the bodies' unknowns
         are not contiguous ranges, A couples them, or no block's complement is taken (the caller
         factorises A whole). ``bodies``: the body of each unknown of A."""
-        if not self.available:
+        if not self.available or not self.blocks:
             return None
         bounds = body_bounds(bodies)
         if bounds is None or bounds[-1] != A.shape[0]:
