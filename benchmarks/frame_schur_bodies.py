@@ -1,5 +1,6 @@
-"""Several bodies: the frame's factorisation with every body's touched unknowns last, against the plain
-factorisation with each body's Schur complement on its own block (or the bodies' unit columns).
+"""Several bodies: the frame's factorisation with every body's touched unknowns last, or body by body with
+each body's touched unknowns last, against the plain factorisation with each body's Schur complement on
+its own block (or the bodies' unit columns).
 
 B copies of an elastic-like cube (a vector Laplacian with a mass term, 3630 unknowns each), its bottom
 face touched (363 unknowns per body), A block diagonal. One process, one MKL thread, the routes in turn (the
@@ -55,27 +56,31 @@ def main(argv=None):
     K, Tb = body()
     nb = K.shape[0]
     print("| bodies | unknowns / touched | plain factorisation | frame's own, Schur set of every body "
-          "| plain + each body's own complement | plain + unit columns side by side |")
-    print("|---|---|---|---|---|---|")
+          "| body by body, each body's set | plain + each body's own complement | plain + unit columns side by side |")
+    print("|---|---|---|---|---|---|---|")
     for B in args.bodies:
         A = sp.block_diag([K * (1 + 0.01 * i) for i in range(B)], format="csr")
         T = np.concatenate([Tb + i * nb for i in range(B)])
         J = sp.csr_matrix((np.ones(T.size), (np.arange(T.size), T)), shape=(T.size, A.shape[0]))
         bodies = np.repeat(np.arange(B), nb)
-        plain, frame, own = Pardiso(), SchurInverse(min_size=1), SchurInverse(min_size=1)
+        plain, frame, own, blocks = Pardiso(), SchurInverse(min_size=1), SchurInverse(min_size=1), SchurInverse(min_size=1)
         plain.factorize(A)
 
         def framed():
             solver, keep, S = frame.factorize_on(A, T)
             delassus.Resolvent(Operator(solver, A, schur=(keep, S)), bodies=bodies).delassus(J)
 
+        def by_body():
+            solver, keep, S = blocks.factorize_blocks(A, T, bodies) if B > 1 else blocks.factorize_on(A, T)
+            delassus.Resolvent(Operator(solver, A, schur=(keep, S)), bodies=bodies).delassus(J)
+
         def separate(schur):
             plain.factorize(A)
             delassus.Resolvent(Operator(plain, A), schur=schur, bodies=bodies).delassus(J)
 
-        framed(), separate(own)  # the analyses
-        f, *times = interleaved([lambda: plain.factorize(A), framed, lambda: separate(own), lambda: separate(None)],
-                                args.reps)
+        framed(), by_body(), separate(own)  # the analyses
+        f, *times = interleaved([lambda: plain.factorize(A), framed, by_body, lambda: separate(own),
+                                 lambda: separate(None)], args.reps)
         print(f"| {B} | {A.shape[0]} / {T.size} | {f:.0f} | " + " | ".join(f"{t:.0f} ({t / f:.1f}x)" for t in times) + " |",
               flush=True)
 

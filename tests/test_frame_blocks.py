@@ -160,3 +160,18 @@ def test_the_blocks_setting_off_factorises_several_bodies_plainly():
     assert ops and not any(op.schur is not None and isinstance(op.schur[1], list) for op in ops)
     with pytest.raises(TypeError, match="blocks"):
         SchurInverse(blocks="yes")
+
+
+def test_the_blocks_handles_stay_bounded_and_still_solve():
+    """More blocks than ``systems``: the caches keep at most that many handles; the frame's solver keeps
+    its own until the frame is done, so its solves stay right."""
+    A, J, bodies = _system(touched=(0, 1, 2))
+    T = touched_unknowns(J)
+    schur = SchurInverse(min_size=1, systems=1)
+    plain = Pardiso()
+    plain.factorize(A)
+    b = np.random.default_rng(3).normal(size=A.shape[0])
+    for scale in (1.0, 2.0, 3.0):
+        solver, keep, S = schur.factorize_blocks(A * scale, T, bodies)
+        assert len(schur._kept_by) <= 1 and len(schur._plain_by) <= 1
+        assert np.abs(solver.solve(b) - plain.solve(b) / scale).max() <= 1e-12 * np.abs(plain.solve(b)).max()

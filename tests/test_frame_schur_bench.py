@@ -15,4 +15,4 @@ def test_bodies_script_times_every_route_in_a_subprocess():
                           "--reps", "1"], capture_output=True, text=True, timeout=300, env=dict(os.environ, PYTHONPATH=ROOT))
     assert run.returncode == 0, run.stderr[-2000:]
     rows = [line for line in run.stdout.splitlines() if line.startswith("| 1 |") or line.startswith("| 2 |")]
-    assert len(rows) == 2 and all(line.count("x)") == 3 for line in rows), run.stdout
+    assert len(rows) == 2 and all(line.count("x)") == 4 for line in rows), run.stdout
