@@ -23,7 +23,10 @@ frame factorised with the contacts' unknowns last, its complement giving the Del
 routes of that reducer's frames (A_r factorised with the reduced unknowns the contacts touch last).
 With ``--blocks`` the methods are two full-space runs stepped in turn whose frames' contacts touch
 several bodies: factorised plainly, each large body's complement on a handle of its own
-(``SchurInverse.blocks`` off), and factorised body by body with each body's touched unknowns last.
+(``SchurInverse.blocks`` off), and factorised body by body with each body's touched unknowns last;
+``--resume CHECKPOINT`` (a full-space checkpoint of the scene, e.g. from ``paper_table1.py
+--checkpoint``) starts both runs from it instead of frame 0, so that ``--start`` and ``--end`` count on
+from its frame.
 Usage::
 
     python benchmarks/contact_phases.py MESH_DIR --scene wheel --start 145 --end 160 --rows
@@ -32,6 +35,7 @@ Usage::
     python benchmarks/contact_phases.py MESH_DIR --scene wheel --start 145 --end 151 --frame-schur
     python benchmarks/contact_phases.py MESH_DIR --scene wheel --start 145 --end 151 --frame-schur affinification
     python benchmarks/contact_phases.py MESH_DIR --scene pills --start 50 --end 56 --blocks
+    python benchmarks/contact_phases.py MESH_DIR --scene pills --start 277 --end 287 --blocks --resume RUNS/pills/full-000275.npz
 """
 import argparse
 import cProfile
@@ -157,7 +161,7 @@ def builders(mesh_dir, scene, end, cells, frame_schur=False):
 
 
 def run(mesh_dir, scene, start, end, cells=4, compare_rows=False, compare_columns=False, profile=None,
-        frame_schur=False, blocks=False):
+        frame_schur=False, blocks=False, resume=None):
     """The per-phase means of each method over the frames ``start`` to ``end - 1``; with ``profile``
     (a method), also that method's :func:`profile_table` over them (else None)."""
     sims = builders(mesh_dir, scene, end, cells, frame_schur or blocks)
@@ -166,6 +170,13 @@ def run(mesh_dir, scene, start, end, cells=4, compare_rows=False, compare_column
         sims[0].contact.schur.frame = True
         sims[0].contact.schur.blocks = False
         methods, frame_schur = BLOCK_METHODS, False
+    first = 0
+    if resume is not None:
+        if not (blocks or frame_schur is True or frame_schur == "full"):
+            raise ValueError("--resume takes a full-space checkpoint: use it with --blocks or --frame-schur")
+        for sim in sims:
+            sim.load_state(resume)
+        first = len(sims[0].stats)
     if frame_schur:
         name = "full" if frame_schur is True else frame_schur
         methods = FRAME_METHODS if name == "full" else (f"{name}, own handle", f"{name}, frame's Schur")
@@ -175,7 +186,7 @@ def run(mesh_dir, scene, start, end, cells=4, compare_rows=False, compare_column
             per_row(sim, columns=compare_columns)
     rows = {m: [] for m in methods}
     t0 = time.perf_counter()
-    for frame in range(end):
+    for frame in range(first, end):
         turn = [(frame + i) % len(sims) for i in range(len(sims))]  # rotate who steps first
         for i in turn:
             timed = profiler is not None and frame >= start and methods[i] == profile
@@ -216,6 +227,8 @@ def main(argv=None):
     ap.add_argument("--blocks", action="store_true",
                     help="compare two full-space runs: plain frames with each body's own complement, and frames "
                          "factorised body by body")
+    ap.add_argument("--resume", default=None, metavar="CHECKPOINT",
+                    help="start the two full-space runs of --blocks or --frame-schur from this checkpoint")
     ap.add_argument("--start", type=int, required=True)
     ap.add_argument("--end", type=int, required=True)
     ap.add_argument("--threads", default="1", help="BLAS/MKL threads (read before numpy is imported)")
@@ -224,7 +237,7 @@ def main(argv=None):
                     help="also profile this method's frames: its contact functions' ms per frame")
     args = ap.parse_args(argv)
     means, profiled = run(args.mesh_dir, args.scene, args.start, args.end, args.cells, args.rows, args.columns,
-                          args.profile, args.frame_schur, args.blocks)
+                          args.profile, args.frame_schur, args.blocks, args.resume)
     print(f"frames {args.start}-{args.end - 1}, ms per frame (means)")
     print(markdown(args.scene, means))
     if profiled:

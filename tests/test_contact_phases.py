@@ -26,3 +26,16 @@ def test_frame_schur_of_a_reducer_steps_two_runs_of_it_in_turn(benchmark_script)
     assert list(means) == ["affinification, own handle", "affinification, frame's Schur"]
     own, framed = means.values()
     assert own["n_contacts"] == framed["n_contacts"] > 0 and own["frame_schur"] == 0
+
+
+def test_blocks_steps_two_full_space_runs_from_a_checkpoint(benchmark_script, tmp_path):
+    bench = benchmark_script("contact_phases")
+    from budget import pile  # the benchmark's folder is on the path once the script is loaded
+    sim = pile(1)
+    list(sim.run(3))
+    sim.save(tmp_path / "pile.npz")
+    means, _ = bench.main(["--scene", "pile", "--cells", "1", "--start", "4", "--end", "6", "--blocks",
+                           "--resume", str(tmp_path / "pile.npz")])
+    assert list(means) == list(bench.BLOCK_METHODS)
+    plain, by_body = (means[m] for m in bench.BLOCK_METHODS)
+    assert plain["n_contacts"] == by_body["n_contacts"] > 0 and plain["frame_schur"] == 0
