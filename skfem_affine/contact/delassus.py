@@ -45,6 +45,16 @@ def jacobian(contacts, n_vertices, free):
     return J
 
 
+def vertex_unknowns(vertices, n_vertices, free):
+    """The sorted free unknowns (columns of J) of ``vertices``, or None when ``vertices`` is None."""
+    if vertices is None:
+        return None
+    dof_map = np.full(3 * n_vertices, -1, dtype=np.int64)
+    dof_map[free] = np.arange(free.size)
+    c = dof_map[(3 * np.asarray(vertices, dtype=np.int64)[:, None] + np.arange(3)).ravel()]
+    return np.unique(c[c >= 0])
+
+
 def block_solver(size):
     """A direct solver for a system of ``size`` unknowns: SuperLU below :data:`BLOCK_DIRECT_MIN`,
     else the fastest direct solver."""

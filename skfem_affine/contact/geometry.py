@@ -137,6 +137,9 @@ class ContactSet:
     #                          contact is the point (1 - s) a0 + s a1: vertex a0, own 1 - s, others
     #                          (a1, b0, b1) with weights (-s, 1 - t, t)
     impact: np.ndarray = None  # (k,) bool: set by the contact solver, contacts that start an impact
+    near: np.ndarray = None    # sorted vertices that reach a collider within ``Detector.lookahead`` more frames
+    #                            at their approach speed, with the contacts' own vertices (None: not predicted)
+    near_unknowns: np.ndarray = None  # sorted free unknowns of ``near`` (set with J; columns of J)
     _frames: np.ndarray = field(default=None, init=False, repr=False, compare=False)
 
     @property
@@ -213,7 +216,23 @@ class Detector:
         if not np.isfinite(self.skin) or self.skin < 0.0:
             raise ValueError(f"skin must be a finite distance >= 0, got {skin!r}")
         self._list = None   # the candidate list (vertex pairs) and where the vertices were at its build
+        # frames ahead of :attr:`ContactSet.near`, a predicted superset of the touched vertices for the Schur
+        # complement's analysis to serve later frames (None: not predicted; on the landing octopus it
+        # cost more than it saved: docs/contact.md)
+        self._lookahead = None
         self.builds = 0     # how many times the list was built
+
+    @property
+    def lookahead(self):
+        """Frames ahead that :attr:`ContactSet.near` predicts (a number >= 0), or None: no prediction."""
+        return self._lookahead
+
+    @lookahead.setter
+    def lookahead(self, value):
+        if value is not None and not (isinstance(value, (int, float, np.integer, np.floating))
+                                      and not isinstance(value, bool) and np.isfinite(value) and value >= 0):
+            raise ValueError(f"lookahead must be a number of frames >= 0 or None, got {value!r}")
+        self._lookahead = None if value is None else float(value)
 
     def body_contacts(self, cs, edges=True):
         """Mask (k,) of the contacts of ``cs`` between two bodies (not with a collider), with or
@@ -230,12 +249,14 @@ class Detector:
         (n, 3), optional: the velocity the step's own acceleration leads to, v + h a; the
         approach speed is then the larger of the two, so that a vertex at rest that gravity or a
         force takes to a collider within the step is found."""
-        sets = []
+        sets, near = [], []
         cv = self.collider_vertices
         fields = [v] if w is None else [v, w]
         for ci, col in enumerate(self.colliders):
             d, n = col.query(x[cv])
             approach = np.maximum.reduce([np.maximum(0.0, -np.einsum("ij,ij->i", u[cv], n)) for u in fields])
+            if self.lookahead is not None:
+                near.append(cv[d < self.margin + (2.0 + self.lookahead) * dt * approach])
             hit = np.flatnonzero(d < self.margin + 2.0 * dt * approach)
             if hit.size:
                 vtx = cv[hit]
@@ -261,7 +282,10 @@ class Detector:
                 sets.append(found)
         if not sets:
             return None
-        return concat(sets)
+        out = concat(sets)
+        if self.lookahead is not None:
+            out.near = np.unique(np.concatenate(near + [out.vertex, out.others.ravel()]))
+        return out
 
     def max_penetration(self, x, bodies=True):
         """Largest penetration depth (m, >= 0) of a vertex into a collider or (``bodies``) into

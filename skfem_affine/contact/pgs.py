@@ -67,7 +67,7 @@ from numba import njit
 from skfem_affine import _compile_notice  # noqa: F401 (one stderr line when the cached kernels compile)
 from skfem_affine.checks import flag, integer, nonnegative, positive, real
 from skfem_affine.contact.colliders import check_colliders
-from skfem_affine.contact.delassus import Resolvent, block_solver, jacobian
+from skfem_affine.contact.delassus import Resolvent, block_solver, jacobian, vertex_unknowns
 from skfem_affine.contact.schur import SchurInverse
 from skfem_affine.contact.geometry import Detector
 from skfem_affine.monitor import SimulationWarning
@@ -580,6 +580,7 @@ class Contact:
         self.current, self.prediction = cs, None
         if cs is not None:
             cs.J = jacobian(cs, sysm.n, sysm.free)
+            cs.near_unknowns = vertex_unknowns(cs.near, sysm.n, sysm.free)
             self.Jn = cs.J[0::3]  # the normal rows, sliced once per frame
             self.lam0 = self._warm_start(cs)
             self.bias = self._bias(cs, h)

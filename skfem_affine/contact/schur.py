@@ -26,7 +26,7 @@ from collections import OrderedDict
 import numpy as np
 from scipy.linalg import lapack
 
-from skfem_affine.checks import flag, integer
+from skfem_affine.checks import flag, integer, real
 from skfem_affine.contact.blocks import UpperBlocks, body_bounds, factorize_blocks
 from skfem_affine.solvers import Pardiso, PardisoSchur, SolverError, has_pardiso
 from skfem_affine.threads import serial_blas
@@ -35,6 +35,9 @@ from skfem_affine.threads import serial_blas
 # frame's factorisation are cheaper than a new analysis with its factorisation (measured in
 # docs/contact.md, "The Delassus operator from a Schur complement against unit-column solves").
 SCHUR_MIN = 128
+# A kept analysis serves while the touched unknowns are at least 1 / SPREAD of its set, and a predicted
+# superset is analysed when at most SPREAD times the touched unknowns (measured in docs/contact.md).
+SPREAD = 2.0
 
 
 class SchurInverse:
@@ -59,8 +62,9 @@ class SchurInverse:
     Hold one instance per simulation, not per frame: it keeps the analyses.
     """
 
-    def __init__(self, min_size=SCHUR_MIN, systems=16, frame=True, blocks=True):
+    def __init__(self, min_size=SCHUR_MIN, systems=16, frame=True, blocks=True, spread=SPREAD):
         self.min_size = integer(min_size, "min_size", low=1)
+        self.spread = real(spread, "spread", low=1.0)
         self.systems = integer(systems, "systems", low=1)
         self.frame = flag(frame, "frame")
         self.blocks = flag(blocks, "blocks")
@@ -81,24 +85,27 @@ class SchurInverse:
         self._kept_by.move_to_end(key)
         return self._kept_by[key]
 
-    def _kept(self, last, n, T, key, floor=True):
+    def _kept(self, last, n, T, key, floor=True, near=None):
         """The unknowns to take the complement on (T or a superset) and whether they are the kept ones,
         or (None, False) to decline; ``last``: those of the current analysis when it is of this
-        system's pattern (:meth:`PardisoSchur.analysed`)."""
+        system's pattern (:meth:`PardisoSchur.analysed`); ``near``: a predicted superset of T, the set of
+        a new analysis when at most ``spread`` times T's."""
         if last is None and key in self._resume:  # as the saved run: the same set rounds the same way
             last = self._resume.pop(key)
             last = last if last.size and last[-1] < n and 2 * last.size <= n else None
         if last is not None:
-            if last.size <= 2 * T.size and np.isin(T, last, assume_unique=True).all():
+            if last.size <= self.spread * T.size and np.isin(T, last, assume_unique=True).all():
                 return last, True
             grown = np.union1d(last, T)
             if self._served.get(key, False) and grown.size <= 2 * T.size and 2 * grown.size <= n:
                 return grown, False
         if T.size == 0 or (floor and T.size < self.min_size) or 2 * T.size > n:
             return None, False
+        if near is not None and near.size <= self.spread * T.size and 2 * near.size <= n:
+            return near, False
         return T, False
 
-    def _complement(self, A, T, upper, key, solves, floor=True):
+    def _complement(self, A, T, upper, key, solves, floor=True, near=None):
         """(handle, keep, S): the factorisation of A with ``keep`` (T or a kept superset) last and its
         Schur complement S on them, or None when declining. A handle of the other mode is replaced
         only when the complement is taken."""
@@ -107,7 +114,7 @@ class SchurInverse:
         T = np.asarray(T, dtype=np.int64)
         handle = self._kept_by.get(key)
         current = handle.analysed(A, upper) if handle is not None and handle.solves == solves else None
-        keep, kept = self._kept(current, A.shape[0], T, key, floor)
+        keep, kept = self._kept(current, A.shape[0], T, key, floor, near)
         if keep is None:
             return None
         if keep is not current:  # a new set (or pattern): a new analysis
@@ -126,16 +133,22 @@ class SchurInverse:
         _, keep, S = out
         return inverse_on_positions(S, np.searchsorted(keep, np.asarray(T, dtype=np.int64)))
 
-    def factorize_on(self, A, T, upper=False):
+    def factorize_on(self, A, T, upper=False, near=None):
         """The whole system's factorisation with T (or a kept superset ``keep``) last, which also solves
         A x = b: (solver, keep, S) with S the Schur complement on ``keep`` (``(A^-1)_keep,keep = S^-1``),
         or None when the rules above decline (the caller factorises plainly). A matrix whose pattern
         differs from the last one given here is taken at any size: its plain factorisation would
-        analyse anew as well (on the wheel at rest a reduced frame's pattern changes every frame)."""
+        analyse anew as well (on the wheel at rest a reduced frame's pattern changes every frame).
+        ``near``: sorted unknowns predicted to be touched in the next frames, a superset of T: a new
+        analysis takes it (when at most ``spread`` times T), so that it serves the frames after."""
         seen = pattern_key(A)
+        if near is not None:
+            near = np.asarray(near, dtype=np.int64)
+            if near.size < T.size or not np.isin(T, near, assume_unique=True).all():
+                raise ValueError("near must hold every touched unknown T")
         fresh = self._seen is not None and not np.array_equal(seen, self._seen)
         self._seen = seen
-        return self._complement(A, T, upper, None, solves=True, floor=not fresh)
+        return self._complement(A, T, upper, None, solves=True, floor=not fresh, near=near)
 
     def complement_block(self, A, T, key):
         """One block's factorisation in the solving mode with T (or a kept superset) last: (handle, keep, S),
@@ -203,9 +216,24 @@ def pattern_key(A):
 
 
 def inverse_on_positions(S, pos):
-    """(S^-1)[pos][:, pos] for the SPD matrix S (dense), from its Cholesky factor (LAPACK potrf, potri:
-    half of a solve with I)."""
+    """(S^-1)[pos][:, pos] for the SPD matrix S (dense), from Cholesky factors (LAPACK).
+
+    ``pos`` (increasing) all of S: S^-1 from its Cholesky factor (potrf, potri: half of a solve with I).
+    Fewer (S on a kept superset of the touched unknowns): ``(S^-1)_PP`` is the inverse of S's own
+    Schur complement on P, ``C = S_PP - S_PN S_NN^-1 S_NP``, so only S_NN is factorised (potrf, trtrs,
+    syrk) and C inverted, not the whole of S."""
+    pos = np.asarray(pos, dtype=np.int64)
     with serial_blas():
+        if pos.size < S.shape[0]:
+            rest = np.setdiff1d(np.arange(S.shape[0]), pos, assume_unique=True)
+            L, info = lapack.dpotrf(np.asarray(S[np.ix_(rest, rest)], order="F"), lower=1, clean=1)
+            if info != 0:
+                raise SolverError(f"the Schur complement on {S.shape[0]} unknowns is not positive definite "
+                                  f"(LAPACK info {info}); is A positive definite?")
+            X, info = lapack.dtrtrs(L, np.asarray(S[np.ix_(rest, pos)], order="F"), lower=1)
+            C = np.asarray(S[np.ix_(pos, pos)], order="F")
+            C = C - X.T @ X
+            S, pos = C, np.arange(pos.size)
         L, info = lapack.dpotrf(S, lower=1, clean=0)
         if info == 0:
             L, info = lapack.dpotri(L, lower=1, overwrite_c=1)

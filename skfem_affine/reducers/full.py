@@ -63,7 +63,8 @@ def contact_factorization(schur, bodies, solver, contacts, A, G=None, upper=Fals
             return None
         if of[T].min() != of[T].max():  # several bodies: each body's block on its own (full space)
             return schur.factorize_blocks(A, T, of) if G is None and not upper else None
-    return schur.factorize_on(A, T, upper=upper)
+    near = getattr(contacts, "near_unknowns", None) if G is None else None
+    return schur.factorize_on(A, T, upper=upper, near=None if near is None else np.union1d(near, T))
 
 
 class FullSpace(Reducer):
