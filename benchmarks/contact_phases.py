@@ -24,9 +24,14 @@ routes of that reducer's frames (A_r factorised with the reduced unknowns the co
 With ``--blocks`` the methods are two full-space runs stepped in turn whose frames' contacts touch
 several bodies: factorised plainly, each large body's complement on a handle of its own
 (``SchurInverse.blocks`` off), and factorised body by body with each body's touched unknowns last;
+With ``--lookahead K`` the methods are two full-space runs whose frames are factorised with the
+contacts' unknowns last: on the touched unknowns (no prediction), and on the vertices a collider reaches
+within K more frames at their approach speed when a new analysis is needed (``Detector.lookahead``,
+at most ``--spread`` times the touched unknowns, ``SchurInverse.spread``); ``analyses`` counts the new
+analyses per frame.
 ``--resume CHECKPOINT`` (a full-space checkpoint of the scene, e.g. from ``paper_table1.py
---checkpoint``) starts both runs from it instead of frame 0, so that ``--start`` and ``--end`` count on
-from its frame.
+--checkpoint``, or ``Simulation.save``) starts both runs of ``--blocks``, ``--frame-schur`` or
+``--lookahead`` from it instead of frame 0, so that ``--start`` and ``--end`` count on from its frame.
 Usage::
 
     python benchmarks/contact_phases.py MESH_DIR --scene wheel --start 145 --end 160 --rows
@@ -36,6 +41,7 @@ Usage::
     python benchmarks/contact_phases.py MESH_DIR --scene wheel --start 145 --end 151 --frame-schur affinification
     python benchmarks/contact_phases.py MESH_DIR --scene pills --start 50 --end 56 --blocks
     python benchmarks/contact_phases.py MESH_DIR --scene pills --start 277 --end 287 --blocks --resume RUNS/pills/full-000275.npz
+    python benchmarks/contact_phases.py MESH_DIR --scene octopus --start 66 --end 82 --lookahead 2 --resume RUN.npz
 """
 import argparse
 import cProfile
@@ -63,10 +69,11 @@ from skfem_affine.contact import delassus  # noqa: E402
 METHODS = ("full", "affinification", "rigidification")
 FRAME_METHODS = ("full, own handle", "full, frame's Schur")  # --frame-schur
 BLOCK_METHODS = ("full, plain + own complements", "full, body by body")  # --blocks
+LOOKAHEAD_METHODS = ("full, touched unknowns", "full, predicted superset")  # --lookahead
 COLUMNS = ("wall", "factorization", "delassus", "delassus_columns", "delassus_schur", "frame_schur", "pgs",
            "detection", "contact",
            "n_contacts",
-           "pgs_iterations", "dofs")
+           "pgs_iterations", "dofs", "analyses")
 ROWS = ("delassus_rows", "rows_columns")
 
 
@@ -161,19 +168,25 @@ def builders(mesh_dir, scene, end, cells, frame_schur=False):
 
 
 def run(mesh_dir, scene, start, end, cells=4, compare_rows=False, compare_columns=False, profile=None,
-        frame_schur=False, blocks=False, resume=None):
+        frame_schur=False, blocks=False, resume=None, lookahead=None, spread=2.0):
     """The per-phase means of each method over the frames ``start`` to ``end - 1``; with ``profile``
     (a method), also that method's :func:`profile_table` over them (else None)."""
-    sims = builders(mesh_dir, scene, end, cells, frame_schur or blocks)
+    sims = builders(mesh_dir, scene, end, cells, frame_schur or blocks or lookahead is not None)
     methods = METHODS
     if blocks:
         sims[0].contact.schur.frame = True
         sims[0].contact.schur.blocks = False
         methods, frame_schur = BLOCK_METHODS, False
+    if lookahead is not None:
+        sims[0].contact.schur.frame = True
+        sims[1].contact.detector.lookahead = lookahead
+        sims[1].contact.schur.spread = spread
+        methods, frame_schur, blocks = LOOKAHEAD_METHODS, False, True
     first = 0
     if resume is not None:
         if not (blocks or frame_schur is True or frame_schur == "full"):
-            raise ValueError("--resume takes a full-space checkpoint: use it with --blocks or --frame-schur")
+            raise ValueError("--resume takes a full-space checkpoint: use it with --blocks, --frame-schur or "
+                             "--lookahead")
         for sim in sims:
             sim.load_state(resume)
         first = len(sims[0].stats)
@@ -192,11 +205,13 @@ def run(mesh_dir, scene, start, end, cells=4, compare_rows=False, compare_column
             timed = profiler is not None and frame >= start and methods[i] == profile
             if timed:
                 profiler.enable()
+            analyses = sims[i].contact.schur.analyses
             sims[i].step()
             if timed:
                 profiler.disable()
             if frame >= start:
                 rows[methods[i]].append(record(sims[i].stats[-1]))
+                rows[methods[i]][-1]["analyses"] = float(sims[i].contact.schur.analyses - analyses)
         if frame % 10 == 0:
             print(f"{scene} frame {frame}/{end} ({time.perf_counter() - t0:.0f} s)", file=sys.stderr, flush=True)
     means = {m: {c: float(np.mean([r[c] for r in rs])) for c in COLUMNS + ROWS} for m, rs in rows.items()}
@@ -207,7 +222,8 @@ def markdown(scene, means):
     methods = list(means)
     lines = [f"| {scene} | " + " | ".join(methods) + " |", "|---" * (len(methods) + 1) + "|"]
     for c in COLUMNS + (ROWS if any(means[m]["rows_columns"] for m in methods) else ()):
-        lines.append(f"| {c} | " + " | ".join(f"{means[m][c]:.0f}" for m in methods) + " |")
+        lines.append(f"| {c} | " + " | ".join(f"{means[m][c]:.2f}" if c == "analyses" else f"{means[m][c]:.0f}"
+                                                for m in methods) + " |")
     share = [means[m]["contact"] / max(means[m]["wall"], 1e-300) for m in methods]
     lines.append("| contact share of the frame | " + " | ".join(f"{100 * s:.0f} %" for s in share) + " |")
     return "\n".join(lines) + "\n"
@@ -227,8 +243,14 @@ def main(argv=None):
     ap.add_argument("--blocks", action="store_true",
                     help="compare two full-space runs: plain frames with each body's own complement, and frames "
                          "factorised body by body")
+    ap.add_argument("--lookahead", type=float, default=None, metavar="K",
+                    help="compare two full-space runs: the frame's complement on the touched unknowns, and on "
+                         "those predicted K frames ahead")
+    ap.add_argument("--spread", type=float, default=2.0,
+                    help="with --lookahead: the largest predicted set, in multiples of the touched unknowns")
     ap.add_argument("--resume", default=None, metavar="CHECKPOINT",
-                    help="start the two full-space runs of --blocks or --frame-schur from this checkpoint")
+                    help="start the two full-space runs of --blocks, --frame-schur or --lookahead from this "
+                         "checkpoint")
     ap.add_argument("--start", type=int, required=True)
     ap.add_argument("--end", type=int, required=True)
     ap.add_argument("--threads", default="1", help="BLAS/MKL threads (read before numpy is imported)")
@@ -237,7 +259,7 @@ def main(argv=None):
                     help="also profile this method's frames: its contact functions' ms per frame")
     args = ap.parse_args(argv)
     means, profiled = run(args.mesh_dir, args.scene, args.start, args.end, args.cells, args.rows, args.columns,
-                          args.profile, args.frame_schur, args.blocks, args.resume)
+                          args.profile, args.frame_schur, args.blocks, args.resume, args.lookahead, args.spread)
     print(f"frames {args.start}-{args.end - 1}, ms per frame (means)")
     print(markdown(args.scene, means))
     if profiled:
