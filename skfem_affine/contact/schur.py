@@ -57,6 +57,10 @@ class SchurInverse:
         Whether a full-space frame whose contacts touch several bodies is factorised body by body, each
         body's block with its touched unknowns last (:meth:`factorize_blocks`); False: plainly, and
         each large body's Z from a complement on a handle of its own.
+    spread : float
+        A kept analysis serves while its set is at most ``spread`` times the touched unknowns, and a
+        predicted superset of them (``near`` of :meth:`factorize_on`) is analysed when at most that many
+        (:data:`SPREAD`, >= 1).
 
     ``available`` is False without MKL Pardiso; :meth:`inverse_on` then always returns None.
     Hold one instance per simulation, not per frame: it keeps the analyses.
