@@ -24,6 +24,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from skfem_affine.checks import nonnegative
+from skfem_affine.upper import whole_from_upper
 
 # Per-frame timing keys of ``sim.stats`` (seconds); a reducer's stats add to the integrator's.
 PHASES = ("assembly", "prediction", "clustering", "map_assembly", "reduced_assembly",
@@ -219,7 +220,7 @@ class Operator:
         """The factorised symmetric matrix (whole, not one triangle)."""
         if self._upper:
             U = self._matrix
-            self._matrix, self._upper = (U + sp.triu(U, k=1, format="csr").T).tocsr(), False
+            self._matrix, self._upper = whole_from_upper(U), False
         return self._matrix
 
     @property
