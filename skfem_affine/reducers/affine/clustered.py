@@ -35,7 +35,7 @@ from skfem_affine.checks import choice, flag, integer, positive, real, real_arra
 from skfem_affine.threads import serial_blas
 from skfem_affine.integrators.problem import Operator, StepResult
 from skfem_affine.reducers import budget as budgets
-from skfem_affine.reducers.affine import clustering, constrained, oracle, pinned
+from skfem_affine.reducers.affine import blocks, clustering, constrained, oracle, pinned
 from skfem_affine.reducers.affine import mapping as reduction
 from skfem_affine.reducers.affine.numbering import FullNumbering, several_bodies
 from skfem_affine.reducers.base import Reducer
@@ -303,6 +303,7 @@ class ClusteringReducer(Reducer):
         # frames reducing few DOFs solve A_r through A's factorisation, kept on this handle (:mod:`.constrained`)
         self.full_handle = Pardiso() if type(self.solver) is Pardiso else None
         self.constraints_max = constrained.CONSTRAINTS_MAX  # -1: never
+        self.blocks = blocks.BodyBlocks()  # a frame of several scene bodies, factorised per body
         # a fill-reducing order of the free vertices, inherited by every frame's reduced system
         self.vertex_rank = reduction.nested_dissection_rank(sysm) if self.upper else None
         self.mdiag = sysm.Mff.diagonal()
@@ -603,6 +604,10 @@ class ClusteringReducer(Reducer):
         if schur is not None:
             solver, schur = schur[0], schur[1:]
             stats["frame_schur"] = int(schur[0].size)
+        elif n_bodies and num is not None and order is not None:  # several scene bodies: one block each
+            solver = self.blocks
+            solver.factorize(Ar, blocks.unknown_labels(self._contact_bodies, num, gmap.width), order)
+            stats["blocks_analysed"] = solver.analyses
         elif n_bodies and self._through_full(labels, gmap, Ar, upper):
             solver = self._constrained_solver(problem, gmap, num)
             stats["through_full"] = True

@@ -45,6 +45,8 @@ class FullNumbering:
         The unknowns of reduced vertices' free DOFs (no column of G).
     size : int
         Unknowns in the full numbering (free DOFs plus the bodies' columns).
+    body_rows : (n_bodies,) int array
+        A free DOF (row of G) of each reduced body.
     """
 
     def __init__(self, gmap, diagonal):
@@ -55,6 +57,13 @@ class FullNumbering:
         used[self.columns] = True
         self.idle = np.flatnonzero(~used)
         self.idle_values = np.asarray(diagonal, dtype=float)[self.idle]  # idle unknowns are free DOFs (< nf)
+        # one free DOF of each reduced body (the first of its rows)
+        G = gmap.G
+        first = np.full(gmap.n_bodies, nf, dtype=np.int64)
+        rows = np.repeat(np.arange(nf), np.diff(G.indptr))
+        on_body = G.indices >= ne
+        np.minimum.at(first, (G.indices[on_body] - ne) // gmap.width, rows[on_body])
+        self.body_rows = first
 
     def mapping(self, G):
         """G (n_free x r, CSR) with its columns renumbered (n_free x size)."""
