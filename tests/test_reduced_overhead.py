@@ -18,12 +18,13 @@ pytest.importorskip("pypardiso")
 from skfem_affine.solvers import Pardiso  # noqa: E402
 
 
-def _pills(new=True, frames=0, reducer=None):
+def _pills(new=True, frames=0, reducer=None, numbering=None):
     """Three coarse pills in the bowl (bodies from the first frame, contacts from frame 24); ``new``:
-    the full numbering and the route through A's factorisation (at any constraint count), else neither."""
+    the route through A's factorisation (at any constraint count), else the direct one; ``numbering``
+    (default ``new``): the full numbering, with which the frames are factorised per body."""
     sim = sa.scenes.pills(n=3, resolution=1, reducer=reducer or sa.Affinification(tau_a=1.0, tau_e=2.0))
     r = sim.integrator.reducer
-    r.full_numbering = new
+    r.full_numbering = new if numbering is None else numbering
     r.constraints_max = 10 ** 9 if new else -1
     for _ in range(frames):
         sim.step()
@@ -80,9 +81,9 @@ def test_full_numbering_embeds_the_reduced_system():
 def test_a_run_in_the_full_numbering_is_the_compact_run_bit_for_bit():
     """Several bodies: the renumbered frames (factorised with the renumbered order) give the same positions."""
     a, b = _pills(new=False), _pills(new=False)
-    a.integrator.reducer.full_numbering = True
-    assert a.integrator.reducer.full_numbering and several_bodies(a.contact.bodies)
-    for _ in range(30):
+    a.integrator.reducer.full_numbering, a.integrator.reducer.blocks = True, None  # factorised whole
+    assert several_bodies(a.contact.bodies)
+    for _ in range(40):
         a.step()
         b.step()
         assert np.array_equal(a.state.x, b.state.x) and np.array_equal(a.state.v, b.state.v)
@@ -126,7 +127,7 @@ def test_the_constrained_solver_solves_the_reduced_system(kind):
 def test_a_run_through_the_full_factorisation_follows_the_direct_run():
     """Frames with a new A_r pattern solved through A's factorisation: the run stays with the old
     path to round-off, and the route is taken only while the clusters change."""
-    a, b = _pills(new=True), _pills(new=False)
+    a, b = _pills(new=True, numbering=False), _pills(new=False)
     for _ in range(30):
         a.step()
         b.step()
@@ -138,7 +139,7 @@ def test_a_run_through_the_full_factorisation_follows_the_direct_run():
 
 
 def test_the_route_through_the_full_factorisation_is_refused_beyond_its_constraints():
-    sim = _pills(new=True)
+    sim = _pills(new=True, numbering=False)
     sim.integrator.reducer.constraints_max = 0
     for _ in range(3):
         sim.step()
@@ -146,9 +147,54 @@ def test_the_route_through_the_full_factorisation_is_refused_beyond_its_constrai
 
 
 def test_a_checkpoint_resumes_the_route_bit_for_bit(tmp_path):
-    sim = _pills(new=True, frames=26)
-    resumed = resume_bit_identically(sim, lambda: _pills(new=True), tmp_path / "pills.npz", frames=6)
+    sim = _pills(new=True, numbering=False, frames=26)
+    resumed = resume_bit_identically(sim, lambda: _pills(new=True, numbering=False), tmp_path / "pills.npz", frames=6)
     assert any(r.get("through_full") for r in resumed.stats[-6:])
+
+
+def test_a_checkpoint_resumes_the_frames_factorised_per_body_bit_for_bit(tmp_path):
+    sim = _pills(new=False, numbering=True, frames=26)
+    resumed = resume_bit_identically(sim, lambda: _pills(new=False, numbering=True), tmp_path / "pills.npz",
+                                     frames=6)
+    analysed = [r.get("blocks_analysed") for r in resumed.stats[-6:]]
+    assert all(a is not None for a in analysed) and min(analysed) < 3  # some bodies kept their analysis
+
+
+def test_a_run_factorised_per_body_follows_the_whole_factorisation():
+    """Several bodies, each its own block: the same frames as the whole A_r factorised, to round-off,
+    bit for bit while no contact mixes the round-off in."""
+    a, b = _pills(new=False, numbering=True), _pills(new=False)
+    for frame in range(30):
+        a.step()
+        b.step()
+        if frame < 24:
+            assert np.array_equal(a.state.x, b.state.x)
+    assert np.abs(a.state.x - b.state.x).max() <= 1e-10 * np.abs(b.state.x).max()
+    assert all("blocks_analysed" in r for r in a.stats if r.get("n_clusters"))
+
+
+def test_body_blocks_solve_as_the_whole_factorisation():
+    from skfem_affine.reducers.affine.blocks import BodyBlocks, unknown_labels
+    sim = _pills(new=False, frames=29)
+    problem, result = _frame(sim)
+    gmap = result.mapping
+    Ar = reduced_matrix(sim.model, problem.data, gmap, upper=True)
+    num = FullNumbering(gmap, np.full(gmap.G.shape[0], 2.0))
+    W = num.matrix(Ar)
+    labels = unknown_labels(sim.contact.bodies, num, gmap.width)
+    assert np.array_equal(np.unique(labels), [0, 1, 2])
+    Gw = num.mapping(gmap.G)  # each reduced body's columns within one scene body
+    assert np.all(labels[Gw.indices] == np.repeat(sim.contact.bodies, np.diff(Gw.indptr)))
+    order = num.order(gmap.elimination_order(sim.integrator.reducer.vertex_rank))
+    blocks, whole = BodyBlocks(), Pardiso()
+    blocks.factorize(W, labels, order)
+    assert blocks.analyses == 3
+    whole.factorize(W, upper=True)
+    y = np.random.default_rng(4).normal(size=(W.shape[0], 3))
+    ref = whole.solve(y)
+    assert np.abs(blocks.solve(y) - ref).max() <= 1e-10 * np.abs(ref).max()
+    blocks.factorize(W, labels, order)
+    assert blocks.analyses == 0  # the same patterns: numeric factorisations only
 
 
 def test_pardiso_knows_the_pattern_it_analysed(tmp_path):

@@ -303,7 +303,7 @@ class ClusteringReducer(Reducer):
         # frames reducing few DOFs solve A_r through A's factorisation, kept on this handle (:mod:`.constrained`)
         self.full_handle = Pardiso() if type(self.solver) is Pardiso else None
         self.constraints_max = constrained.CONSTRAINTS_MAX  # -1: never
-        self.blocks = blocks.BodyBlocks()  # a frame of several scene bodies, factorised per body
+        self.blocks = blocks.BodyBlocks()  # a frame of several scene bodies, factorised per body (None: whole)
         # a fill-reducing order of the free vertices, inherited by every frame's reduced system
         self.vertex_rank = reduction.nested_dissection_rank(sysm) if self.upper else None
         self.mdiag = sysm.Mff.diagonal()
@@ -604,7 +604,7 @@ class ClusteringReducer(Reducer):
         if schur is not None:
             solver, schur = schur[0], schur[1:]
             stats["frame_schur"] = int(schur[0].size)
-        elif n_bodies and num is not None and order is not None:  # several scene bodies: one block each
+        elif n_bodies and num is not None and order is not None and self.blocks is not None:  # one block per body
             solver = self.blocks
             solver.factorize(Ar, blocks.unknown_labels(self._contact_bodies, num, gmap.width), order)
             stats["blocks_analysed"] = solver.analyses
