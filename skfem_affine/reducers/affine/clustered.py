@@ -14,8 +14,13 @@ integrator's, in the :class:`~skfem_affine.integrators.problem.StepProblem`):
 4. ``reduced_assembly``: G^T A G and G^T b (eq. 10), the matrix gathered from the
    assembled A's vertex blocks (:func:`mapping.reduced_matrix`), upper triangle
    only when the solver is a Cholesky that reads one, and its elimination order
-   inherited from the mesh (:meth:`mapping.Mapping.elimination_order`);
-5. ``factorization`` and ``solve``: the reduced system, direct solver;
+   inherited from the mesh (:meth:`mapping.Mapping.elimination_order`); in a scene of
+   several bodies, renumbered as full space numbers its unknowns (:mod:`.numbering`);
+5. ``factorization`` and ``solve``: the reduced system, direct solver: with the contacts'
+   unknowns last where contact's Schur inverse accepts; else, several bodies, one block per
+   body (:mod:`.blocks`: only the bodies whose clusters changed are analysed again); else, few
+   constraints and a new pattern, through the full A's factorisation (:mod:`.constrained`);
+   else whole;
 6. dv = G dq + d (eq. 12); the positions are integrated by the mapping's body kind.
 
 With an error budget, a time budget or ``never_slower`` (:mod:`skfem_affine.reducers.budget`),

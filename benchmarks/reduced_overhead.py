@@ -1,0 +1,120 @@
+"""What a reduced frame costs beyond full space: full space, affinification (or rigidification) on the
+old route and on the new one, stepped in turn in one process, per-phase means over a window of frames.
+
+The old route factorises the whole reduced matrix A_r in the compact numbering (elastic DOFs, then
+the bodies' columns); the new one numbers the unknowns as full space does in scenes of several bodies
+and factorises each body's block on its own (only the bodies whose clusters changed are analysed
+again), and, in a scene of one body, solves a frame whose A_r pattern is new and that reduces few DOFs
+through the full A's factorisation (``skfem_affine.reducers.affine.constrained``). Both give the same
+frames to round-off. The scenes are those of ``benchmarks/paper_table1.py`` (the paper's meshes in
+MESH_DIR, its thresholds). Every run starts from a checkpoint at ``--start`` in ``--checkpoints``
+(``SCENE_full_START.npz``, ``SCENE_METHOD_START.npz``), written there first when missing (the runs to
+it are not interleaved, and take minutes on the pills). Usage::
+
+    python benchmarks/reduced_overhead.py MESH_DIR --scene pills --start 100 --frames 10 --checkpoints RUNS
+    python benchmarks/reduced_overhead.py MESH_DIR --scene wheel --start 145 --frames 6 --checkpoints RUNS
+    python benchmarks/reduced_overhead.py MESH_DIR --scene octopus --start 72 --frames 6 --checkpoints RUNS
+"""
+import argparse
+import os
+import sys
+import time
+
+# one BLAS/MKL thread for every method (read before numpy loads them)
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
+import numpy as np  # noqa: E402
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+sys.path.insert(0, os.path.dirname(HERE))  # measure the checkout this script sits in
+sys.path.insert(0, HERE)
+import paper_table1  # noqa: E402
+
+PHASES = ("wall", "assembly", "prediction", "clustering", "map_assembly", "reduced_assembly", "factorization",
+          "solve", "delassus", "pgs", "contact")
+COUNTS = ("dofs", "n_clusters", "n_contacts")
+
+
+def old_route(sim):
+    """The simulation's reducer on the old route: the whole A_r, compact numbering."""
+    reducer = sim.integrator.reducer
+    reducer.full_numbering, reducer.blocks, reducer.constraints_max = False, None, -1
+    return sim
+
+
+def started(build, reducer, path, start):
+    """A simulation at frame ``start``: loaded from ``path``, else run there from frame 0 and saved."""
+    sim = build(reducer)
+    if os.path.isfile(path):
+        sim.load_state(path)
+    else:
+        for _ in range(start):
+            sim.step()
+        sim.save(path)
+    return sim
+
+
+def run(mesh_dir, scene, start, frames, checkpoints, method="affinification", warmup=2):
+    """Per-phase means (ms, and the mean counts) of full space, ``method`` on the old route and on the
+    new one over ``frames`` frames after ``warmup`` more from ``start`` (a resumed run's first frames
+    analyse its systems anew), stepped in turn (the order rotating); and the largest position
+    difference between the two routes (m)."""
+    row, _, factory, fraction = paper_table1.SCENES[scene]
+    build = factory(mesh_dir, start + warmup + frames)
+    which = 0 if method == "affinification" else 1
+
+    def reducer():
+        return paper_table1.reducers(row, fraction)[which]
+
+    os.makedirs(checkpoints, exist_ok=True)
+    path = os.path.join(checkpoints, f"{scene}_{{}}_{start}.npz")
+    sims = {"full": started(build, None, path.format("full"), start),
+            "old route": old_route(started(build, reducer(), path.format(method), start)),
+            "new route": started(build, reducer(), path.format(method), start)}
+    names = list(sims)
+    t0 = time.perf_counter()
+    for frame in range(warmup + frames):
+        for i in range(len(names)):
+            sims[names[(frame + i) % len(names)]].step()
+        print(f"{scene} frame {start + frame + 1} ({time.perf_counter() - t0:.0f} s)", file=sys.stderr, flush=True)
+    means = {}
+    for name, sim in sims.items():
+        recs = sim.stats[-frames:]
+        means[name] = {k: 1e3 * float(np.mean([r.get(k, 0.0) for r in recs])) for k in PHASES}
+        means[name].update({k: float(np.mean([r.get(k, 0) for r in recs])) for k in COUNTS})
+        means[name]["other"] = means[name]["wall"] - means[name]["factorization"] - means[name]["contact"]
+        means[name]["wall (median)"] = 1e3 * float(np.median([r["wall"] for r in recs]))
+    gap = float(np.abs(sims["old route"].state.x - sims["new route"].state.x).max())
+    return means, gap
+
+
+def markdown(scene, means):
+    names = list(means)
+    lines = [f"| {scene} | " + " | ".join(names) + " |", "|---" * (len(names) + 1) + "|"]
+    for key in ("wall (median)",) + PHASES + ("other",) + COUNTS:
+        lines.append(f"| {key} | " + " | ".join(f"{means[n][key]:.0f}" for n in names) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("mesh_dir", help="the paper's meshes")
+    ap.add_argument("--scene", choices=["pills", "wheel", "octopus"], required=True)
+    ap.add_argument("--method", choices=["affinification", "rigidification"], default="affinification")
+    ap.add_argument("--start", type=int, required=True)
+    ap.add_argument("--frames", type=int, default=6)
+    ap.add_argument("--warmup", type=int, default=2, help="frames stepped before the window")
+    ap.add_argument("--checkpoints", required=True, help="folder of the checkpoints at --start")
+    args = ap.parse_args(argv)
+    means, gap = run(args.mesh_dir, args.scene, args.start, args.frames, args.checkpoints, args.method,
+                    args.warmup)
+    first = args.start + args.warmup + 1
+    print(f"frames {first}-{first + args.frames - 1}, ms per frame (means); largest position difference "
+          f"between the routes {gap:.1e} m")
+    print(markdown(args.scene, means))
+    return means, gap
+
+
+if __name__ == "__main__":
+    main()
