@@ -202,7 +202,10 @@ class Operator:
         A (full space) or A_r = G^T A G (reduced). With ``upper=True`` the upper triangle is
         given and :attr:`matrix` returns the whole symmetric matrix, built on first use.
     G : sparse matrix, optional
-        The frame's mapping (free DOFs x reduced DOFs); None in full space.
+        The frame's mapping (free DOFs x reduced unknowns); None in full space. In a scene of several
+        bodies a reducer may number its unknowns as full space does, the reduced vertices' own DOFs
+        kept as unknowns with empty columns (:mod:`~skfem_affine.reducers.affine.numbering`): G then
+        has more columns than rows.
     schur : (keep, S), optional
         When the factorisation had the sorted unknowns ``keep`` last: their Schur complement S
         (dense), so that ``(A^-1)_keep,keep = S^-1`` without a solve
