@@ -7,13 +7,15 @@ and factorises each body's block on its own (only the bodies whose clusters chan
 again), and, in a scene of one body, solves a frame whose A_r pattern is new and that reduces few DOFs
 through the full A's factorisation (``skfem_affine.reducers.affine.constrained``). Both give the same
 frames to round-off. The scenes are those of ``benchmarks/paper_table1.py`` (the paper's meshes in
-MESH_DIR, its thresholds). Every run starts from a checkpoint at ``--start`` in ``--checkpoints``
+MESH_DIR, its thresholds) and ``pile``, the four soft boxes of ``benchmarks/budget.py`` at tau_a = 1e-4
+(no MESH_DIR). Every run starts from a checkpoint at ``--start`` in ``--checkpoints``
 (``SCENE_full_START.npz``, ``SCENE_METHOD_START.npz``), written there first when missing (the runs to
 it are not interleaved, and take minutes on the pills). Usage::
 
     python benchmarks/reduced_overhead.py MESH_DIR --scene pills --start 100 --frames 10 --checkpoints RUNS
     python benchmarks/reduced_overhead.py MESH_DIR --scene wheel --start 145 --frames 6 --checkpoints RUNS
     python benchmarks/reduced_overhead.py MESH_DIR --scene octopus --start 72 --frames 6 --checkpoints RUNS
+    python benchmarks/reduced_overhead.py --scene pile --cells 2 --start 60 --frames 10 --checkpoints RUNS
 """
 import argparse
 import os
@@ -30,6 +32,7 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.dirname(HERE))  # measure the checkout this script sits in
 sys.path.insert(0, HERE)
 import paper_table1  # noqa: E402
+import skfem_affine as sa  # noqa: E402
 
 PHASES = ("wall", "assembly", "prediction", "clustering", "map_assembly", "reduced_assembly", "factorization",
           "solve", "delassus", "pgs", "contact")
@@ -55,17 +58,28 @@ def started(build, reducer, path, start):
     return sim
 
 
-def run(mesh_dir, scene, start, frames, checkpoints, method="affinification", warmup=2):
+def run(mesh_dir, scene, start, frames, checkpoints, method="affinification", warmup=2, cells=2):
     """Per-phase means (ms, and the mean counts) of full space, ``method`` on the old route and on the
     new one over ``frames`` frames after ``warmup`` more from ``start`` (a resumed run's first frames
     analyse its systems anew), stepped in turn (the order rotating); and the largest position
     difference between the two routes (m)."""
-    row, _, factory, fraction = paper_table1.SCENES[scene]
-    build = factory(mesh_dir, start + warmup + frames)
     which = 0 if method == "affinification" else 1
+    if scene == "pile":  # four soft boxes settling on the ground (benchmarks/budget.py), no meshes
+        from budget import pile
 
-    def reducer():
-        return paper_table1.reducers(row, fraction)[which]
+        def build(reducer):
+            return pile(cells, reducer)
+
+        def reducer():
+            return (sa.Affinification(tau_a=1e-4, tau_e=2e-4), sa.Rigidification(tau_r=1e-4, tau_e=2e-4))[which]
+    else:
+        if mesh_dir is None:
+            raise ValueError(f"--scene {scene} needs MESH_DIR (the paper's meshes)")
+        row, _, factory, fraction = paper_table1.SCENES[scene]
+        build = factory(mesh_dir, start + warmup + frames)
+
+        def reducer():
+            return paper_table1.reducers(row, fraction)[which]
 
     os.makedirs(checkpoints, exist_ok=True)
     path = os.path.join(checkpoints, f"{scene}_{{}}_{start}.npz")
@@ -99,8 +113,9 @@ def markdown(scene, means):
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("mesh_dir", help="the paper's meshes")
-    ap.add_argument("--scene", choices=["pills", "wheel", "octopus"], required=True)
+    ap.add_argument("mesh_dir", nargs="?", default=None, help="the paper's meshes (not for --scene pile)")
+    ap.add_argument("--scene", choices=["pills", "wheel", "octopus", "pile"], required=True)
+    ap.add_argument("--cells", type=int, default=2, help="cells per box edge of the pile")
     ap.add_argument("--method", choices=["affinification", "rigidification"], default="affinification")
     ap.add_argument("--start", type=int, required=True)
     ap.add_argument("--frames", type=int, default=6)
@@ -108,7 +123,7 @@ def main(argv=None):
     ap.add_argument("--checkpoints", required=True, help="folder of the checkpoints at --start")
     args = ap.parse_args(argv)
     means, gap = run(args.mesh_dir, args.scene, args.start, args.frames, args.checkpoints, args.method,
-                    args.warmup)
+                    args.warmup, args.cells)
     first = args.start + args.warmup + 1
     print(f"frames {first}-{first + args.frames - 1}, ms per frame (means); largest position difference "
           f"between the routes {gap:.1e} m")

@@ -232,3 +232,12 @@ def test_the_whole_matrix_from_its_upper_triangle_is_scipys():
         assert W.has_sorted_indices
         assert np.array_equal(W.indptr, ref.indptr) and np.array_equal(W.indices, ref.indices)
         assert np.array_equal(W.data, ref.data)
+
+
+def test_the_benchmark_steps_full_space_and_both_routes_in_turn(benchmark_script, tmp_path):
+    bench = benchmark_script("reduced_overhead")
+    means, gap = bench.main(["--scene", "pile", "--cells", "1", "--start", "3", "--frames", "2", "--warmup", "1",
+                             "--checkpoints", str(tmp_path)])
+    assert list(means) == ["full", "old route", "new route"] and gap <= 1e-9
+    assert means["new route"]["dofs"] == means["old route"]["dofs"] < means["full"]["dofs"]
+    assert (tmp_path / "pile_full_3.npz").is_file() and (tmp_path / "pile_affinification_3.npz").is_file()
