@@ -241,3 +241,23 @@ def test_the_benchmark_steps_full_space_and_both_routes_in_turn(benchmark_script
     assert list(means) == ["full", "old route", "new route"] and gap <= 1e-9
     assert means["new route"]["dofs"] == means["old route"]["dofs"] < means["full"]["dofs"]
     assert (tmp_path / "pile_full_3.npz").is_file() and (tmp_path / "pile_affinification_3.npz").is_file()
+
+
+def test_the_coarse_guess_by_group_sums_is_scipys_bit_for_bit():
+    """T^T A T of the bodies' translations summed in scipy's order: the same guess, bit for bit."""
+    from skfem_affine.reducers.affine import oracle
+    sim = _pills(new=False, frames=1)
+    problem, _ = _frame(sim)
+    sysm, model = sim.system, sim.model
+    T = oracle.body_translations(sysm)
+    b = np.random.default_rng(5).normal(size=sysm.free.size)
+    mdiag = sysm.Mff.diagonal()
+    cm, ck = model.coefficients
+    TAT = (cm * (T.T @ sp.diags(mdiag) @ T) + ck * (T.T @ (problem.Hmat @ T))).toarray()
+    ref = T @ np.linalg.solve(TAT, T.T @ b)
+    assert np.array_equal(oracle.coarse_guess(T, mdiag, problem.Hmat, model.coefficients, b), ref)
+    T2 = T.copy()
+    T2.data[:] = 2.0  # not unit entries: scipy's products
+    TAT2 = (cm * (T2.T @ sp.diags(mdiag) @ T2) + ck * (T2.T @ (problem.Hmat @ T2))).toarray()
+    assert np.array_equal(oracle.coarse_guess(T2, mdiag, problem.Hmat, model.coefficients, b),
+                          T2 @ np.linalg.solve(TAT2, T2.T @ b))
