@@ -609,7 +609,8 @@ class ClusteringReducer(Reducer):
         if schur is not None:
             solver, schur = schur[0], schur[1:]
             stats["frame_schur"] = int(schur[0].size)
-        elif n_bodies and num is not None and order is not None and self.blocks is not None:  # one block per body
+        elif n_bodies and num is not None and order is not None and self.blocks is not None \
+                and isinstance(solver, Pardiso) and not solver.analysed_for(Ar, upper):  # a new pattern: one block per body, analysed where it changed
             solver = self.blocks
             solver.factorize(Ar, blocks.unknown_labels(self._contact_bodies, num, gmap.width), order)
             stats["blocks_analysed"] = solver.analyses
