@@ -12,7 +12,8 @@ from skfem_affine.reducers.affine.clustered import ClusteringReducer, forced_fra
 def element_rates(v, t, grads):
     """F_dot (k, 3, 3) of the k elements of connectivity ``t`` (4, k) and shape gradients ``grads``."""
     out = np.empty((t.shape[1], 3, 3))
-    deformation_gradients(np.ascontiguousarray(v, dtype=float), np.ascontiguousarray(t), np.ascontiguousarray(grads), out)
+    deformation_gradients(np.ascontiguousarray(v, dtype=float), np.ascontiguousarray(t), np.ascontiguousarray(grads),
+                          out)
     return out
 
 

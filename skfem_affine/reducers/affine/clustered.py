@@ -610,7 +610,8 @@ class ClusteringReducer(Reducer):
             solver, schur = schur[0], schur[1:]
             stats["frame_schur"] = int(schur[0].size)
         elif n_bodies and num is not None and order is not None and self.blocks is not None \
-                and isinstance(solver, Pardiso) and not solver.analysed_for(Ar, upper):  # a new pattern: one block per body, analysed where it changed
+                and isinstance(solver, Pardiso) and not solver.analysed_for(Ar, upper):
+            # several bodies, a new pattern: one block per body, analysed again where its clusters changed
             solver = self.blocks
             solver.factorize(Ar, blocks.unknown_labels(self._contact_bodies, num, gmap.width), order)
             stats["blocks_analysed"] = solver.analyses
