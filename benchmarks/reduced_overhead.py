@@ -16,6 +16,11 @@ it are not interleaved, and take minutes on the pills). Usage::
     python benchmarks/reduced_overhead.py MESH_DIR --scene wheel --start 145 --frames 6 --checkpoints RUNS
     python benchmarks/reduced_overhead.py MESH_DIR --scene octopus --start 72 --frames 6 --checkpoints RUNS
     python benchmarks/reduced_overhead.py --scene pile --cells 2 --start 60 --frames 10 --checkpoints RUNS
+    python benchmarks/reduced_overhead.py MESH_DIR --scene pills --start 100 --checkpoints RUNS --factorisations
+
+``--factorisations`` times instead the factorisations of the frame after ``--start`` in isolation (the
+least of 5 runs: robust to load): A_r whole with and without its analysis, the full A, and A_r per
+scene body with and without the analysis of the bodies holding clusters.
 """
 import argparse
 import os
@@ -103,6 +108,76 @@ def run(mesh_dir, scene, start, frames, checkpoints, method="affinification", wa
     return means, gap
 
 
+def factorisations(mesh_dir, scene, start, checkpoints, method="affinification", repeat=5, cells=2):
+    """The least of ``repeat`` timings (ms) of factorising the frame after the checkpoint at ``start``:
+    A_r whole with a new analysis, A_r whole numeric only, the full A numeric only, A_r per scene body
+    numeric only, and per body with the bodies holding clusters analysed anew (the frame of a new
+    pattern on the new route)."""
+    from skfem_affine.reducers.affine import blocks
+    from skfem_affine.reducers.affine.mapping import reduced_matrix
+    from skfem_affine.reducers.affine.numbering import FullNumbering
+    from skfem_affine.solvers import Pardiso
+    seen = {}
+    which = 0 if method == "affinification" else 1
+    if scene == "pile":
+        from budget import pile
+        sim = started(lambda r: pile(cells, r), (sa.Affinification(tau_a=1e-4, tau_e=2e-4),
+                                                 sa.Rigidification(tau_r=1e-4, tau_e=2e-4))[which],
+                      os.path.join(checkpoints, f"{scene}_{method}_{start}.npz"), start)
+    else:
+        row, _, factory, fraction = paper_table1.SCENES[scene]
+        sim = started(factory(mesh_dir, start + 1), paper_table1.reducers(row, fraction)[which],
+                      os.path.join(checkpoints, f"{scene}_{method}_{start}.npz"), start)
+    reducer = sim.integrator.reducer
+    original = reducer.solve
+
+    def spy(problem):
+        seen["problem"], seen["result"] = problem, original(problem)
+        return seen["result"]
+
+    reducer.solve = spy
+    sim.step()
+    problem, gmap = seen["problem"], seen["result"].mapping
+    if gmap is None or not gmap.n_bodies:
+        raise ValueError(f"frame {start + 1} of the {scene} reduces nothing")
+    Ar = reduced_matrix(sim.model, problem.data, gmap, upper=True)
+    order = gmap.elimination_order(reducer.vertex_rank)
+    num = FullNumbering(gmap, sim.model.coefficients[0] * reducer.mdiag)
+    W, ow = num.matrix(Ar), num.order(order)
+    labels = blocks.unknown_labels(sim.contact.bodies, num, gmap.width)
+    changed = np.unique(labels[num.columns[gmap.n_elastic:]])
+    A = problem.matrix()
+    whole, full, per_body = Pardiso(), Pardiso(), blocks.BodyBlocks()
+    whole.factorize(Ar, upper=True, order=order)
+    full.factorize(A)
+    per_body.factorize(W, labels, ow)
+
+    def fresh():
+        s = Pardiso()
+        s._analysed = True  # a later analysis, as a run's
+        s.factorize(Ar, upper=True, order=order)
+
+    def changed_bodies():
+        for b in changed:
+            per_body.handles.pop(int(b), None)
+        per_body.factorize(W, labels, ow)
+
+    cases = {"A_r whole, analysis and factorisation": fresh,
+             "A_r whole, factorisation": lambda: whole.factorize(Ar, upper=True, order=order),
+             "full A, factorisation": lambda: full.factorize(A),
+             "A_r per body, factorisation": lambda: per_body.factorize(W, labels, ow),
+             f"A_r per body, {changed.size} bodies analysed": changed_bodies}
+    out = {}
+    for name, case in cases.items():
+        times = []
+        for _ in range(repeat):
+            t0 = time.perf_counter()
+            case()
+            times.append(time.perf_counter() - t0)
+        out[name] = 1e3 * min(times)
+    return out
+
+
 def markdown(scene, means):
     names = list(means)
     lines = [f"| {scene} | " + " | ".join(names) + " |", "|---" * (len(names) + 1) + "|"]
@@ -121,7 +196,14 @@ def main(argv=None):
     ap.add_argument("--frames", type=int, default=6)
     ap.add_argument("--warmup", type=int, default=2, help="frames stepped before the window")
     ap.add_argument("--checkpoints", required=True, help="folder of the checkpoints at --start")
+    ap.add_argument("--factorisations", action="store_true",
+                    help="instead, time the factorisations of the frame after --start (least of 5)")
     args = ap.parse_args(argv)
+    if args.factorisations:
+        times = factorisations(args.mesh_dir, args.scene, args.start, args.checkpoints, args.method, cells=args.cells)
+        print(f"frame {args.start + 1}, least of 5, ms")
+        print("\n".join(f"| {name} | {ms:.0f} |" for name, ms in times.items()))
+        return times
     means, gap = run(args.mesh_dir, args.scene, args.start, args.frames, args.checkpoints, args.method,
                     args.warmup, args.cells)
     first = args.start + args.warmup + 1

@@ -261,3 +261,10 @@ def test_the_coarse_guess_by_group_sums_is_scipys_bit_for_bit():
     TAT2 = (cm * (T2.T @ sp.diags(mdiag) @ T2) + ck * (T2.T @ (problem.Hmat @ T2))).toarray()
     assert np.array_equal(oracle.coarse_guess(T2, mdiag, problem.Hmat, model.coefficients, b),
                           T2 @ np.linalg.solve(TAT2, T2.T @ b))
+
+
+def test_the_benchmark_times_the_factorisations_of_one_frame(benchmark_script, tmp_path):
+    bench = benchmark_script("reduced_overhead")
+    times = bench.main(["--scene", "pile", "--cells", "1", "--start", "3", "--checkpoints", str(tmp_path),
+                        "--factorisations"])
+    assert len(times) == 5 and all(t > 0 for t in times.values())
