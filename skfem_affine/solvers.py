@@ -182,6 +182,15 @@ class Pardiso:
             self._pattern = None
             raise SolverError(f"Pardiso factorization failed ({err}); is the system positive definite?") from err
 
+    def analysed_for(self, A, upper=False):
+        """Whether A's pattern is the one analysed last (or the one a loaded checkpoint will analyse
+        next): :meth:`factorize` would then skip the analysis."""
+        pat = self._pattern if self._pattern is not None else self._resume
+        if pat is None:
+            return False
+        indptr, indices, _ = self._upper(A, upper or getattr(A, "_upper", False))
+        return _same(pat[0], indptr) and _same(pat[1], indices)
+
     def __del__(self):
         try:
             if self._pattern is not None:

@@ -32,7 +32,7 @@ def frames_with_contact(sim, frames, check, want=3):
 
     def spy(problem, result, rec):
         op, cs = result.operator, sim.contact.current
-        if cs is not None and cs.size and (sim.reducer is None or op.G is None or op.G.shape[1] < op.G.shape[0]):
+        if cs is not None and cs.size and (sim.reducer is None or op.G is None or op.G.shape[1] != op.G.shape[0]):
             check(op, cs.J)
             done.append(True)
         return original(problem, result, rec)

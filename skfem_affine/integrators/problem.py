@@ -24,6 +24,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from skfem_affine.checks import nonnegative
+from skfem_affine.upper import whole_from_upper
 
 # Per-frame timing keys of ``sim.stats`` (seconds); a reducer's stats add to the integrator's.
 PHASES = ("assembly", "prediction", "clustering", "map_assembly", "reduced_assembly",
@@ -201,7 +202,10 @@ class Operator:
         A (full space) or A_r = G^T A G (reduced). With ``upper=True`` the upper triangle is
         given and :attr:`matrix` returns the whole symmetric matrix, built on first use.
     G : sparse matrix, optional
-        The frame's mapping (free DOFs x reduced DOFs); None in full space.
+        The frame's mapping (free DOFs x reduced unknowns); None in full space. In a scene of several
+        bodies a reducer may number its unknowns as full space does, the reduced vertices' own DOFs
+        kept as unknowns with empty columns (:mod:`~skfem_affine.reducers.affine.numbering`): G then
+        has more columns than rows.
     schur : (keep, S), optional
         When the factorisation had the sorted unknowns ``keep`` last: their Schur complement S
         (dense), so that ``(A^-1)_keep,keep = S^-1`` without a solve
@@ -219,7 +223,7 @@ class Operator:
         """The factorised symmetric matrix (whole, not one triangle)."""
         if self._upper:
             U = self._matrix
-            self._matrix, self._upper = (U + sp.triu(U, k=1, format="csr").T).tocsr(), False
+            self._matrix, self._upper = whole_from_upper(U), False
         return self._matrix
 
     @property

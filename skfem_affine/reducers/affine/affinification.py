@@ -2,10 +2,19 @@
 become affine bodies of 12 DOFs for one frame."""
 import numpy as np
 
+from skfem_affine._kernels import deformation_gradients
 from skfem_affine.checks import integer
 from skfem_affine.reducers.affine import clustering
 from skfem_affine.reducers.affine import mapping as reduction
 from skfem_affine.reducers.affine.clustered import ClusteringReducer, forced_fraction, resolve_thresholds
+
+
+def element_rates(v, t, grads):
+    """F_dot (k, 3, 3) of the k elements of connectivity ``t`` (4, k) and shape gradients ``grads``."""
+    out = np.empty((t.shape[1], 3, 3))
+    deformation_gradients(np.ascontiguousarray(v, dtype=float), np.ascontiguousarray(t), np.ascontiguousarray(grads),
+                          out)
+    return out
 
 
 class Affinification(ClusteringReducer):
@@ -106,8 +115,11 @@ class Affinification(ClusteringReducer):
         """Deformation rates (eq. 4; predicted velocities for previously affine elements) and BFS."""
         sysm = problem.system
         Fdot = sysm.deformation_gradients(problem.v)
-        if np.any(self.was_reduced):
+        was = np.flatnonzero(self.was_reduced)
+        if 2 * was.size > sysm.m:
             np.copyto(Fdot, sysm.deformation_gradients(v_pred), where=self.was_reduced[:, None, None])
+        elif was.size:  # few were reduced: their rates only (the same sums, element by element)
+            Fdot[was] = element_rates(v_pred, sysm.t[:, was], sysm.grads[was])
         forced = clustering.forced_set(Fdot, self.adjacency, self.min_fraction) if self.min_fraction > 0 else None
         labels, seeds = clustering.cluster_deformation_rates(
             Fdot, self.adjacency, sysm.t, sysm.n, self.tau_a, self.tau_e, was_affine=self.was_reduced,

@@ -14,8 +14,13 @@ integrator's, in the :class:`~skfem_affine.integrators.problem.StepProblem`):
 4. ``reduced_assembly``: G^T A G and G^T b (eq. 10), the matrix gathered from the
    assembled A's vertex blocks (:func:`mapping.reduced_matrix`), upper triangle
    only when the solver is a Cholesky that reads one, and its elimination order
-   inherited from the mesh (:meth:`mapping.Mapping.elimination_order`);
-5. ``factorization`` and ``solve``: the reduced system, direct solver;
+   inherited from the mesh (:meth:`mapping.Mapping.elimination_order`); in a scene of
+   several bodies, renumbered as full space numbers its unknowns (:mod:`.numbering`);
+5. ``factorization`` and ``solve``: the reduced system, direct solver: with the contacts'
+   unknowns last where contact's Schur inverse accepts; else, several bodies, one block per
+   body (:mod:`.blocks`: only the bodies whose clusters changed are analysed again); else, few
+   constraints and a new pattern, through the full A's factorisation (:mod:`.constrained`);
+   else whole;
 6. dv = G dq + d (eq. 12); the positions are integrated by the mapping's body kind.
 
 With an error budget, a time budget or ``never_slower`` (:mod:`skfem_affine.reducers.budget`),
@@ -35,11 +40,12 @@ from skfem_affine.checks import choice, flag, integer, positive, real, real_arra
 from skfem_affine.threads import serial_blas
 from skfem_affine.integrators.problem import Operator, StepResult
 from skfem_affine.reducers import budget as budgets
-from skfem_affine.reducers.affine import clustering, oracle, pinned
+from skfem_affine.reducers.affine import blocks, clustering, constrained, oracle, pinned
 from skfem_affine.reducers.affine import mapping as reduction
+from skfem_affine.reducers.affine.numbering import FullNumbering, several_bodies
 from skfem_affine.reducers.base import Reducer
 from skfem_affine.reducers.full import contact_factorization, factorize_and_solve
-from skfem_affine.solvers import make_solver
+from skfem_affine.solvers import Pardiso, make_solver
 
 SEEDINGS = ("random", "index", "temporal")
 
@@ -299,9 +305,15 @@ class ClusteringReducer(Reducer):
         self._pending = None  # (future, pose) of a background build
         self.solver = make_solver(self.solver_spec if self.solver_spec is not None else "direct")
         self.upper = getattr(self.solver, "accepts_upper", False)  # a Cholesky reads one triangle
+        # frames reducing few DOFs solve A_r through A's factorisation, kept on this handle (:mod:`.constrained`)
+        self.full_handle = Pardiso() if type(self.solver) is Pardiso else None
+        self.constraints_max = constrained.CONSTRAINTS_MAX  # -1: never
+        self.blocks = blocks.BodyBlocks()  # a frame of several scene bodies, factorised per body (None: whole)
         # a fill-reducing order of the free vertices, inherited by every frame's reduced system
         self.vertex_rank = reduction.nested_dissection_rank(sysm) if self.upper else None
         self.mdiag = sysm.Mff.diagonal()
+        # several bodies: a reduced frame numbers its unknowns as full space does (:mod:`.numbering`)
+        self.full_numbering = several_bodies(self._contact_bodies)
         self.gravity_dv = np.tile(model.gravity, sysm.n)[sysm.free] * model.dt
         self.translations = oracle.body_translations(sysm)
         self._setup_controllers()
@@ -582,6 +594,11 @@ class ClusteringReducer(Reducer):
                 order = gmap.elimination_order(self.vertex_rank)
         else:
             Ar, br = problem.matrix(), b
+        dofs, num = Ar.shape[0], None
+        if n_bodies and self.full_numbering:  # each scene body's unknowns where full space has them
+            num = FullNumbering(gmap, model.coefficients[0] * self.mdiag)
+            Ar, br, G = num.matrix(Ar), num.vector(br), num.mapping(G)
+            order = None if order is None else num.order(order)
         t5 = time.perf_counter()
         stats["reduced_assembly"] = t5 - t4
         upper = bool(self.upper and n_bodies)
@@ -592,6 +609,15 @@ class ClusteringReducer(Reducer):
         if schur is not None:
             solver, schur = schur[0], schur[1:]
             stats["frame_schur"] = int(schur[0].size)
+        elif n_bodies and num is not None and order is not None and self.blocks is not None \
+                and isinstance(solver, Pardiso) and not solver.analysed_for(Ar, upper):
+            # several bodies, a new pattern: one block per body, analysed again where its clusters changed
+            solver = self.blocks
+            solver.factorize(Ar, blocks.unknown_labels(self._contact_bodies, num, gmap.width), order)
+            stats["blocks_analysed"] = solver.analyses
+        elif n_bodies and self._through_full(labels, gmap, Ar, upper):
+            solver = self._constrained_solver(problem, gmap, num)
+            stats["through_full"] = True
         elif upper:
             solver.factorize(Ar, upper=True, order=order)
         else:
@@ -599,13 +625,30 @@ class ClusteringReducer(Reducer):
         t6 = time.perf_counter()
         dq = solver.solve(br)
         t7 = time.perf_counter()
-        stats.update(factorization=t6 - t5, solve=t7 - t6, dofs=Ar.shape[0], solver=self.solver.name,
+        stats.update(factorization=t6 - t5, solve=t7 - t6, dofs=dofs, solver=self.solver.name,
                      iterations=solver.last_iterations, n_clusters=n_bodies, elastic_dofs=int(gmap.n_elastic),
                      reduced_fraction=float(np.mean(labels >= 0)) if labels.size else 0.0)
         self.was_reduced = labels >= 0
         self.labels = labels
         return StepResult(dv=reduction.lift(G, dq, d), operator=Operator(solver, Ar, G, upper=upper, schur=schur),
                           mapping=gmap, clusters=labels, stats=stats)  # eq. 12
+
+    def _through_full(self, labels, gmap, Ar, upper):
+        """Whether the frame solves A_r through the full A's factorisation (:mod:`.constrained`): a
+        Pardiso frame solver, few constraints, and an A_r pattern neither the last frame (its clusters,
+        ``labels``) nor the last analysis had."""
+        if self.full_handle is None or constrained.constraints(gmap) > self.constraints_max:
+            return False
+        # the same clusters (so A_r's pattern) on two frames in a row: A_r is factorised, its analysis
+        # then serves the frames after
+        return not (np.array_equal(self.labels, labels) or self.solver.analysed_for(Ar, upper))
+
+    def _constrained_solver(self, problem, gmap, num):
+        """A_r^-1 from the factorisation of the frame's full A, kept on its own handle."""
+        self.full_handle.factorize(problem.matrix())
+        if num is None:
+            return constrained.ConstrainedSolver(self.full_handle, gmap)
+        return constrained.ConstrainedSolver(self.full_handle, gmap, num.columns, num.size, num.idle, num.idle_values)
 
     # -------------------------------------------------------------- bodies with pinned vertices
     def _pinned_frame(self, problem, labels, gmap, stats, t3):

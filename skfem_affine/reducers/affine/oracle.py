@@ -30,6 +30,7 @@ import time
 
 import numpy as np
 import scipy.sparse as sp
+from numba import njit
 from scipy.sparse.csgraph import reverse_cuthill_mckee
 
 from skfem_affine.integrators.problem import Rayleigh, system_coefficients
@@ -325,8 +326,43 @@ def coarse_guess(T, mdiag, H, coefficients, b):
     translation is scaled by the same alpha as its stiff, local parts).
     """
     cm, ck = coefficients
-    TAT = (cm * (T.T @ sp.diags(mdiag) @ T) + ck * (T.T @ (H @ T))).toarray()
+    T = sp.csr_matrix(T)
+    if T.nnz == T.shape[0] and np.array_equal(T.indptr, np.arange(T.shape[0] + 1)) and np.all(T.data == 1.0):
+        # one unit entry per row (body_translations): T^T A T by group sums over A's entries, in the
+        # order of scipy's products below (the same sums)
+        TAT = _grouped_system(T.indices.astype(np.int64), T.shape[1], np.asarray(mdiag, dtype=float), H.indptr,
+                              H.indices, np.asarray(H.data, dtype=float), float(cm), float(ck))
+    else:
+        TAT = (cm * (T.T @ sp.diags(mdiag) @ T) + ck * (T.T @ (H @ T))).toarray()
     return T @ np.linalg.solve(TAT, T.T @ b)
+
+
+@njit(cache=True)
+def _grouped_system(group, k, mdiag, indptr, indices, data, cm, ck):
+    """T^T (c_M M + c_K H) T (k x k, dense) for T with one unit entry per row (row i in column
+    ``group[i]``): per row i of H its entries summed by their columns' groups in stored order, those
+    row sums added over the rows of each group in increasing order (as scipy's T^T (H T)); the mass
+    likewise on the diagonal."""
+    Ht = np.zeros((k, k))
+    Mt = np.zeros(k)
+    row = np.zeros(k)
+    seen = np.zeros(k, dtype=np.bool_)
+    for i in range(indptr.size - 1):
+        g = group[i]
+        for p in range(indptr[i], indptr[i + 1]):
+            c = group[indices[p]]
+            row[c] += data[p]
+            seen[c] = True
+        for c in range(k):
+            if seen[c]:
+                Ht[g, c] += row[c]
+                row[c] = 0.0
+                seen[c] = False
+        Mt[g] += mdiag[i]
+    out = ck * Ht
+    for g in range(k):
+        out[g, g] = cm * Mt[g] + ck * Ht[g, g]
+    return out
 
 
 def predict(apply_A, b, precond, gravity_dv=None, stats=None, x0=None):

@@ -1,0 +1,76 @@
+"""A reduced frame of several scene bodies factorised body by body.
+
+The frame's matrix does not couple the scene's bodies (contact couples them later, through the
+Delassus operator), so it is block diagonal, one block per body. Factorised whole, any cluster that
+forms or dissolves changes the whole pattern and costs a new symbolic analysis of all of it, about
+half a numeric factorisation; factorised per body (:class:`BodyBlocks`), each block keeps its own
+analysis while its clusters stay, and only the bodies whose clusters changed are analysed again. The
+blocks are taken from the frame's upper triangle in the full space's numbering
+(:class:`~skfem_affine.reducers.affine.numbering.FullNumbering`), each with its part of the frame's
+elimination order.
+"""
+import numpy as np
+import scipy.sparse as sp
+
+from skfem_affine.solvers import Pardiso
+
+
+def unknown_labels(bodies, numbering, width):
+    """The scene body of each unknown of a renumbered frame: a free DOF's own body for the free DOFs'
+    unknowns, a reduced body's scene body for its ``width`` columns."""
+    nf = bodies.size
+    out = np.empty(numbering.size, dtype=np.int64)
+    out[:nf] = bodies
+    first = numbering.body_rows  # one free DOF of each reduced body
+    out[nf:] = np.repeat(bodies[first], width)
+    return out
+
+
+class BodyBlocks:
+    """The frame's system factorised per scene body, one Pardiso handle each (module docstring).
+
+    ``factorize(U, labels, order)`` takes the upper triangle U (CSR, rows sorted), the body of each
+    unknown and the elimination order; ``solve(b)`` solves each block. Bodies' handles are kept from
+    frame to frame by body.
+    """
+
+    name = "pardiso-blocks"
+    iterative = False
+    last_iterations = 1
+    accepts_upper = True
+
+    def __init__(self):
+        self.handles = {}
+        self.blocks = []  # (body, its unknowns) of the last factorisation
+        self.analyses = 0  # blocks analysed anew by the last factorisation
+
+    def factorize(self, U, labels, order):
+        U = sp.csr_matrix(U)
+        labels = np.asarray(labels, dtype=np.int64)
+        n_bodies = int(labels.max()) + 1 if labels.size else 0
+        local = np.empty(labels.size, dtype=np.int64)
+        rank = np.argsort(labels, kind="stable")
+        cuts = np.searchsorted(labels[rank], np.arange(n_bodies + 1))
+        for b in range(n_bodies):
+            local[rank[cuts[b]:cuts[b + 1]]] = np.arange(cuts[b + 1] - cuts[b])
+        order = np.asarray(order, dtype=np.int64)
+        by_body = labels[order]
+        self.blocks, self.analyses = [], 0
+        for b in range(n_bodies):
+            idx = rank[cuts[b]:cuts[b + 1]]
+            if not idx.size:
+                continue
+            rows = U[idx]  # the body's rows: their columns are its own unknowns, in the same order
+            block = sp.csr_matrix((rows.data, local[rows.indices].astype(np.int32), rows.indptr),
+                                  shape=(idx.size, idx.size))
+            handle = self.handles.setdefault(b, Pardiso())
+            self.analyses += not handle.analysed_for(block, upper=True)
+            handle.factorize(block, upper=True, order=local[order[by_body == b]])
+            self.blocks.append((handle, idx))
+
+    def solve(self, b):
+        b = np.asarray(b, dtype=float)
+        x = np.empty_like(b)
+        for handle, idx in self.blocks:
+            x[idx] = handle.solve(b[idx])
+        return x
