@@ -8,13 +8,16 @@ residual (``contact_residual / contact_scale``), frames with unresolved contact,
 share of the frame, the deepest penetration, and the largest vertex distance between the two
 runs relative to the scene size (what stopping at the cap changes).
 
-With ``--solvers``, the contact iterations are compared instead: plain Gauss-Seidel sweeps and
-Anderson-accelerated sweeps (caps ``--solver-caps``, default 50 each, the other settings the
-defaults), and Anderson-accelerated sweeps run to the tolerance (a cap of 2000; not with
+With ``--solvers``, the contact iterations are compared instead: those of ``--compare`` (default
+plain Gauss-Seidel sweeps, Anderson-accelerated sweeps and block Gauss-Seidel over groups of coupled
+contacts; caps ``--solver-caps``, default 50 each, the other settings the defaults), and
+``--reference`` (default block Gauss-Seidel) run to the tolerance (a cap of 2000; not with
 ``--no-reference``); the frames from ``--start`` on are summarised, with the contact phase's
 time (detection, Delassus operator, solve, corrections) and the PGS solve's time of each
-relative to plain Gauss-Seidel, and each run's largest vertex distance to the run to tolerance
-and its deepest penetration over the window.
+relative to the first, and each run's largest vertex distance to the run to tolerance
+and its deepest penetration over the window. ``--resume CHECKPOINT`` starts every run from the
+positions, velocities and contact warm start of a full-space checkpoint of the scene (saved with
+any PGS settings, e.g. by ``benchmarks/paper_table1.py --checkpoint``), ``--frames`` more frames.
 
 Usage::
 
@@ -22,8 +25,11 @@ Usage::
     python benchmarks/pgs_convergence.py --scene stack --frames 40 --caps 50 3000 --default   # heavy on light
     MESH_DIR=... python benchmarks/pgs_convergence.py --scene paper-pills --frames 100   # the paper's Pill.mesh
     MESH_DIR=... python benchmarks/pgs_convergence.py --scene table1-pills --solvers --start 30 --frames 90
+    MESH_DIR=... python benchmarks/pgs_convergence.py --scene table1-pills --solvers --resume RUNS/pills/full-000275.npz --frames 20
+    MESH_DIR=... python benchmarks/pgs_convergence.py --scene wheel --solvers --frames 200   # also octopus, pile
 """
 import argparse
+import dataclasses
 import json
 import os
 import sys
@@ -36,7 +42,10 @@ import numpy as np  # noqa: E402
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 sys.path.insert(1, os.path.dirname(os.path.abspath(__file__)))
 import skfem_affine as sa  # noqa: E402
+from skfem_affine import checkpoint  # noqa: E402
 from skfem_affine.lab import metrics, runners  # noqa: E402
+from skfem_affine.contact.pgs import SOLVERS  # noqa: E402
+from skfem_affine.simulation import State  # noqa: E402
 
 
 def scene(name, caps_contact):
@@ -63,7 +72,25 @@ def scene(name, caps_contact):
         heavy = sa.ElasticBody(box(0.2, 2, (0, 0, 0.302)), sa.NeoHookean(E=1e9, nu=0.3), density=1e5)
         return sa.Simulation([light, heavy], dt=0.01, gravity=(0, 0, -9.81), colliders=[sa.Plane()],
                              contact=caps_contact)
+    if name == "pile":  # four soft boxes coming to rest (benchmarks/budget.py), 4 cells per box edge
+        from budget import pile
+        return with_contact(pile(4), caps_contact)
+    if name in ("wheel", "octopus"):  # as benchmarks/paper_table1.py builds them
+        import paper_table1
+        mesh_dir = os.environ.get("MESH_DIR") or os.environ.get("SKFEM_AFFINE_MESHES")
+        if not mesh_dir:
+            raise SystemExit("set MESH_DIR (or SKFEM_AFFINE_MESHES) to the folder of the paper's meshes")
+        build = paper_table1.SCENES[name][2](mesh_dir, 1000)
+        return with_contact(build(None), caps_contact)
     raise SystemExit(f"unknown scene {name!r}")
+
+
+def with_contact(sim, settings):
+    """``sim`` with the sweep settings (solver, caps, tolerance) of ``settings``, its scene's friction kept."""
+    st = sim.contact.settings
+    sim.contact.settings = dataclasses.replace(st, solver=settings.solver, iterations=settings.iterations,
+                                               max_iterations=settings.max_iterations, tolerance=settings.tolerance)
+    return sim
 
 
 def summary(records, start=0):
@@ -83,15 +110,21 @@ def summary(records, start=0):
 
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    p.add_argument("--scene", default="pills", choices=["pills", "paper-pills", "table1-pills", "stack"])
+    p.add_argument("--scene", default="pills", choices=["pills", "paper-pills", "table1-pills", "stack", "pile", "wheel", "octopus"])
     p.add_argument("--frames", type=int, default=120)
     p.add_argument("--caps", type=int, nargs=2, default=[50, 400], help="the default and the larger sweep cap")
     p.add_argument("--default", action="store_true",
                    help="also the default settings (extra sweeps while contact is unresolved)")
     p.add_argument("--solvers", action="store_true", help="compare the contact iterations (see above)")
     p.add_argument("--start", type=int, default=0, help="summarise the frames from this one on (--solvers)")
-    p.add_argument("--solver-caps", type=int, nargs=2, default=[50, 50],
-                   help="--solvers: the sweep caps (iterations) of Gauss-Seidel and of Anderson")
+    p.add_argument("--compare", nargs="+", default=["gauss-seidel", "anderson", "block"], choices=sorted(SOLVERS),
+                   help="--solvers: the iterations compared (the first is the base of the ratios)")
+    p.add_argument("--solver-caps", type=int, nargs="+", default=[50],
+                   help="--solvers: the sweep caps (iterations) of the --compare iterations (one for all, or one each)")
+    p.add_argument("--reference", default="block", choices=sorted(SOLVERS),
+                   help="--solvers: the iteration run to the tolerance")
+    p.add_argument("--resume", default=None, metavar="CHECKPOINT",
+                   help="--solvers: start from this full-space checkpoint's state and warm start")
     p.add_argument("--no-reference", action="store_true", help="--solvers: without the run to tolerance")
     args = p.parse_args(argv)
     friction = 0.3 if "pills" in args.scene else 0.5
@@ -117,14 +150,32 @@ def main(argv=None):
     return out
 
 
+def resume(sim, path):
+    """``sim`` at the state and contact warm start of the full-space checkpoint ``path`` of its scene
+    (saved with any PGS settings, so not through ``load_state``, which checks them)."""
+    header, arrays = checkpoint.read(path)
+    values = header["values"]
+    x, v = arrays["state.x"], arrays["state.v"]
+    if x.shape != sim.state.x.shape:
+        raise SystemExit(f"{path} holds {x.shape[0]} vertices, the scene {sim.state.x.shape[0]}")
+    sim.state = State(x.copy(), v.copy(), int(values["state.frame"]), float(values["state.time"]))
+    if values.get("contact.previous"):
+        sim.contact.previous = (arrays["contact.previous_keys"].copy(), arrays["contact.previous_world"].copy())
+
+
 def compare_solvers(args, friction):
-    """Gauss-Seidel, Anderson and Anderson to tolerance, stepped in turn; see the module docstring."""
-    plain, mixed = args.solver_caps
-    settings = {"gauss-seidel": sa.PGS(friction=friction, solver="gauss-seidel", iterations=plain),
-                "anderson": sa.PGS(friction=friction, solver="anderson", iterations=mixed)}
+    """The iterations of ``--compare`` and the ``--reference`` to tolerance, stepped in turn; see the module docstring."""
+    caps = args.solver_caps * len(args.compare) if len(args.solver_caps) == 1 else args.solver_caps
+    if len(caps) != len(args.compare):
+        raise SystemExit("--solver-caps: one cap, or one per --compare iteration")
+    settings = {f"{name}, cap {cap}": sa.PGS(friction=friction, solver=name, iterations=cap)
+                for name, cap in zip(args.compare, caps)}
     if not args.no_reference:
-        settings["to tolerance"] = sa.PGS(friction=friction, solver="anderson", iterations=2000, max_iterations=2000)
+        settings["to tolerance"] = sa.PGS(friction=friction, solver=args.reference, iterations=2000, max_iterations=2000)
     sims = {name: scene(args.scene, st) for name, st in settings.items()}
+    if args.resume:
+        for sim in sims.values():
+            resume(sim, args.resume)
     gap = {name: 0.0 for name in sims}
 
     def on_frame(frame, running):
@@ -135,7 +186,7 @@ def compare_solvers(args, friction):
 
     runs = runners.interleaved(sims, args.frames, on_frame=on_frame)
     out = {name: summary(runs[name].records, args.start) for name in sims}
-    base = out["gauss-seidel"]
+    base = out[next(iter(sims))]
     for name in sims:
         out[name].update(distance_to_tolerance=gap[name] if "to tolerance" in sims else None, contact_ratio=out[name]["contact_s"] / base["contact_s"],
                          pgs_ratio=out[name]["pgs_s"] / base["pgs_s"])

@@ -31,7 +31,8 @@ One frame, in the order of Algorithm 1:
    velocity no affine motion gives it alone (the contacts' W has rank 12 per body), and PGS
    stalls on it at its sweep cap (docs/contact.md).
    Restitution is zero. ``PGS(solver="anderson")`` accelerates the sweeps by Anderson mixing of
-   the last few (:func:`anderson_gauss_seidel`). The velocity correction is
+   the last few (:func:`anderson_gauss_seidel`); ``PGS(solver="block")`` solves groups of
+   strongly coupled contacts together (:func:`block_gauss_seidel`). The velocity correction is
    ``dv_c = A^-1 J^T lambda`` (one more solve), and v_{t+1} = v_t + dv + dv_c.
 5. **Penetration** (split impulse, :meth:`Contact.resolve` sets :attr:`Contact.correction`):
    when a contact penetrates (d < 0, e.g. bodies that start overlapping or inside a collider),
@@ -130,10 +131,12 @@ class PGS:
         whose many sharp edges add contacts).
     solver : str
         The iteration on the contact problem: ``"gauss-seidel"`` (plain sweeps,
-        :func:`projected_gauss_seidel`) or ``"anderson"`` (sweeps accelerated by Anderson mixing
+        :func:`projected_gauss_seidel`), ``"anderson"`` (sweeps accelerated by Anderson mixing
         of the last few, :func:`anderson_gauss_seidel`: fewer sweeps to the tolerance on stacks of
-        soft bodies, measured in ``docs/contact.md``). Both solve the same problem to the same residual; ``iterations``
-        and ``max_iterations`` count sweeps in either.
+        soft bodies) or ``"block"`` (block Gauss-Seidel over groups of strongly coupled contacts,
+        :func:`block_gauss_seidel`: contacts that are almost the same constraint, as where two soft
+        bodies meet, solved together; measured in ``docs/contact.md``). All solve the same problem
+        to the same residual; ``iterations`` and ``max_iterations`` count sweeps in each.
     schur : bool
         Build the Delassus operator of a one-body system from the Schur complement of the frame's
         matrix on the unknowns the contacts touch (MKL Pardiso, :mod:`~skfem_affine.contact.schur`)
@@ -452,8 +455,8 @@ def projected_gauss_seidel_lowrank(indptr, indices, data, ncols, u0, lam, iterat
 # |W_ij| / sqrt(W_ii W_jj) over their two 3 x 3 blocks) are solved together, in groups of at most
 # GROUP contacts, each visit by up to INNER sweeps on the group's own block.
 COUPLING = 0.5
-GROUP = 32
-INNER = 100
+GROUP = 64
+INNER = 1000
 
 
 @njit(cache=True)
@@ -473,16 +476,18 @@ def _groups(W, coupling, largest):
     for i in range(3 * k):
         if W[i, i] > 0.0:
             inv[i] = 1.0 / np.sqrt(W[i, i])
-    # the coupled pairs: counted, then stored
-    strength = np.zeros(k)
+    # the coupled pairs (i < j), stored as found
     pairs, values = np.empty((16, 2), dtype=np.int64), np.empty(16)
     n = 0
+    row = np.empty(3 * k)
     for i in range(k):
+        row[:] = 0.0
+        for a in range(3):  # the largest coupling of contact i's rows to each row after i's
+            s = inv[3 * i + a]
+            for q in range(3 * i + 3, 3 * k):
+                row[q] = max(row[q], abs(W[3 * i + a, q]) * s * inv[q])
         for j in range(i + 1, k):
-            c = 0.0
-            for a in range(3):
-                for b in range(3):
-                    c = max(c, abs(W[3 * i + a, 3 * j + b]) * inv[3 * i + a] * inv[3 * j + b])
+            c = max(row[3 * j], row[3 * j + 1], row[3 * j + 2])
             if c > coupling:
                 if n == values.size:
                     grown, more = np.empty((2 * n, 2), dtype=np.int64), np.empty(2 * n)
@@ -490,7 +495,6 @@ def _groups(W, coupling, largest):
                     pairs, values = grown, more
                 pairs[n, 0], pairs[n, 1], values[n] = i, j, c
                 n += 1
-                strength[i] = max(strength[i], c)
     # the strongest pairs first, joined while their groups stay within ``largest`` contacts
     parent = np.arange(k)
     size = np.ones(k, dtype=np.int64)
@@ -578,6 +582,7 @@ def _block_gauss_seidel(W, u0, lam, mu, iterations, tolerance, max_iterations, l
                 for j in range(3 * c):
                     blocks[q] = W[3 * members[ptr[g] + i // 3] + i % 3, 3 * members[ptr[g] + j // 3] + j % 3]
                     q += 1
+    m = lam.size
     for sweep in range(max(iterations, max_iterations)):
         for g in range(ng):
             c = ptr[g + 1] - ptr[g]
@@ -588,7 +593,8 @@ def _block_gauss_seidel(W, u0, lam, mu, iterations, tolerance, max_iterations, l
             for i in range(3 * c):
                 rows[i] = 3 * members[ptr[g] + i // 3] + i % 3
             Wl = blocks[start[g]:start[g + 1]].reshape(3 * c, 3 * c)
-            _block_visit(W, u, lam, mu, rows, Wl, inner, 0.1 * goal)
+            # a visit costs at most a pass over W (a group of every contact: the plain sweep)
+            _block_visit(W, u, lam, mu, rows, Wl, min(inner, max(1, (m * m) // (9 * c * c))), 0.1 * goal)
         worst = _worst(W, u, lam, mu)
         if worst <= goal or (sweep + 1 >= iterations and worst <= loose * scale):
             return sweep + 1
