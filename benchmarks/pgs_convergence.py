@@ -48,8 +48,9 @@ from skfem_affine.contact.pgs import SOLVERS  # noqa: E402
 from skfem_affine.simulation import State  # noqa: E402
 
 
-def scene(name, caps_contact):
-    """Factory of the scene with ``contact=caps_contact``."""
+def scene(name, caps_contact, method="full"):
+    """Factory of the scene with ``contact=caps_contact``; ``method`` (pile, wheel, octopus) "full", or
+    "affinification" / "rigidification" at the thresholds of benchmarks/contact_phases.py."""
     if name == "pills":
         return sa.scenes.pills(n=8, resolution=1, contact=caps_contact)
     if name == "paper-pills":
@@ -74,14 +75,17 @@ def scene(name, caps_contact):
                              contact=caps_contact)
     if name == "pile":  # four soft boxes coming to rest (benchmarks/budget.py), 4 cells per box edge
         from budget import pile
-        return with_contact(pile(4), caps_contact)
+        reducer = {"full": None, "affinification": sa.Affinification(tau_a=1e-4, tau_e=2e-4),
+                   "rigidification": sa.Rigidification(tau_r=1e-4, tau_e=2e-4)}[method]
+        return with_contact(pile(4, reducer), caps_contact)
     if name in ("wheel", "octopus"):  # as benchmarks/paper_table1.py builds them
         import paper_table1
         mesh_dir = os.environ.get("MESH_DIR") or os.environ.get("SKFEM_AFFINE_MESHES")
         if not mesh_dir:
             raise SystemExit("set MESH_DIR (or SKFEM_AFFINE_MESHES) to the folder of the paper's meshes")
-        build = paper_table1.SCENES[name][2](mesh_dir, 1000)
-        return with_contact(build(None), caps_contact)
+        row, _, factory, fraction = paper_table1.SCENES[name]
+        reducer = None if method == "full" else paper_table1.reducers(row, fraction)[method == "rigidification"]
+        return with_contact(factory(mesh_dir, 1000)(reducer), caps_contact)
     raise SystemExit(f"unknown scene {name!r}")
 
 
@@ -123,6 +127,8 @@ def main(argv=None):
                    help="--solvers: the sweep caps (iterations) of the --compare iterations (one for all, or one each)")
     p.add_argument("--reference", default="block", choices=sorted(SOLVERS),
                    help="--solvers: the iteration run to the tolerance")
+    p.add_argument("--method", default="full", choices=["full", "affinification", "rigidification"],
+                   help="--solvers on the pile, wheel or octopus: the reducer (contact_phases.py's / the paper's thresholds)")
     p.add_argument("--resume", default=None, metavar="CHECKPOINT",
                    help="--solvers: start from this full-space checkpoint's state and warm start")
     p.add_argument("--no-reference", action="store_true", help="--solvers: without the run to tolerance")
@@ -172,7 +178,7 @@ def compare_solvers(args, friction):
                 for name, cap in zip(args.compare, caps)}
     if not args.no_reference:
         settings["to tolerance"] = sa.PGS(friction=friction, solver=args.reference, iterations=2000, max_iterations=2000)
-    sims = {name: scene(args.scene, st) for name, st in settings.items()}
+    sims = {name: scene(args.scene, st, args.method) for name, st in settings.items()}
     if args.resume:
         for sim in sims.values():
             resume(sim, args.resume)
@@ -190,7 +196,7 @@ def compare_solvers(args, friction):
     for name in sims:
         out[name].update(distance_to_tolerance=gap[name] if "to tolerance" in sims else None, contact_ratio=out[name]["contact_s"] / base["contact_s"],
                          pgs_ratio=out[name]["pgs_s"] / base["pgs_s"])
-    out["scene"], out["frames"], out["start"] = args.scene, args.frames, args.start
+    out["scene"], out["frames"], out["start"], out["method"] = args.scene, args.frames, args.start, args.method
     print(json.dumps(out, indent=1))
     return out
 

@@ -127,7 +127,7 @@ def test_bad_arguments_name_themselves():
     W, u0 = _twins(1)
     for kwargs, name in (({"coupling": 0.0}, "coupling"), ({"coupling": 1.5}, "coupling"),
                          ({"coupling": "a"}, "coupling"), ({"largest": 0}, "largest"), ({"largest": 2.5}, "largest"),
-                         ({"inner": 0}, "inner")):
+                         ({"inner": 0}, "inner"), ({"work": 0}, "work")):
         with pytest.raises((ValueError, TypeError), match=name):
             pgs.block_gauss_seidel(W, u0, np.zeros_like(u0), MU, 5, 1e-6, **kwargs)
     with pytest.raises(ValueError, match="W"):

@@ -453,10 +453,12 @@ def projected_gauss_seidel_lowrank(indptr, indices, data, ncols, u0, lam, iterat
 
 # PGS(solver="block"): contacts whose rows of W are coupled by more than COUPLING (the largest
 # |W_ij| / sqrt(W_ii W_jj) over their two 3 x 3 blocks) are solved together, in groups of at most
-# GROUP contacts, each visit by up to INNER sweeps on the group's own block.
+# GROUP contacts, each visit by up to INNER sweeps on the group's own block, costing at most WORK
+# times the group's plain Gauss-Seidel steps.
 COUPLING = 0.5
 GROUP = 64
 INNER = 1000
+WORK = 16
 
 
 @njit(cache=True)
@@ -563,7 +565,7 @@ def _block_visit(W, u, lam, mu, rows, Wl, inner, goal):
 
 
 @njit(cache=True)
-def _block_gauss_seidel(W, u0, lam, mu, iterations, tolerance, max_iterations, loose, floor, ptr, members, inner):
+def _block_gauss_seidel(W, u0, lam, mu, iterations, tolerance, max_iterations, loose, floor, ptr, members, inner, work):
     u = _velocities(W, u0, lam)
     scale = max(velocity_scale(u0), floor)
     goal = tolerance * scale
@@ -593,8 +595,8 @@ def _block_gauss_seidel(W, u0, lam, mu, iterations, tolerance, max_iterations, l
             for i in range(3 * c):
                 rows[i] = 3 * members[ptr[g] + i // 3] + i % 3
             Wl = blocks[start[g]:start[g + 1]].reshape(3 * c, 3 * c)
-            # a visit costs at most a pass over W (a group of every contact: the plain sweep)
-            _block_visit(W, u, lam, mu, rows, Wl, min(inner, max(1, (m * m) // (9 * c * c))), 0.1 * goal)
+            # its inner sweeps cost at most ``work`` times its contacts' plain steps (3c x m each)
+            _block_visit(W, u, lam, mu, rows, Wl, min(inner, max(1, (work * m) // (3 * c))), 0.1 * goal)
         worst = _worst(W, u, lam, mu)
         if worst <= goal or (sweep + 1 >= iterations and worst <= loose * scale):
             return sweep + 1
@@ -602,24 +604,26 @@ def _block_gauss_seidel(W, u0, lam, mu, iterations, tolerance, max_iterations, l
 
 
 def block_gauss_seidel(W, u0, lam, mu, iterations, tolerance, max_iterations=0, loose=0.0, floor=0.0,
-                       coupling=COUPLING, largest=GROUP, inner=INNER):
+                       coupling=COUPLING, largest=GROUP, inner=INNER, work=WORK):
     """Block Gauss-Seidel over groups of strongly coupled contacts; arguments and stopping rule as
     :func:`projected_gauss_seidel`, whose fixed points (the solutions) it shares.
 
     The contacts are grouped by :func:`contact_groups` (``coupling``, ``largest``). A sweep visits
-    the groups in order: a contact alone takes the plain Gauss-Seidel step; a group takes up to
-    ``inner`` sweeps on its own block of W (its velocities kept locally, each such sweep costs the
-    block's size, not a pass over W) until its residual is a tenth of the tolerance, and then
-    passes the change of its impulses to all velocities. Contacts that are almost the same
-    constraint (between two soft bodies, a vertex of each on the other's triangle at one spot)
-    make plain sweeps crawl: their rows of W are nearly parallel, and each step undoes most of the
-    other's; solved together they settle in one visit. Without coupled pairs this is exactly
+    the groups in order: a contact alone takes the plain Gauss-Seidel step; a group of c contacts
+    takes up to ``inner`` sweeps on its own block of W (its velocities kept locally, so that such a
+    sweep costs (3c)^2, not a pass over W), until its residual is a tenth of the tolerance or
+    those sweeps have cost ``work`` times the group's plain steps (3c rows of W), and then passes
+    the change of its impulses to all velocities. Contacts that are almost the same constraint
+    (between two soft bodies, a vertex of each on the other's triangle at one spot) make plain
+    sweeps crawl: their rows of W are nearly parallel, and each step undoes most of the other's;
+    solved together they settle in one visit. Without coupled pairs this is exactly
     :func:`projected_gauss_seidel`. Returns the sweeps done (visits of all groups).
     """
     inner = integer(inner, "inner", low=1)
+    work = integer(work, "work", low=1)
     ptr, members = contact_groups(W, coupling, largest)
     return _block_gauss_seidel(W, u0, lam, mu, iterations, tolerance, max_iterations, loose, floor, ptr, members,
-                               int(inner))
+                               int(inner), int(work))
 
 
 # The iterations of PGS(solver=...): same arguments, same stopping rule, the sweeps done returned.
