@@ -169,6 +169,13 @@ def resume(sim, path):
         sim.contact.previous = (arrays["contact.previous_keys"].copy(), arrays["contact.previous_world"].copy())
 
 
+def warm_up(names):
+    """Compile (or load from numba's cache) the iterations ``names`` on a small problem before any timing."""
+    W = np.eye(6) + 0.6 * np.eye(6, k=3) + 0.6 * np.eye(6, k=-3)
+    for name in names:
+        SOLVERS[name](W, np.array([-1.0, 0.2, 0.0, -1.0, 0.0, 0.1]), np.zeros(6), 0.5, 5, 0.0, 5, 0.0, 0.0)
+
+
 def compare_solvers(args, friction):
     """The iterations of ``--compare`` and the ``--reference`` to tolerance, stepped in turn; see the module docstring."""
     caps = args.solver_caps * len(args.compare) if len(args.solver_caps) == 1 else args.solver_caps
@@ -179,6 +186,7 @@ def compare_solvers(args, friction):
     if not args.no_reference:
         settings["to tolerance"] = sa.PGS(friction=friction, solver=args.reference, iterations=2000, max_iterations=2000)
     sims = {name: scene(args.scene, st, args.method) for name, st in settings.items()}
+    warm_up(args.compare + [args.reference])
     if args.resume:
         for sim in sims.values():
             resume(sim, args.resume)
