@@ -114,7 +114,8 @@ def summary(records, start=0):
 
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    p.add_argument("--scene", default="pills", choices=["pills", "paper-pills", "table1-pills", "stack", "pile", "wheel", "octopus"])
+    p.add_argument("--scene", default="pills",
+                   choices=["pills", "paper-pills", "table1-pills", "stack", "pile", "wheel", "octopus"])
     p.add_argument("--frames", type=int, default=120)
     p.add_argument("--caps", type=int, nargs=2, default=[50, 400], help="the default and the larger sweep cap")
     p.add_argument("--default", action="store_true",
@@ -128,7 +129,8 @@ def main(argv=None):
     p.add_argument("--reference", default="block", choices=sorted(SOLVERS),
                    help="--solvers: the iteration run to the tolerance")
     p.add_argument("--method", default="full", choices=["full", "affinification", "rigidification"],
-                   help="--solvers on the pile, wheel or octopus: the reducer (contact_phases.py's / the paper's thresholds)")
+                   help="--solvers on the pile, wheel or octopus: the reducer (at contact_phases.py's / the paper's "
+                        "thresholds)")
     p.add_argument("--resume", default=None, metavar="CHECKPOINT",
                    help="--solvers: start from this full-space checkpoint's state and warm start")
     p.add_argument("--no-reference", action="store_true", help="--solvers: without the run to tolerance")
@@ -177,14 +179,15 @@ def warm_up(names):
 
 
 def compare_solvers(args, friction):
-    """The iterations of ``--compare`` and the ``--reference`` to tolerance, stepped in turn; see the module docstring."""
+    """The iterations of ``--compare`` and the ``--reference`` to tolerance, stepped in turn (module docstring)."""
     caps = args.solver_caps * len(args.compare) if len(args.solver_caps) == 1 else args.solver_caps
     if len(caps) != len(args.compare):
         raise SystemExit("--solver-caps: one cap, or one per --compare iteration")
     settings = {f"{name}, cap {cap}": sa.PGS(friction=friction, solver=name, iterations=cap)
                 for name, cap in zip(args.compare, caps)}
     if not args.no_reference:
-        settings["to tolerance"] = sa.PGS(friction=friction, solver=args.reference, iterations=2000, max_iterations=2000)
+        settings["to tolerance"] = sa.PGS(friction=friction, solver=args.reference, iterations=2000,
+                                          max_iterations=2000)
     sims = {name: scene(args.scene, st, args.method) for name, st in settings.items()}
     warm_up(args.compare + [args.reference])
     if args.resume:
