@@ -566,6 +566,7 @@ def _block_visit(W, u, lam, mu, rows, Wl, inner, goal):
 
 @njit(cache=True)
 def _block_gauss_seidel(W, u0, lam, mu, iterations, tolerance, max_iterations, loose, floor, ptr, members, inner, work):
+    """The sweeps of :func:`block_gauss_seidel` over the groups (ptr, members) of :func:`contact_groups`."""
     u = _velocities(W, u0, lam)
     scale = max(velocity_scale(u0), floor)
     goal = tolerance * scale
