@@ -15,7 +15,8 @@ contacts; caps ``--solver-caps``, default 50 each, the other settings the defaul
 ``--no-reference``); the frames from ``--start`` on are summarised, with the contact phase's
 time (detection, Delassus operator, solve, corrections) and the PGS solve's time of each
 relative to the first, and each run's largest vertex distance to the run to tolerance
-and its deepest penetration over the window. ``--resume CHECKPOINT`` starts every run from the
+and its deepest penetration over the window, and its kinetic energy per frame (with its largest
+difference to the first iteration's run, relative). ``--resume CHECKPOINT`` starts every run from the
 positions, velocities and contact warm start of a full-space checkpoint of the scene (saved with
 any PGS settings, e.g. by ``benchmarks/paper_table1.py --checkpoint``), ``--frames`` more frames.
 
@@ -194,8 +195,11 @@ def compare_solvers(args, friction):
         for sim in sims.values():
             resume(sim, args.resume)
     gap = {name: 0.0 for name in sims}
+    kinetic = {name: [] for name in sims}
 
     def on_frame(frame, running):
+        for name, sim in running.items():
+            kinetic[name].append(float(0.5 * (sim.system.lumped_mass * (sim.state.v ** 2).sum(axis=1)).sum()))
         if frame >= args.start and len(running) == len(sims) and "to tolerance" in running:
             ref = running["to tolerance"].state.x
             for name, sim in running.items():
@@ -203,7 +207,14 @@ def compare_solvers(args, friction):
 
     runs = runners.interleaved(sims, args.frames, on_frame=on_frame)
     out = {name: summary(runs[name].records, args.start) for name in sims}
-    base = out[next(iter(sims))]
+    first = next(iter(sims))
+    base = out[first]
+    for name in sims:  # the kinetic energy frame by frame against the first iteration's run
+        a, b = np.array(kinetic[first]), np.array(kinetic[name])
+        n = min(a.size, b.size)
+        out[name]["max_kinetic_energy_difference"] = float(np.max(np.abs(b[:n] - a[:n]) / np.maximum(a[:n], 1e-300),
+                                                                 initial=0.0))
+        out[name]["kinetic_energy"] = b.tolist()
     for name in sims:
         out[name].update(distance_to_tolerance=gap[name] if "to tolerance" in sims else None, contact_ratio=out[name]["contact_s"] / base["contact_s"],
                          pgs_ratio=out[name]["pgs_s"] / base["pgs_s"])
