@@ -31,7 +31,8 @@ One frame, in the order of Algorithm 1:
    velocity no affine motion gives it alone (the contacts' W has rank 12 per body), and PGS
    stalls on it at its sweep cap (docs/contact.md).
    Restitution is zero. ``PGS(solver="anderson")`` accelerates the sweeps by Anderson mixing of
-   the last few (:func:`anderson_gauss_seidel`). The velocity correction is
+   the last few (:func:`anderson_gauss_seidel`); ``PGS(solver="block")`` solves groups of
+   strongly coupled contacts together (:func:`block_gauss_seidel`). The velocity correction is
    ``dv_c = A^-1 J^T lambda`` (one more solve), and v_{t+1} = v_t + dv + dv_c.
 5. **Penetration** (split impulse, :meth:`Contact.resolve` sets :attr:`Contact.correction`):
    when a contact penetrates (d < 0, e.g. bodies that start overlapping or inside a collider),
@@ -130,10 +131,12 @@ class PGS:
         whose many sharp edges add contacts).
     solver : str
         The iteration on the contact problem: ``"gauss-seidel"`` (plain sweeps,
-        :func:`projected_gauss_seidel`) or ``"anderson"`` (sweeps accelerated by Anderson mixing
+        :func:`projected_gauss_seidel`), ``"anderson"`` (sweeps accelerated by Anderson mixing
         of the last few, :func:`anderson_gauss_seidel`: fewer sweeps to the tolerance on stacks of
-        soft bodies, measured in ``docs/contact.md``). Both solve the same problem to the same residual; ``iterations``
-        and ``max_iterations`` count sweeps in either.
+        soft bodies) or ``"block"`` (block Gauss-Seidel over groups of strongly coupled contacts,
+        :func:`block_gauss_seidel`: contacts that are almost the same constraint, as where two soft
+        bodies meet, solved together; measured in ``docs/contact.md``). All solve the same problem
+        to the same residual; ``iterations`` and ``max_iterations`` count sweeps in each.
     schur : bool
         Build the Delassus operator of a one-body system from the Schur complement of the frame's
         matrix on the unknowns the contacts touch (MKL Pardiso, :mod:`~skfem_affine.contact.schur`)
@@ -448,8 +451,184 @@ def projected_gauss_seidel_lowrank(indptr, indices, data, ncols, u0, lam, iterat
     return w
 
 
+# PGS(solver="block"): contacts whose rows of W are coupled by more than COUPLING (the largest
+# |W_ij| / sqrt(W_ii W_jj) over their two 3 x 3 blocks) are solved together, in groups of at most
+# GROUP contacts, each visit by up to INNER sweeps on the group's own block, costing at most WORK
+# times the group's plain Gauss-Seidel steps.
+COUPLING = 0.5
+GROUP = 64
+INNER = 1000
+WORK = 16
+
+
+@njit(cache=True)
+def _find(parent, i):
+    """The root of i in the union-find forest ``parent``, halving the path."""
+    while parent[i] != i:
+        parent[i] = parent[parent[i]]
+        i = parent[i]
+    return i
+
+
+@njit(cache=True)
+def _groups(W, coupling, largest):
+    """(ptr, members) of :func:`contact_groups` (arguments checked there)."""
+    k = W.shape[0] // 3
+    inv = np.zeros(3 * k)
+    for i in range(3 * k):
+        if W[i, i] > 0.0:
+            inv[i] = 1.0 / np.sqrt(W[i, i])
+    # the coupled pairs (i < j), stored as found
+    pairs, values = np.empty((16, 2), dtype=np.int64), np.empty(16)
+    n = 0
+    row = np.empty(3 * k)
+    for i in range(k):
+        row[:] = 0.0
+        for a in range(3):  # the largest coupling of contact i's rows to each row after i's
+            s = inv[3 * i + a]
+            for q in range(3 * i + 3, 3 * k):
+                row[q] = max(row[q], abs(W[3 * i + a, q]) * s * inv[q])
+        for j in range(i + 1, k):
+            c = max(row[3 * j], row[3 * j + 1], row[3 * j + 2])
+            if c > coupling:
+                if n == values.size:
+                    grown, more = np.empty((2 * n, 2), dtype=np.int64), np.empty(2 * n)
+                    grown[:n], more[:n] = pairs, values
+                    pairs, values = grown, more
+                pairs[n, 0], pairs[n, 1], values[n] = i, j, c
+                n += 1
+    # the strongest pairs first, joined while their groups stay within ``largest`` contacts
+    parent = np.arange(k)
+    size = np.ones(k, dtype=np.int64)
+    for p in np.argsort(-values[:n]):
+        a, b = _find(parent, pairs[p, 0]), _find(parent, pairs[p, 1])
+        if a != b and size[a] + size[b] <= largest:
+            if a > b:
+                a, b = b, a
+            parent[b] = a  # the root is the group's first contact
+            size[a] += size[b]
+    root = np.empty(k, dtype=np.int64)
+    for i in range(k):
+        root[i] = _find(parent, i)
+    members = np.argsort(root * k + np.arange(k))  # by first contact, then in order
+    ptr = np.zeros(k + 1, dtype=np.int64)
+    g = 0
+    for q in range(k):
+        if q > 0 and root[members[q]] != root[members[q - 1]]:
+            g += 1
+            ptr[g] = q
+    ptr[g + 1] = k
+    return ptr[:g + 2], members
+
+
+def contact_groups(W, coupling=COUPLING, largest=GROUP):
+    """Groups of strongly coupled contacts for block Gauss-Seidel (:func:`block_gauss_seidel`).
+
+    Two contacts are coupled by the largest ``|W_ij| / sqrt(W_ii W_jj)`` over their 3 x 3 block
+    (1 for two contacts that are the same constraint, e.g. a vertex of one body on a triangle of
+    another and a vertex of that triangle on the first body's triangle, meeting at one point).
+    Pairs coupled above ``coupling`` are joined, the strongest first, while their group keeps at
+    most ``largest`` contacts.
+
+    Returns
+    -------
+    ptr, members : ndarray of int
+        Group g holds the contacts ``members[ptr[g]:ptr[g + 1]]`` (increasing); the groups are
+        ordered by their first contact, so that without coupled pairs the order is the contacts'.
+    """
+    coupling = real(coupling, "coupling", low=0.0, high=1.0, include_low=False)
+    largest = integer(largest, "largest", low=1)
+    W = np.asarray(W, dtype=float)
+    if W.ndim != 2 or W.shape[0] != W.shape[1] or W.shape[0] % 3:
+        raise ValueError(f"W must be square with 3 rows per contact, got shape {W.shape}")
+    return _groups(W, float(coupling), int(largest))
+
+
+@njit(cache=True)
+def _block_visit(W, u, lam, mu, rows, Wl, inner, goal):
+    """Up to ``inner`` Gauss-Seidel sweeps on one group's block ``Wl = W[rows][:, rows]`` with its own
+    velocities (stopping once its residual is at most ``goal``), then u updated by the change."""
+    nr = rows.size
+    ul, ll = u[rows], lam[rows]  # copies (fancy indexing)
+    for _ in range(inner):
+        for r in range(0, nr, 3):
+            _contact_step(Wl, ul, ll, mu, r, 1.0)
+        if _worst(Wl, ul, ll, mu) <= goal:
+            break
+    m = lam.size
+    for i in range(nr):
+        d = ll[i] - lam[rows[i]]
+        if d != 0.0:
+            lam[rows[i]] = ll[i]
+            for j in range(m):
+                u[j] += W[rows[i], j] * d
+
+
+@njit(cache=True)
+def _block_gauss_seidel(W, u0, lam, mu, iterations, tolerance, max_iterations, loose, floor, ptr, members, inner, work):
+    """The sweeps of :func:`block_gauss_seidel` over the groups (ptr, members) of :func:`contact_groups`."""
+    u = _velocities(W, u0, lam)
+    scale = max(velocity_scale(u0), floor)
+    goal = tolerance * scale
+    # the groups' rows and blocks of W, gathered once
+    ng = ptr.size - 1
+    start = np.zeros(ng + 1, dtype=np.int64)
+    for g in range(ng):
+        c = 3 * (ptr[g + 1] - ptr[g])
+        start[g + 1] = start[g] + (c * c if c > 3 else 0)
+    blocks = np.empty(start[ng])
+    for g in range(ng):
+        c = ptr[g + 1] - ptr[g]
+        if c > 1:
+            q = start[g]
+            for i in range(3 * c):
+                for j in range(3 * c):
+                    blocks[q] = W[3 * members[ptr[g] + i // 3] + i % 3, 3 * members[ptr[g] + j // 3] + j % 3]
+                    q += 1
+    m = lam.size
+    for sweep in range(max(iterations, max_iterations)):
+        for g in range(ng):
+            c = ptr[g + 1] - ptr[g]
+            if c == 1:
+                _contact_step(W, u, lam, mu, 3 * members[ptr[g]], 1.0)
+                continue
+            rows = np.empty(3 * c, dtype=np.int64)
+            for i in range(3 * c):
+                rows[i] = 3 * members[ptr[g] + i // 3] + i % 3
+            Wl = blocks[start[g]:start[g + 1]].reshape(3 * c, 3 * c)
+            # its inner sweeps cost at most ``work`` times its contacts' plain steps (3c x m each)
+            _block_visit(W, u, lam, mu, rows, Wl, min(inner, max(1, (work * m) // (3 * c))), 0.1 * goal)
+        worst = _worst(W, u, lam, mu)
+        if worst <= goal or (sweep + 1 >= iterations and worst <= loose * scale):
+            return sweep + 1
+    return max(iterations, max_iterations)
+
+
+def block_gauss_seidel(W, u0, lam, mu, iterations, tolerance, max_iterations=0, loose=0.0, floor=0.0,
+                       coupling=COUPLING, largest=GROUP, inner=INNER, work=WORK):
+    """Block Gauss-Seidel over groups of strongly coupled contacts; arguments and stopping rule as
+    :func:`projected_gauss_seidel`, whose fixed points (the solutions) it shares.
+
+    The contacts are grouped by :func:`contact_groups` (``coupling``, ``largest``). A sweep visits
+    the groups in order: a contact alone takes the plain Gauss-Seidel step; a group of c contacts
+    takes up to ``inner`` sweeps on its own block of W (its velocities kept locally, so that such a
+    sweep costs (3c)^2, not a pass over W), until its residual is a tenth of the tolerance or
+    those sweeps have cost ``work`` times the group's plain steps (3c rows of W), and then passes
+    the change of its impulses to all velocities. Contacts that are almost the same constraint
+    (between two soft bodies, a vertex of each on the other's triangle at one spot) make plain
+    sweeps crawl: their rows of W are nearly parallel, and each step undoes most of the other's;
+    solved together they settle in one visit. Without coupled pairs this is exactly
+    :func:`projected_gauss_seidel`. Returns the sweeps done (visits of all groups).
+    """
+    inner = integer(inner, "inner", low=1)
+    work = integer(work, "work", low=1)
+    ptr, members = contact_groups(W, coupling, largest)
+    return _block_gauss_seidel(W, u0, lam, mu, iterations, tolerance, max_iterations, loose, floor, ptr, members,
+                               int(inner), int(work))
+
+
 # The iterations of PGS(solver=...): same arguments, same stopping rule, the sweeps done returned.
-SOLVERS = {"gauss-seidel": projected_gauss_seidel, "anderson": anderson_gauss_seidel}
+SOLVERS = {"gauss-seidel": projected_gauss_seidel, "anderson": anderson_gauss_seidel, "block": block_gauss_seidel}
 
 
 class Contact:
