@@ -273,6 +273,41 @@ def test_threshold_ramps_fast_until_the_error_shows_then_moves_at_the_usual_rate
     assert budget.ErrorBudget(0.01, tau=1.0).ramp_grow == 2.0  # the subspace reducer's: no faster ramp
 
 
+def test_a_probe_in_a_contact_scene_is_judged_by_the_reduced_frame_after_it():
+    # frames of 1.0 s in full space, 0.8 s of them contact (a resting pile); a reduced frame costs
+    # 0.3 s, its contact on the bodies' DOFs included. A probe pays its reduced work (0.2 s) and a
+    # full frame's contact and solve: 1.2 s, less the full solve (0.2 s) is 1.0 s, "no gain"
+    red = sa.Affinification()
+    sim = sa.scenes.cantilever(resolution=2, reducer=red, solver="direct")
+    sim.step()
+    red.pays = pays = budget.PaysOff(window=5, patience=3, confirm=True, probe_every=2)
+    pays.in_full, pays.wait = True, 0
+    for _ in range(3):
+        red._judged = {"kind": "full"}
+        red.end_frame({"wall": 1.0})
+    assert pays.plan() == "probe"
+    red._judged = {"kind": "probe", "reduced": 0.2, "full": 0.2, "ramp": False, "dof_ratio": 0.1}
+    red.end_frame({"wall": 1.2})
+    assert pays.in_full and pays.plan() == "trial" and pays.plan() == "trial"  # until a trial is judged
+    red._judged = {"kind": "trial", "reduced": 0.2, "full": 0.0, "ramp": False, "dof_ratio": 0.1}
+    red.end_frame({"wall": 0.3})
+    assert not pays.in_full and pays.plan() == "reduced"
+    # a trial that does not pay sends the run back to full space, for twice as long
+    pays.in_full, pays.wait = True, 0
+    assert pays.plan() == "probe"
+    red._judged = {"kind": "probe", "reduced": 0.2, "full": 0.2, "ramp": False, "dof_ratio": 0.1}
+    red.end_frame({"wall": 1.2})
+    red._judged = {"kind": "trial", "reduced": 0.2, "full": 0.0, "ramp": False, "dof_ratio": 0.1}
+    red.end_frame({"wall": 1.1})
+    assert pays.in_full and pays.wait == 4 and pays.plan() == "full"
+    # a probe that kept nearly every DOF fails at once, without a trial
+    pays.wait = 0
+    assert pays.plan() == "probe"
+    red._judged = {"kind": "probe", "reduced": 0.2, "full": 0.2, "ramp": False, "dof_ratio": 0.99}
+    red.end_frame({"wall": 1.2})
+    assert pays.in_full and pays.plan() == "full"
+
+
 def test_running_costs_are_the_least_of_the_window_so_load_does_not_decide():
     p = budget.PaysOff(window=3)
     p.full_solved(9.0)  # not a sample: the solver's analysis
@@ -335,10 +370,16 @@ def test_the_fall_back_judges_whole_frame_wall_times():
     rec = {"wall": 1.6}
     red.end_frame(rec)
     assert pays.full_cost == pytest.approx(1.6) and rec["reduction_pays"] and not pays.confirming
-    # a probe: 0.4 s of reduced work and a 1.1 s full solve in a 2.0 s frame
+    # a probe: 0.4 s of reduced work and a 1.1 s full solve in a 2.0 s frame, a full frame of 1.6 s;
+    # its reduced part is not judged on it (a shadow frame solves its contact in full space): the
+    # reduced frame after it, the trial, is
     red._judged = {"kind": "probe", "reduced": 0.4, "full": 1.1, "ramp": False, "dof_ratio": 0.3}
     red.end_frame({"wall": 2.0})
-    assert pays.full_cost == pytest.approx(1.6) and pays.reduced_cost == pytest.approx(0.9)
+    assert pays.full_cost == pytest.approx(1.6) and pays.reduced_cost == pytest.approx(1.4)
+    assert pays.plan() == "trial"
+    red._judged = {"kind": "trial", "reduced": 0.4, "full": 0.0, "ramp": True, "dof_ratio": 0.3}
+    red.end_frame({"wall": 0.9})
+    assert pays.reduced_cost == pytest.approx(0.9) and pays.plan() == "reduced" and not pays.in_full
 
 
 def test_fallback_to_full_space_on_a_scene_where_nothing_reduces():

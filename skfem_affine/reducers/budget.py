@@ -65,7 +65,9 @@ full-space ones (the affine reducers: whole-frame wall times; the subspace reduc
 steps); when the reduced frames, shadows included, cost more than a full one, or keep nearly
 every DOF, it solves the next frames in full space, and probes reduction again after
 ``probe_every`` frames (doubling while probes keep failing). A probe is a shadow frame: it
-returns the full solution, so a run that never reduces equals the full-space run. With
+returns the full solution, so a run that never reduces equals the full-space run. A probe that
+reduced is judged by the reduced frame after it, a *trial* (:meth:`PaysOff.await_trial`): a
+shadow frame solves its contact in full space, which a reduced frame does not. With
 ``confirm``, a full-space frame solved right after the reduced frames that seemed too costly
 decides every fall-back: the two are measured a frame apart, under the same load from elsewhere.
 """
@@ -548,6 +550,7 @@ class PaysOff:
         self.window = int(window or 0)  # 0: a moving average (plain numbers: checkpoints save them)
         self.confirm = bool(confirm)
         self.confirming = False  # the next frame is a full-space frame that confirms a fall-back (``confirm``)
+        self.trial = False  # the next frame is a reduced frame that judges a probe (:meth:`await_trial`)
         self.full_recent, self.reduced_recent = [], []  # the latest measurements (with ``window``)
         self.full_cost = 0.0   # s per frame solved in full space (or per full solve: what the reducer measures)
         self.reduced_cost = 0.0  # s per reduced frame
@@ -610,11 +613,24 @@ class PaysOff:
         extra = self.overhead(shadow_every) if shadow_every else 0.0
         return self.reduced_cost + extra <= (1.0 - margin) * self.full_cost
 
+    def await_trial(self):
+        """The probe just solved cannot be judged on its own wall time: the next frame, reduced
+        (:meth:`plan` says ``"trial"``), is, by :meth:`decide` with ``probed=True``.
+
+        A probe is a shadow frame: its contact, if any, is solved through the full-space operator,
+        so it costs what a full frame's contact costs, which on a resting pile is most of a full
+        frame. Judged on it, a reduced frame whose contact costs a few of its bodies' DOFs looks
+        as dear as a full one, and the run stays in full space."""
+        self.trial = True
+
     def plan(self):
         """"full" (solve this frame in full space), "confirm" (a full-space frame that decides a
-        fall-back, with ``confirm``), "probe" (a reduced frame with a shadow) or "reduced"."""
+        fall-back, with ``confirm``), "probe" (a reduced frame with a shadow), "trial" (a reduced
+        frame that judges the probe before it, :meth:`await_trial`) or "reduced"."""
         if self.confirming:
             return "confirm"
+        if self.trial:
+            return "trial"
         if not self.in_full:
             return "reduced"
         if self.wait > 0:
@@ -631,6 +647,7 @@ class PaysOff:
             if not self.pays(shadow_every):
                 self.in_full, self.wait, self.period = True, self.probe_every, self.probe_every
         elif probed:
+            self.trial = False
             if self.pays(shadow_every, self.margin):
                 self.in_full, self.period = False, self.probe_every
             else:

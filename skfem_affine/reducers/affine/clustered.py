@@ -356,7 +356,9 @@ class ClusteringReducer(Reducer):
         checks included): a frame solved in full space is a full frame (one that confirms a
         fall-back replaces the running full cost); a shadow frame or a probe is a reduced frame
         plus a full solve, so it gives both, the full frame as its wall time minus the reduced
-        part and the reduced frame as its wall time minus the full solve.
+        part and the reduced frame as its wall time minus the full solve. A probe that reduced
+        is judged by the reduced frame after it, the trial: a shadow frame resolves contact
+        through the full-space operator, at a full frame's contact cost.
         """
         pays, kind = self.pays, judged["kind"]
         if kind in ("full", "confirm"):
@@ -364,14 +366,18 @@ class ClusteringReducer(Reducer):
             if kind == "confirm":
                 pays.decide(self.shadows.every, confirmed=True)
             return
-        if kind in ("shadow", "probe"):
-            pays.full_solved(wall - judged["reduced"], fresh=kind == "probe")
+        if kind in ("shadow", "probe") or judged["full"]:  # a refused trial is a shadow frame too
+            pays.full_solved(wall - judged["reduced"])
             pays.shadow_added(judged["full"])
             wall -= judged["full"]
-        if judged["ramp"] and kind != "probe":
+            if kind == "probe" and judged["dof_ratio"] < pays.keep_dofs:
+                pays.await_trial()
+                return
+        probe = kind in ("probe", "trial")
+        if judged["ramp"] and not probe:
             return  # frames at a threshold still rising from its small start say nothing of the settled cost
-        pays.reduced_solved(wall, judged["dof_ratio"], fresh=kind == "probe")
-        pays.decide(self.shadows.every, probed=kind == "probe")
+        pays.reduced_solved(wall, judged["dof_ratio"], fresh=probe)
+        pays.decide(self.shadows.every, probed=probe)
 
     # -------------------------------------------------------------- frame
     def solve(self, problem):
@@ -442,7 +448,8 @@ class ClusteringReducer(Reducer):
             stats["prediction"] += stats["estimation"]
         reduced_seconds = time.perf_counter() - t0
         initial = self.shadows is not None and self.shadows.first > 0
-        shadow = mode == "probe" or (self.shadows is not None and self.shadows.due())
+        # a trial (the frame after a probe) is judged as a plain reduced frame: a shadow only if refused
+        shadow = mode == "probe" or (mode != "trial" and self.shadows is not None and self.shadows.due())
         gap = self._integration_gap(problem, result) if eb is not None and stats["n_clusters"] else 0.0
         refused = not shadow and eb is not None and stats["n_clusters"] > 0 and eb.breaks(eb.local(proxy) + gap, h)
         shadow = shadow or refused  # the reduced step would break the budget: solved again in full space
@@ -476,7 +483,7 @@ class ClusteringReducer(Reducer):
             reducible = 1.0 - float(np.mean(self.excluded)) if sysm.m else 0.0
             eb.adapt(saturated=stats["reduced_fraction"] >= reducible - 1e-9)
         if pays is not None:  # judged in end_frame, on the frame's wall time
-            self._judged = {"kind": "probe" if mode == "probe" else "shadow" if shadow else "reduced",
+            self._judged = {"kind": mode if mode in ("probe", "trial") else "shadow" if shadow else "reduced",
                             "reduced": reduced_seconds, "full": seconds, "ramp": ramp,
                             "dof_ratio": stats["reduced_dofs"] / max(sysm.free.size, 1)}
         self._record(stats)
@@ -497,7 +504,7 @@ class ClusteringReducer(Reducer):
     @staticmethod
     def _new_contacts(problem):
         """Whether the frame has an impact the oracle cannot foresee: a contact of a free vertex that
-        carried no impulse last frame and closes its gap faster than one step of gravity
+        closes its gap faster than one step of gravity
         (``ContactSet.impact``, set by the contact solver).
 
         Such a frame is solved in full space under an error budget: the reduced step's error is
