@@ -632,20 +632,17 @@ class Contact:
         return lam
 
     def _impacts(self, cs, v_free, model):
-        """(k,) bool: the contacts that close their gap at more than one step of gravity,
-        ``-(J_n v_t + b_n) > |g| h`` (the velocities before gravity's step), whether or not they
-        carried an impulse last frame: speculative contacts that caught a falling body's lowest
-        vertices in one frame carry an impulse into the next, in which the rest of the body
-        still arrives.
+        """(k,) bool: the contacts that carried no impulse last frame and close their gap at more than
+        one step of gravity, ``-(J_n v_t + b_n) > |g| h`` (the velocities before gravity's step).
 
-        The support of a body at rest is not an impact: a resting vertex approaches at no more
-        than gravity's step. A reducer under an error budget solves a frame with an impact in
-        full space.
+        The support of a body at rest is not an impact: its contacts keep their warm-started
+        impulses, and a resting vertex without one approaches at no more than gravity's step.
+        A reducer under an error budget solves a frame with an impact in full space.
         """
         un = self.Jn @ v_free + self.bias[0::3]
         h = model.dt
         speed = max(float(np.linalg.norm(model.gravity)) * h, 1e-6 * model.size / h)
-        return un < -speed
+        return (self.lam0[0::3] == 0) & (un < -speed)
 
     def prediction_impulse(self):
         """J^T lambda_pred on the free DOFs for the oracle's right-hand side (eq. 13), or 0."""
