@@ -308,6 +308,22 @@ def test_a_probe_in_a_contact_scene_is_judged_by_the_reduced_frame_after_it():
     assert pays.in_full and pays.plan() == "full"
 
 
+def test_the_threshold_rises_while_the_run_falls_back_to_full_space():
+    # bodies settling shrank the threshold; once they rest, the probe must try a larger one
+    eb = budget.ErrorBudget(0.01, tau=1e-4)
+    taus = [eb.idle() for _ in range(12)]
+    assert taus[:3] == pytest.approx([2e-4, 4e-4, 8e-4])
+    assert taus[-1] == pytest.approx(1e-4 * budget.IDLE_RISE) and eb.idle_from == 1e-4
+    eb.advance(0.0, 0.01, 1.0)
+    eb.adapt()  # a reduced frame (the probe): the rise is measured from the next fall-back's threshold
+    assert eb.idle_from == 0.0
+    start = eb.tau
+    eb.idle()
+    assert eb.idle_from == start and eb.tau == pytest.approx(2 * start)
+    capped = budget.ErrorBudget(0.01, tau=1.0, tau_max=3.0)
+    assert [capped.idle() for _ in range(3)] == [2.0, 3.0, 3.0]
+
+
 def test_running_costs_are_the_least_of_the_window_so_load_does_not_decide():
     p = budget.PaysOff(window=3)
     p.full_solved(9.0)  # not a sample: the solver's analysis

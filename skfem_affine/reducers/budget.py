@@ -89,6 +89,9 @@ RESPONSE_FLOOR = 1e-3
 #: A reduced frame whose own estimated position error (G h ||delta|| / U) exceeds this fraction of
 #: the budget is solved again in full space (:meth:`ErrorBudget.breaks`).
 KICK = 0.25
+#: While a run falls back to full space, the threshold rises by ``grow`` per frame up to this factor
+#: over its value at the fall-back (:meth:`ErrorBudget.idle`).
+IDLE_RISE = 1024.0
 
 #: The shadow frames whose measured (G, W) :meth:`ErrorBudget.propagated` keeps.
 RECENT = 4
@@ -274,6 +277,8 @@ class ErrorBudget:
         the mean of the latest :data:`RECENT` shadow frames'). A reduced frame adds W h ||delta|| to D.
     ramping : bool
         The threshold has only risen, at ``ramp_grow``, since the start.
+    idle_from : float
+        The threshold when the run last fell back to full space (0: it reduces), :meth:`idle`.
     """
 
     def __init__(self, target, tau, memory=0.5, safety=0.5, tau_min=1e-8, tau_max=1e3,
@@ -287,6 +292,7 @@ class ErrorBudget:
         self.shrink, self.grow, self.shrink_over = float(shrink), float(grow), float(shrink_over)
         self.ramp_grow = self.grow if ramp_grow is None else float(ramp_grow)
         self.ramping = True  # tau rises by ramp_grow per frame from the small start until the error shows
+        self.idle_from = 0.0  # tau at the fall-back to full space (0: reducing)
         self.drift = 0.0
         self.estimate = 0.0
         self.unit = 0.0  # set by scale() (or advance(): the scene size)
@@ -395,6 +401,21 @@ class ErrorBudget:
         self.estimate = self.drift / self.unit if self.unit > 0 else 0.0
         return self.estimate
 
+    def idle(self):
+        """A frame the fall-back solved in full space: the threshold rises by ``grow``, up to
+        :data:`IDLE_RISE` times its value at the fall-back; returns the new tau.
+
+        A run falls back where reduction does not pay, often while its bodies settle and the
+        budget has shrunk the threshold; without this, the probe after the bodies came to rest
+        would run at that small threshold, reduce little, fail, and keep the run in full space for
+        twice as long. A probe is a shadow frame, so a threshold too large for it adds no error:
+        the probe measures the error and the threshold shrinks from there; the trial after it is
+        refused (solved in full space) if its estimate breaks the budget."""
+        if not self.idle_from:
+            self.idle_from = self.tau
+        self.tau = min(self.tau * self.grow, self.idle_from * IDLE_RISE, self.tau_max)
+        return self.tau
+
     def adapt(self, saturated=False):
         """Scale the threshold from the latest local error and the estimate; returns the new tau.
 
@@ -402,6 +423,7 @@ class ErrorBudget:
         gain nothing and only let the next event (an impact) find everything reduced; tau
         does not grow then.
         """
+        self.idle_from = 0.0
         steady = self.memory * self.carry * self.local_rate
         upper = self.ramp_grow if self.ramping else self.grow
         ratio = self.goal / steady if steady > 0 else upper ** 2

@@ -423,6 +423,8 @@ class ClusteringReducer(Reducer):
                 self._judged = {"kind": "confirm" if mode == "confirm" else "full"}
             if eb is not None:
                 eb.decay(h)
+                if mode == "full":  # the fall-back: the probe to come tries a larger threshold
+                    eb.idle()
             self.was_reduced = np.zeros(sysm.m, dtype=bool)
             self.labels = np.full(sysm.m, -1, dtype=np.int64)
             stats.update(dofs=op.shape[0], solver=self.full_solver.name, n_clusters=0, elastic_dofs=op.shape[0],
