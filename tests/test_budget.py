@@ -300,19 +300,41 @@ def test_a_probe_in_a_contact_scene_is_judged_by_the_reduced_frame_after_it():
     red._judged = {"kind": "trial", "reduced": 0.2, "full": 0.0, "ramp": False, "dof_ratio": 0.1}
     red.end_frame({"wall": 1.1})
     assert pays.in_full and pays.wait == 4 and pays.plan() == "full"
+    # a trial at which the error budget shrank the threshold fails, however cheap (bodies still settling)
+    pays.wait = 0
+    assert pays.plan() == "probe"
+    red._judged = {"kind": "probe", "reduced": 0.2, "full": 0.2, "ramp": False, "dof_ratio": 0.1}
+    red.end_frame({"wall": 1.2})
+    red._judged = {"kind": "trial", "reduced": 0.2, "full": 0.0, "ramp": False, "dof_ratio": 0.1, "settled": False}
+    red.end_frame({"wall": 0.3})
+    assert pays.in_full and pays.wait == 8
     # a probe that kept nearly every DOF fails at once, without a trial
     pays.wait = 0
     assert pays.plan() == "probe"
     red._judged = {"kind": "probe", "reduced": 0.2, "full": 0.2, "ramp": False, "dof_ratio": 0.99}
     red.end_frame({"wall": 1.2})
     assert pays.in_full and pays.plan() == "full"
+    # three trial frames: the first after a fall-back pays new analyses; the least of the three decides
+    red.pays = pays = budget.PaysOff(window=5, patience=3, confirm=True, probe_every=2, trial_frames=3)
+    pays.in_full, pays.wait = True, 0
+    for _ in range(3):
+        red._judged = {"kind": "full"}
+        red.end_frame({"wall": 1.0})
+    assert pays.plan() == "probe"
+    red._judged = {"kind": "probe", "reduced": 0.2, "full": 0.2, "ramp": False, "dof_ratio": 0.1}
+    red.end_frame({"wall": 1.2})
+    for wall in (1.1, 0.3, 0.5):
+        assert pays.in_full and pays.plan() == "trial"
+        red._judged = {"kind": "trial", "reduced": 0.2, "full": 0.0, "ramp": False, "dof_ratio": 0.1}
+        red.end_frame({"wall": wall})
+    assert not pays.in_full and pays.reduced_cost == 0.3 and pays.plan() == "reduced"
 
 
 def test_the_threshold_rises_while_the_run_falls_back_to_full_space():
     # bodies settling shrank the threshold; once they rest, the probe must try a larger one
     eb = budget.ErrorBudget(0.01, tau=1e-4)
-    taus = [eb.idle() for _ in range(12)]
-    assert taus[:3] == pytest.approx([2e-4, 4e-4, 8e-4])
+    taus = [eb.idle() for _ in range(20)]
+    assert taus[:3] == pytest.approx([2e-4, 4e-4, 8e-4]) and taus[3] == pytest.approx(1e-4 * 2 ** 4)
     assert taus[-1] == pytest.approx(1e-4 * budget.IDLE_RISE) and eb.idle_from == 1e-4
     eb.advance(0.0, 0.01, 1.0)
     eb.adapt()  # a reduced frame (the probe): the rise is measured from the next fall-back's threshold

@@ -66,7 +66,7 @@ steps); when the reduced frames, shadows included, cost more than a full one, or
 every DOF, it solves the next frames in full space, and probes reduction again after
 ``probe_every`` frames (doubling while probes keep failing). A probe is a shadow frame: it
 returns the full solution, so a run that never reduces equals the full-space run. A probe that
-reduced is judged by the reduced frame after it, a *trial* (:meth:`PaysOff.await_trial`): a
+reduced is judged by the reduced frames after it, a *trial* (:meth:`PaysOff.await_trial`): a
 shadow frame solves its contact in full space, which a reduced frame does not. With
 ``confirm``, a full-space frame solved right after the reduced frames that seemed too costly
 decides every fall-back: the two are measured a frame apart, under the same load from elsewhere.
@@ -91,7 +91,7 @@ RESPONSE_FLOOR = 1e-3
 KICK = 0.25
 #: While a run falls back to full space, the threshold rises by ``grow`` per frame up to this factor
 #: over its value at the fall-back (:meth:`ErrorBudget.idle`).
-IDLE_RISE = 1024.0
+IDLE_RISE = 16.0
 
 #: The shadow frames whose measured (G, W) :meth:`ErrorBudget.propagated` keeps.
 RECENT = 4
@@ -563,16 +563,22 @@ class PaysOff:
         Reduced frames are measured every frame and full ones only now and then, so without it a
         burst of load during reduced frames is compared with full frames measured while the
         machine was quiet.
+    trial_frames : int
+        Reduced frames after a probe that judge it (:meth:`await_trial`), their least cost with
+        ``window``: the first frame after a fall-back pays one-off costs (analyses of new patterns).
     """
 
     def __init__(self, probe_every=20, probe_max=160, keep_dofs=0.95, patience=5, margin=0.05, smoothing=0.3,
-                 window=None, confirm=False):
+                 window=None, confirm=False, trial_frames=1):
         self.probe_every, self.probe_max, self.patience = int(probe_every), int(probe_max), int(patience)
         self.keep_dofs, self.margin, self.smoothing = float(keep_dofs), float(margin), float(smoothing)
         self.window = int(window or 0)  # 0: a moving average (plain numbers: checkpoints save them)
         self.confirm = bool(confirm)
         self.confirming = False  # the next frame is a full-space frame that confirms a fall-back (``confirm``)
-        self.trial = False  # the next frame is a reduced frame that judges a probe (:meth:`await_trial`)
+        self.trial_frames = int(trial_frames)
+        if self.trial_frames < 1:
+            raise ValueError(f"trial_frames must be >= 1, got {trial_frames}")
+        self.trial = 0  # reduced frames left that judge a probe (:meth:`await_trial`)
         self.full_recent, self.reduced_recent = [], []  # the latest measurements (with ``window``)
         self.full_cost = 0.0   # s per frame solved in full space (or per full solve: what the reducer measures)
         self.reduced_cost = 0.0  # s per reduced frame
@@ -636,14 +642,15 @@ class PaysOff:
         return self.reduced_cost + extra <= (1.0 - margin) * self.full_cost
 
     def await_trial(self):
-        """The probe just solved cannot be judged on its own wall time: the next frame, reduced
-        (:meth:`plan` says ``"trial"``), is, by :meth:`decide` with ``probed=True``.
+        """The probe just solved cannot be judged on its own wall time: the next ``trial_frames``
+        frames, reduced (:meth:`plan` says ``"trial"``), are, by :meth:`decide` with ``probed=True``
+        after the last (the reducer counts them down in :attr:`trial`).
 
         A probe is a shadow frame: its contact, if any, is solved through the full-space operator,
         so it costs what a full frame's contact costs, which on a resting pile is most of a full
         frame. Judged on it, a reduced frame whose contact costs a few of its bodies' DOFs looks
         as dear as a full one, and the run stays in full space."""
-        self.trial = True
+        self.trial = self.trial_frames
 
     def plan(self):
         """"full" (solve this frame in full space), "confirm" (a full-space frame that decides a
@@ -660,17 +667,19 @@ class PaysOff:
             return "full"
         return "probe"
 
-    def decide(self, shadow_every=None, probed=False, confirmed=False):
+    def decide(self, shadow_every=None, probed=False, confirmed=False, settled=True):
         """After a reduced frame, a probe or a confirming full frame: stay reduced, or go to full
-        space until the next probe."""
+        space until the next probe. ``settled=False`` (with ``probed``): the reducer's thresholds
+        had to shrink at the probe's frame, so the frames after it would reduce less and cost
+        more than it did: the probe fails."""
         warm = self.reduced_samples >= self.patience and self.full_samples >= 1
         if confirmed:  # reduced frames seemed too costly: a full frame measured beside them decides
             self.confirming = False
             if not self.pays(shadow_every):
                 self.in_full, self.wait, self.period = True, self.probe_every, self.probe_every
         elif probed:
-            self.trial = False
-            if self.pays(shadow_every, self.margin):
+            self.trial = 0
+            if settled and self.pays(shadow_every, self.margin):
                 self.in_full, self.period = False, self.probe_every
             else:
                 self.in_full = True

@@ -324,7 +324,7 @@ class ClusteringReducer(Reducer):
             # judged on whole frames (end_frame): the least of the latest 5 of each kind, and a full
             # frame solved beside the reduced ones confirms a fall-back, so that load from elsewhere
             # does not decide
-            self.pays = budgets.PaysOff(window=5, confirm=True)
+            self.pays = budgets.PaysOff(window=5, confirm=True, trial_frames=3)
         if self.error_budget is not None or self.pays is not None:
             self.shadows = budgets.ShadowClock(self.shadow_every)
             spec = self.solver_spec if self.solver_spec is None or isinstance(self.solver_spec, str) else "direct"
@@ -357,8 +357,11 @@ class ClusteringReducer(Reducer):
         fall-back replaces the running full cost); a shadow frame or a probe is a reduced frame
         plus a full solve, so it gives both, the full frame as its wall time minus the reduced
         part and the reduced frame as its wall time minus the full solve. A probe that reduced
-        is judged by the reduced frame after it, the trial: a shadow frame resolves contact
-        through the full-space operator, at a full frame's contact cost.
+        is judged by the reduced frames after it, the trial (the least cost of three): a shadow
+        frame resolves contact through the full-space operator, at a full frame's contact cost,
+        and the first reduced frame pays new analyses. A probe or a trial at
+        which the error budget had to shrink the threshold fails whatever its cost (bodies still
+        settling): the frames after it would reduce less.
         """
         pays, kind = self.pays, judged["kind"]
         if kind in ("full", "confirm"):
@@ -370,14 +373,19 @@ class ClusteringReducer(Reducer):
             pays.full_solved(wall - judged["reduced"])
             pays.shadow_added(judged["full"])
             wall -= judged["full"]
-            if kind == "probe" and judged["dof_ratio"] < pays.keep_dofs:
+            if kind == "probe" and judged["dof_ratio"] < pays.keep_dofs and judged.get("settled", True):
                 pays.await_trial()
                 return
         probe = kind in ("probe", "trial")
         if judged["ramp"] and not probe:
             return  # frames at a threshold still rising from its small start say nothing of the settled cost
-        pays.reduced_solved(wall, judged["dof_ratio"], fresh=probe)
-        pays.decide(self.shadows.every, probed=probe)
+        first = kind == "probe" or (kind == "trial" and pays.trial == pays.trial_frames)
+        pays.reduced_solved(wall, judged["dof_ratio"], fresh=first)
+        settled = judged.get("settled", True)
+        if kind == "trial" and pays.trial > 1 and settled and not judged["full"]:
+            pays.trial -= 1  # more trial frames to come: their least cost decides
+            return
+        pays.decide(self.shadows.every, probed=probe, settled=settled)
 
     # -------------------------------------------------------------- frame
     def solve(self, problem):
@@ -476,6 +484,7 @@ class ClusteringReducer(Reducer):
             stats.update(dofs=op.shape[0], solver=self.full_solver.name, local_error_measured=measured / unit)
             result = StepResult(dv=dv, operator=op, clusters=np.full(sysm.m, -1, dtype=np.int64), stats=stats)
         ramp = eb is not None and eb.ramping  # this frame's threshold is still on its way up
+        settled = True  # the error budget kept (or raised) the threshold: the frames after reduce as much
         if eb is not None:
             delta = eb.local(proxy, measured) + (0.0 if shadow else gap)
             if shadow and self.shadows is not None:
@@ -483,10 +492,11 @@ class ClusteringReducer(Reducer):
             eb.advance(delta, h, model.size, introduced=not shadow)
             stats["local_error"] = delta / unit
             reducible = 1.0 - float(np.mean(self.excluded)) if sysm.m else 0.0
-            eb.adapt(saturated=stats["reduced_fraction"] >= reducible - 1e-9)
+            tau = eb.tau
+            settled = eb.adapt(saturated=stats["reduced_fraction"] >= reducible - 1e-9) >= tau
         if pays is not None:  # judged in end_frame, on the frame's wall time
             self._judged = {"kind": mode if mode in ("probe", "trial") else "shadow" if shadow else "reduced",
-                            "reduced": reduced_seconds, "full": seconds, "ramp": ramp,
+                            "reduced": reduced_seconds, "full": seconds, "ramp": ramp, "settled": settled,
                             "dof_ratio": stats["reduced_dofs"] / max(sysm.free.size, 1)}
         self._record(stats)
         return result
