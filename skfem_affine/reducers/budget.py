@@ -416,6 +416,11 @@ class ErrorBudget:
         self.tau = min(self.tau * self.grow, self.idle_from * IDLE_RISE, self.tau_max)
         return self.tau
 
+    @property
+    def steady(self):
+        """S = T W ||delta|| / U: where the estimate would settle at the latest frame's local error."""
+        return self.memory * self.carry * self.local_rate
+
     def adapt(self, saturated=False):
         """Scale the threshold from the latest local error and the estimate; returns the new tau.
 
@@ -424,7 +429,7 @@ class ErrorBudget:
         does not grow then.
         """
         self.idle_from = 0.0
-        steady = self.memory * self.carry * self.local_rate
+        steady = self.steady
         upper = self.ramp_grow if self.ramping else self.grow
         ratio = self.goal / steady if steady > 0 else upper ** 2
         factor = min(max(math.sqrt(ratio), self.shrink), upper)
@@ -669,9 +674,9 @@ class PaysOff:
 
     def decide(self, shadow_every=None, probed=False, confirmed=False, settled=True):
         """After a reduced frame, a probe or a confirming full frame: stay reduced, or go to full
-        space until the next probe. ``settled=False`` (with ``probed``): the reducer's thresholds
-        had to shrink at the probe's frame, so the frames after it would reduce less and cost
-        more than it did: the probe fails."""
+        space until the next probe. ``settled=False`` (with ``probed``): the probe's frame made
+        more error than the reducer's error budget allows for long, so its thresholds shrink and the
+        frames after it would reduce less and cost more than it did: the probe fails."""
         warm = self.reduced_samples >= self.patience and self.full_samples >= 1
         if confirmed:  # reduced frames seemed too costly: a full frame measured beside them decides
             self.confirming = False

@@ -359,9 +359,9 @@ class ClusteringReducer(Reducer):
         part and the reduced frame as its wall time minus the full solve. A probe that reduced
         is judged by the reduced frames after it, the trial (the least cost of three): a shadow
         frame resolves contact through the full-space operator, at a full frame's contact cost,
-        and the first reduced frame pays new analyses. A probe or a trial at
-        which the error budget had to shrink the threshold fails whatever its cost (bodies still
-        settling): the frames after it would reduce less.
+        and the first reduced frame pays new analyses. A probe or a trial whose own error, kept
+        up, would take the estimate over the error budget fails whatever its cost (bodies still
+        settling): the threshold shrinks, and the frames after it would reduce less.
         """
         pays, kind = self.pays, judged["kind"]
         if kind in ("full", "confirm"):
@@ -484,7 +484,7 @@ class ClusteringReducer(Reducer):
             stats.update(dofs=op.shape[0], solver=self.full_solver.name, local_error_measured=measured / unit)
             result = StepResult(dv=dv, operator=op, clusters=np.full(sysm.m, -1, dtype=np.int64), stats=stats)
         ramp = eb is not None and eb.ramping  # this frame's threshold is still on its way up
-        settled = True  # the error budget kept (or raised) the threshold: the frames after reduce as much
+        settled = True  # the frame's own error, kept up, stays within the budget: the frames after reduce as much
         if eb is not None:
             delta = eb.local(proxy, measured) + (0.0 if shadow else gap)
             if shadow and self.shadows is not None:
@@ -492,8 +492,8 @@ class ClusteringReducer(Reducer):
             eb.advance(delta, h, model.size, introduced=not shadow)
             stats["local_error"] = delta / unit
             reducible = 1.0 - float(np.mean(self.excluded)) if sysm.m else 0.0
-            tau = eb.tau
-            settled = eb.adapt(saturated=stats["reduced_fraction"] >= reducible - 1e-9) >= tau
+            eb.adapt(saturated=stats["reduced_fraction"] >= reducible - 1e-9)
+            settled = eb.steady <= eb.target
         if pays is not None:  # judged in end_frame, on the frame's wall time
             self._judged = {"kind": mode if mode in ("probe", "trial") else "shadow" if shadow else "reduced",
                             "reduced": reduced_seconds, "full": seconds, "ramp": ramp, "settled": settled,
