@@ -676,7 +676,8 @@ class PaysOff:
         """After a reduced frame, a probe or a confirming full frame: stay reduced, or go to full
         space until the next probe. ``settled=False`` (with ``probed``): the probe's frame made
         more error than the reducer's error budget allows for long, so its thresholds shrink and the
-        frames after it would reduce less and cost more than it did: the probe fails."""
+        frames after it would reduce less and cost more than it did: the probe fails, and the next
+        one comes after ``probe_every`` frames (the wait does not double)."""
         warm = self.reduced_samples >= self.patience and self.full_samples >= 1
         if confirmed:  # reduced frames seemed too costly: a full frame measured beside them decides
             self.confirming = False
@@ -686,6 +687,8 @@ class PaysOff:
             self.trial = 0
             if settled and self.pays(shadow_every, self.margin):
                 self.in_full, self.period = False, self.probe_every
+            elif not settled:  # bodies still settling: probe again as soon, they may rest by then
+                self.in_full, self.wait = True, self.probe_every
             else:
                 self.in_full = True
                 self.period = min(2 * self.period, self.probe_max)
