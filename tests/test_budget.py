@@ -307,7 +307,13 @@ def test_a_probe_in_a_contact_scene_is_judged_by_the_reduced_frame_after_it():
     red.end_frame({"wall": 1.2})
     red._judged = {"kind": "trial", "reduced": 0.2, "full": 0.0, "ramp": False, "dof_ratio": 0.1, "settled": False}
     red.end_frame({"wall": 0.3})
-    assert pays.in_full and pays.wait == 2 and pays.period == 4  # they may rest soon: the wait does not double
+    assert pays.in_full and pays.wait == 8  # a trial spent: the wait doubles
+    # a probe (a shadow frame) that found the bodies settling: no trial, and they may rest soon: no doubling
+    pays.wait = 0
+    assert pays.plan() == "probe"
+    red._judged = {"kind": "probe", "reduced": 0.2, "full": 0.2, "ramp": False, "dof_ratio": 0.1, "settled": False}
+    red.end_frame({"wall": 1.2})
+    assert pays.in_full and pays.wait == 2 and pays.period == 8 and pays.plan() == "full"
     # a probe that kept nearly every DOF fails at once, without a trial
     pays.wait = 0
     assert pays.plan() == "probe"

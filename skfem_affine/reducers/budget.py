@@ -676,18 +676,19 @@ class PaysOff:
         """After a reduced frame, a probe or a confirming full frame: stay reduced, or go to full
         space until the next probe. ``settled=False`` (with ``probed``): the probe's frame made
         more error than the reducer's error budget allows for long, so its thresholds shrink and the
-        frames after it would reduce less and cost more than it did: the probe fails, and the next
-        one comes after ``probe_every`` frames (the wait does not double)."""
+        frames after it would reduce less and cost more than it did: the probe fails, and when no
+        trial frame was spent on it, the next one comes after ``probe_every`` frames (the wait
+        does not double)."""
         warm = self.reduced_samples >= self.patience and self.full_samples >= 1
         if confirmed:  # reduced frames seemed too costly: a full frame measured beside them decides
             self.confirming = False
             if not self.pays(shadow_every):
                 self.in_full, self.wait, self.period = True, self.probe_every, self.probe_every
         elif probed:
-            self.trial = 0
+            tried, self.trial = self.trial > 0, 0
             if settled and self.pays(shadow_every, self.margin):
                 self.in_full, self.period = False, self.probe_every
-            elif not settled:  # bodies still settling: probe again as soon, they may rest by then
+            elif not (settled or tried):  # the probe found bodies still settling: probe as soon again
                 self.in_full, self.wait = True, self.probe_every
             else:
                 self.in_full = True
