@@ -273,6 +273,85 @@ def test_threshold_ramps_fast_until_the_error_shows_then_moves_at_the_usual_rate
     assert budget.ErrorBudget(0.01, tau=1.0).ramp_grow == 2.0  # the subspace reducer's: no faster ramp
 
 
+def test_a_probe_in_a_contact_scene_is_judged_by_the_reduced_frame_after_it():
+    # frames of 1.0 s in full space, 0.8 s of them contact (a resting pile); a reduced frame costs
+    # 0.3 s, its contact on the bodies' DOFs included. A probe pays its reduced work (0.2 s) and a
+    # full frame's contact and solve: 1.2 s, less the full solve (0.2 s) is 1.0 s, "no gain"
+    red = sa.Affinification()
+    sim = sa.scenes.cantilever(resolution=2, reducer=red, solver="direct")
+    sim.step()
+    red.pays = pays = budget.PaysOff(window=5, patience=3, confirm=True, probe_every=2)
+    pays.in_full, pays.wait = True, 0
+    for _ in range(3):
+        red._judged = {"kind": "full"}
+        red.end_frame({"wall": 1.0})
+    assert pays.plan() == "probe"
+    red._judged = {"kind": "probe", "reduced": 0.2, "full": 0.2, "ramp": False, "dof_ratio": 0.1}
+    red.end_frame({"wall": 1.2})
+    assert pays.in_full and pays.plan() == "trial" and pays.plan() == "trial"  # until a trial is judged
+    red._judged = {"kind": "trial", "reduced": 0.2, "full": 0.0, "ramp": False, "dof_ratio": 0.1}
+    red.end_frame({"wall": 0.3})
+    assert not pays.in_full and pays.plan() == "reduced"
+    # a trial that does not pay sends the run back to full space, for twice as long
+    pays.in_full, pays.wait = True, 0
+    assert pays.plan() == "probe"
+    red._judged = {"kind": "probe", "reduced": 0.2, "full": 0.2, "ramp": False, "dof_ratio": 0.1}
+    red.end_frame({"wall": 1.2})
+    red._judged = {"kind": "trial", "reduced": 0.2, "full": 0.0, "ramp": False, "dof_ratio": 0.1}
+    red.end_frame({"wall": 1.1})
+    assert pays.in_full and pays.wait == 4 and pays.plan() == "full"
+    # a trial at which the error budget shrank the threshold fails, however cheap (bodies still settling)
+    pays.wait = 0
+    assert pays.plan() == "probe"
+    red._judged = {"kind": "probe", "reduced": 0.2, "full": 0.2, "ramp": False, "dof_ratio": 0.1}
+    red.end_frame({"wall": 1.2})
+    red._judged = {"kind": "trial", "reduced": 0.2, "full": 0.0, "ramp": False, "dof_ratio": 0.1, "settled": False}
+    red.end_frame({"wall": 0.3})
+    assert pays.in_full and pays.wait == 8  # a trial spent: the wait doubles
+    # a probe (a shadow frame) that found the bodies settling: no trial, and they may rest soon: no doubling
+    pays.wait = 0
+    assert pays.plan() == "probe"
+    red._judged = {"kind": "probe", "reduced": 0.2, "full": 0.2, "ramp": False, "dof_ratio": 0.1, "settled": False}
+    red.end_frame({"wall": 1.2})
+    assert pays.in_full and pays.wait == 2 and pays.period == 8 and pays.plan() == "full"
+    # a probe that kept nearly every DOF fails at once, without a trial
+    pays.wait = 0
+    assert pays.plan() == "probe"
+    red._judged = {"kind": "probe", "reduced": 0.2, "full": 0.2, "ramp": False, "dof_ratio": 0.99}
+    red.end_frame({"wall": 1.2})
+    assert pays.in_full and pays.plan() == "full"
+    # three trial frames: the first after a fall-back pays new analyses; the least of the three decides
+    red.pays = pays = budget.PaysOff(window=5, patience=3, confirm=True, probe_every=2, trial_frames=3)
+    pays.in_full, pays.wait = True, 0
+    for _ in range(3):
+        red._judged = {"kind": "full"}
+        red.end_frame({"wall": 1.0})
+    assert pays.plan() == "probe"
+    red._judged = {"kind": "probe", "reduced": 0.2, "full": 0.2, "ramp": False, "dof_ratio": 0.1}
+    red.end_frame({"wall": 1.2})
+    for wall in (1.1, 0.3, 0.5):
+        assert pays.in_full and pays.plan() == "trial"
+        red._judged = {"kind": "trial", "reduced": 0.2, "full": 0.0, "ramp": False, "dof_ratio": 0.1}
+        red.end_frame({"wall": wall})
+    assert not pays.in_full and pays.reduced_cost == 0.3 and pays.plan() == "reduced"
+
+
+def test_the_threshold_rises_while_the_run_falls_back_to_full_space():
+    # bodies settling shrank the threshold; once they rest, the probe must try a larger one
+    eb = budget.ErrorBudget(0.01, tau=1e-4)
+    taus = [eb.idle() for _ in range(20)]
+    assert taus[:3] == pytest.approx([2e-4, 4e-4, 8e-4]) and taus[3] == pytest.approx(1e-4 * 2 ** 4)
+    assert taus[-1] == pytest.approx(1e-4 * budget.IDLE_RISE) and eb.idle_from == 1e-4
+    eb.advance(0.0, 0.01, 1.0)
+    eb.adapt()  # a reduced frame (the probe): the rise is measured from the next fall-back's threshold
+    assert eb.idle_from == 0.0
+    start = eb.tau
+    eb.idle()
+    assert eb.idle_from == start and eb.tau == pytest.approx(2 * start)
+    capped = budget.ErrorBudget(0.01, tau=1.0, tau_max=3.0)
+    assert [capped.idle() for _ in range(3)] == [2.0, 3.0, 3.0]
+
+
 def test_running_costs_are_the_least_of_the_window_so_load_does_not_decide():
     p = budget.PaysOff(window=3)
     p.full_solved(9.0)  # not a sample: the solver's analysis
@@ -335,10 +414,16 @@ def test_the_fall_back_judges_whole_frame_wall_times():
     rec = {"wall": 1.6}
     red.end_frame(rec)
     assert pays.full_cost == pytest.approx(1.6) and rec["reduction_pays"] and not pays.confirming
-    # a probe: 0.4 s of reduced work and a 1.1 s full solve in a 2.0 s frame
+    # a probe: 0.4 s of reduced work and a 1.1 s full solve in a 2.0 s frame, a full frame of 1.6 s;
+    # its reduced part is not judged on it (a shadow frame solves its contact in full space): the
+    # reduced frame after it, the trial, is
     red._judged = {"kind": "probe", "reduced": 0.4, "full": 1.1, "ramp": False, "dof_ratio": 0.3}
     red.end_frame({"wall": 2.0})
-    assert pays.full_cost == pytest.approx(1.6) and pays.reduced_cost == pytest.approx(0.9)
+    assert pays.full_cost == pytest.approx(1.6) and pays.reduced_cost == pytest.approx(1.4)
+    assert pays.plan() == "trial"
+    red._judged = {"kind": "trial", "reduced": 0.4, "full": 0.0, "ramp": True, "dof_ratio": 0.3}
+    red.end_frame({"wall": 0.9})
+    assert pays.reduced_cost == pytest.approx(0.9) and pays.plan() == "reduced" and not pays.in_full
 
 
 def test_fallback_to_full_space_on_a_scene_where_nothing_reduces():

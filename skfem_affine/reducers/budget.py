@@ -65,7 +65,9 @@ full-space ones (the affine reducers: whole-frame wall times; the subspace reduc
 steps); when the reduced frames, shadows included, cost more than a full one, or keep nearly
 every DOF, it solves the next frames in full space, and probes reduction again after
 ``probe_every`` frames (doubling while probes keep failing). A probe is a shadow frame: it
-returns the full solution, so a run that never reduces equals the full-space run. With
+returns the full solution, so a run that never reduces equals the full-space run. A probe that
+reduced is judged by the reduced frames after it, a *trial* (:meth:`PaysOff.await_trial`): a
+shadow frame solves its contact in full space, which a reduced frame does not. With
 ``confirm``, a full-space frame solved right after the reduced frames that seemed too costly
 decides every fall-back: the two are measured a frame apart, under the same load from elsewhere.
 """
@@ -87,6 +89,9 @@ RESPONSE_FLOOR = 1e-3
 #: A reduced frame whose own estimated position error (G h ||delta|| / U) exceeds this fraction of
 #: the budget is solved again in full space (:meth:`ErrorBudget.breaks`).
 KICK = 0.25
+#: While a run falls back to full space, the threshold rises by ``grow`` per frame up to this factor
+#: over its value at the fall-back (:meth:`ErrorBudget.idle`).
+IDLE_RISE = 16.0
 
 #: The shadow frames whose measured (G, W) :meth:`ErrorBudget.propagated` keeps.
 RECENT = 4
@@ -272,6 +277,8 @@ class ErrorBudget:
         the mean of the latest :data:`RECENT` shadow frames'). A reduced frame adds W h ||delta|| to D.
     ramping : bool
         The threshold has only risen, at ``ramp_grow``, since the start.
+    idle_from : float
+        The threshold when the run last fell back to full space (0: it reduces), :meth:`idle`.
     """
 
     def __init__(self, target, tau, memory=0.5, safety=0.5, tau_min=1e-8, tau_max=1e3,
@@ -285,6 +292,7 @@ class ErrorBudget:
         self.shrink, self.grow, self.shrink_over = float(shrink), float(grow), float(shrink_over)
         self.ramp_grow = self.grow if ramp_grow is None else float(ramp_grow)
         self.ramping = True  # tau rises by ramp_grow per frame from the small start until the error shows
+        self.idle_from = 0.0  # tau at the fall-back to full space (0: reducing)
         self.drift = 0.0
         self.estimate = 0.0
         self.unit = 0.0  # set by scale() (or advance(): the scene size)
@@ -393,6 +401,26 @@ class ErrorBudget:
         self.estimate = self.drift / self.unit if self.unit > 0 else 0.0
         return self.estimate
 
+    def idle(self):
+        """A frame the fall-back solved in full space: the threshold rises by ``grow``, up to
+        :data:`IDLE_RISE` times its value at the fall-back; returns the new tau.
+
+        A run falls back where reduction does not pay, often while its bodies settle and the
+        budget has shrunk the threshold; without this, the probe after the bodies came to rest
+        would run at that small threshold, reduce little, fail, and keep the run in full space for
+        twice as long. A probe is a shadow frame, so a threshold too large for it adds no error:
+        the probe measures the error and the threshold shrinks from there; the trial after it is
+        refused (solved in full space) if its estimate breaks the budget."""
+        if not self.idle_from:
+            self.idle_from = self.tau
+        self.tau = min(self.tau * self.grow, self.idle_from * IDLE_RISE, self.tau_max)
+        return self.tau
+
+    @property
+    def steady(self):
+        """S = T W ||delta|| / U: where the estimate would settle at the latest frame's local error."""
+        return self.memory * self.carry * self.local_rate
+
     def adapt(self, saturated=False):
         """Scale the threshold from the latest local error and the estimate; returns the new tau.
 
@@ -400,7 +428,8 @@ class ErrorBudget:
         gain nothing and only let the next event (an impact) find everything reduced; tau
         does not grow then.
         """
-        steady = self.memory * self.carry * self.local_rate
+        self.idle_from = 0.0
+        steady = self.steady
         upper = self.ramp_grow if self.ramping else self.grow
         ratio = self.goal / steady if steady > 0 else upper ** 2
         factor = min(max(math.sqrt(ratio), self.shrink), upper)
@@ -539,15 +568,22 @@ class PaysOff:
         Reduced frames are measured every frame and full ones only now and then, so without it a
         burst of load during reduced frames is compared with full frames measured while the
         machine was quiet.
+    trial_frames : int
+        Reduced frames after a probe that judge it (:meth:`await_trial`), their least cost with
+        ``window``: the first frame after a fall-back pays one-off costs (analyses of new patterns).
     """
 
     def __init__(self, probe_every=20, probe_max=160, keep_dofs=0.95, patience=5, margin=0.05, smoothing=0.3,
-                 window=None, confirm=False):
+                 window=None, confirm=False, trial_frames=1):
         self.probe_every, self.probe_max, self.patience = int(probe_every), int(probe_max), int(patience)
         self.keep_dofs, self.margin, self.smoothing = float(keep_dofs), float(margin), float(smoothing)
         self.window = int(window or 0)  # 0: a moving average (plain numbers: checkpoints save them)
         self.confirm = bool(confirm)
         self.confirming = False  # the next frame is a full-space frame that confirms a fall-back (``confirm``)
+        self.trial_frames = int(trial_frames)
+        if self.trial_frames < 1:
+            raise ValueError(f"trial_frames must be >= 1, got {trial_frames}")
+        self.trial = 0  # reduced frames left that judge a probe (:meth:`await_trial`)
         self.full_recent, self.reduced_recent = [], []  # the latest measurements (with ``window``)
         self.full_cost = 0.0   # s per frame solved in full space (or per full solve: what the reducer measures)
         self.reduced_cost = 0.0  # s per reduced frame
@@ -610,11 +646,25 @@ class PaysOff:
         extra = self.overhead(shadow_every) if shadow_every else 0.0
         return self.reduced_cost + extra <= (1.0 - margin) * self.full_cost
 
+    def await_trial(self):
+        """The probe just solved cannot be judged on its own wall time: the next ``trial_frames``
+        frames, reduced (:meth:`plan` says ``"trial"``), are, by :meth:`decide` with ``probed=True``
+        after the last (the reducer counts them down in :attr:`trial`).
+
+        A probe is a shadow frame: its contact, if any, is solved through the full-space operator,
+        so it costs what a full frame's contact costs, which on a resting pile is most of a full
+        frame. Judged on it, a reduced frame whose contact costs a few of its bodies' DOFs looks
+        as dear as a full one, and the run stays in full space."""
+        self.trial = self.trial_frames
+
     def plan(self):
         """"full" (solve this frame in full space), "confirm" (a full-space frame that decides a
-        fall-back, with ``confirm``), "probe" (a reduced frame with a shadow) or "reduced"."""
+        fall-back, with ``confirm``), "probe" (a reduced frame with a shadow), "trial" (a reduced
+        frame that judges the probe before it, :meth:`await_trial`) or "reduced"."""
         if self.confirming:
             return "confirm"
+        if self.trial:
+            return "trial"
         if not self.in_full:
             return "reduced"
         if self.wait > 0:
@@ -622,17 +672,24 @@ class PaysOff:
             return "full"
         return "probe"
 
-    def decide(self, shadow_every=None, probed=False, confirmed=False):
+    def decide(self, shadow_every=None, probed=False, confirmed=False, settled=True):
         """After a reduced frame, a probe or a confirming full frame: stay reduced, or go to full
-        space until the next probe."""
+        space until the next probe. ``settled=False`` (with ``probed``): the probe's frame made
+        more error than the reducer's error budget allows for long, so its thresholds shrink and the
+        frames after it would reduce less and cost more than it did: the probe fails, and when no
+        trial frame was spent on it, the next one comes after ``probe_every`` frames (the wait
+        does not double)."""
         warm = self.reduced_samples >= self.patience and self.full_samples >= 1
         if confirmed:  # reduced frames seemed too costly: a full frame measured beside them decides
             self.confirming = False
             if not self.pays(shadow_every):
                 self.in_full, self.wait, self.period = True, self.probe_every, self.probe_every
         elif probed:
-            if self.pays(shadow_every, self.margin):
+            tried, self.trial = self.trial > 0, 0
+            if settled and self.pays(shadow_every, self.margin):
                 self.in_full, self.period = False, self.probe_every
+            elif not (settled or tried):  # the probe found bodies still settling: probe as soon again
+                self.in_full, self.wait = True, self.probe_every
             else:
                 self.in_full = True
                 self.period = min(2 * self.period, self.probe_max)

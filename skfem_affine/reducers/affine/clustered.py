@@ -336,7 +336,7 @@ class ClusteringReducer(Reducer):
             # judged on whole frames (end_frame): the least of the latest 5 of each kind, and a full
             # frame solved beside the reduced ones confirms a fall-back, so that load from elsewhere
             # does not decide
-            self.pays = budgets.PaysOff(window=5, confirm=True)
+            self.pays = budgets.PaysOff(window=5, confirm=True, trial_frames=3)
         if self.error_budget is not None or self.pays is not None:
             self.shadows = budgets.ShadowClock(self.shadow_every)
             spec = self.solver_spec if self.solver_spec is None or isinstance(self.solver_spec, str) else "direct"
@@ -368,7 +368,12 @@ class ClusteringReducer(Reducer):
         checks included): a frame solved in full space is a full frame (one that confirms a
         fall-back replaces the running full cost); a shadow frame or a probe is a reduced frame
         plus a full solve, so it gives both, the full frame as its wall time minus the reduced
-        part and the reduced frame as its wall time minus the full solve.
+        part and the reduced frame as its wall time minus the full solve. A probe that reduced
+        is judged by the reduced frames after it, the trial (the least cost of three): a shadow
+        frame resolves contact through the full-space operator, at a full frame's contact cost,
+        and the first reduced frame pays new analyses. A probe or a trial whose own error, kept
+        up, would take the estimate over the error budget fails whatever its cost (bodies still
+        settling): the threshold shrinks, and the frames after it would reduce less.
         """
         pays, kind = self.pays, judged["kind"]
         if kind in ("full", "confirm"):
@@ -376,14 +381,23 @@ class ClusteringReducer(Reducer):
             if kind == "confirm":
                 pays.decide(self.shadows.every, confirmed=True)
             return
-        if kind in ("shadow", "probe"):
-            pays.full_solved(wall - judged["reduced"], fresh=kind == "probe")
+        if kind in ("shadow", "probe") or judged["full"]:  # a refused trial is a shadow frame too
+            pays.full_solved(wall - judged["reduced"])
             pays.shadow_added(judged["full"])
             wall -= judged["full"]
-        if judged["ramp"] and kind != "probe":
+            if kind == "probe" and judged["dof_ratio"] < pays.keep_dofs and judged.get("settled", True):
+                pays.await_trial()
+                return
+        probe = kind in ("probe", "trial")
+        if judged["ramp"] and not probe:
             return  # frames at a threshold still rising from its small start say nothing of the settled cost
-        pays.reduced_solved(wall, judged["dof_ratio"], fresh=kind == "probe")
-        pays.decide(self.shadows.every, probed=kind == "probe")
+        first = kind == "probe" or (kind == "trial" and pays.trial == pays.trial_frames)
+        pays.reduced_solved(wall, judged["dof_ratio"], fresh=first)
+        settled = judged.get("settled", True)
+        if kind == "trial" and pays.trial > 1 and settled and not judged["full"]:
+            pays.trial -= 1  # more trial frames to come: their least cost decides
+            return
+        pays.decide(self.shadows.every, probed=probe, settled=settled)
 
     # -------------------------------------------------------------- frame
     def solve(self, problem):
@@ -429,6 +443,8 @@ class ClusteringReducer(Reducer):
                 self._judged = {"kind": "confirm" if mode == "confirm" else "full"}
             if eb is not None:
                 eb.decay(h)
+                if mode == "full":  # the fall-back: the probe to come tries a larger threshold
+                    eb.idle()
             self.was_reduced = np.zeros(sysm.m, dtype=bool)
             self.labels = np.full(sysm.m, -1, dtype=np.int64)
             stats.update(dofs=op.shape[0], solver=self.full_solver.name, n_clusters=0, elastic_dofs=op.shape[0],
@@ -454,7 +470,8 @@ class ClusteringReducer(Reducer):
             stats["prediction"] += stats["estimation"]
         reduced_seconds = time.perf_counter() - t0
         initial = self.shadows is not None and self.shadows.first > 0
-        shadow = mode == "probe" or (self.shadows is not None and self.shadows.due())
+        # a trial (the frame after a probe) is judged as a plain reduced frame: a shadow only if refused
+        shadow = mode == "probe" or (mode != "trial" and self.shadows is not None and self.shadows.due())
         gap = self._integration_gap(problem, result) if eb is not None and stats["n_clusters"] else 0.0
         refused = not shadow and eb is not None and stats["n_clusters"] > 0 and eb.breaks(eb.local(proxy) + gap, h)
         shadow = shadow or refused  # the reduced step would break the budget: solved again in full space
@@ -479,6 +496,7 @@ class ClusteringReducer(Reducer):
             stats.update(dofs=op.shape[0], solver=self.full_solver.name, local_error_measured=measured / unit)
             result = StepResult(dv=dv, operator=op, clusters=np.full(sysm.m, -1, dtype=np.int64), stats=stats)
         ramp = eb is not None and eb.ramping  # this frame's threshold is still on its way up
+        settled = True  # the frame's own error, kept up, stays within the budget: the frames after reduce as much
         if eb is not None:
             delta = eb.local(proxy, measured) + (0.0 if shadow else gap)
             if shadow and self.shadows is not None:
@@ -487,9 +505,10 @@ class ClusteringReducer(Reducer):
             stats["local_error"] = delta / unit
             reducible = 1.0 - float(np.mean(self.excluded)) if sysm.m else 0.0
             eb.adapt(saturated=stats["reduced_fraction"] >= reducible - 1e-9)
+            settled = eb.steady <= eb.target
         if pays is not None:  # judged in end_frame, on the frame's wall time
-            self._judged = {"kind": "probe" if mode == "probe" else "shadow" if shadow else "reduced",
-                            "reduced": reduced_seconds, "full": seconds, "ramp": ramp,
+            self._judged = {"kind": mode if mode in ("probe", "trial") else "shadow" if shadow else "reduced",
+                            "reduced": reduced_seconds, "full": seconds, "ramp": ramp, "settled": settled,
                             "dof_ratio": stats["reduced_dofs"] / max(sysm.free.size, 1)}
         self._record(stats)
         return result
@@ -509,7 +528,7 @@ class ClusteringReducer(Reducer):
     @staticmethod
     def _new_contacts(problem):
         """Whether the frame has an impact the oracle cannot foresee: a contact of a free vertex that
-        carried no impulse last frame and closes its gap faster than one step of gravity
+        closes its gap faster than one step of gravity
         (``ContactSet.impact``, set by the contact solver).
 
         Such a frame is solved in full space under an error budget: the reduced step's error is
