@@ -18,9 +18,9 @@ integrator's, in the :class:`~skfem_affine.integrators.problem.StepProblem`):
    several bodies, renumbered as full space numbers its unknowns (:mod:`.numbering`);
 5. ``factorization`` and ``solve``: the reduced system, direct solver: with the contacts'
    unknowns last where contact's Schur inverse accepts; else, several bodies, one block per
-   body (:mod:`.blocks`: only the bodies whose clusters changed are analysed again); else, few
-   constraints and a new pattern, through the full A's factorisation (:mod:`.constrained`);
-   else whole;
+   body (:mod:`skfem_affine.reducers.affine.blocks`: only the bodies whose clusters changed
+   are analysed again); else, few constraints and a new pattern, through the full A's
+   factorisation (:mod:`.constrained`); else whole;
 6. dv = G dq + d (eq. 12); the positions are integrated by the mapping's body kind.
 
 With an error budget, a time budget or ``never_slower`` (:mod:`skfem_affine.reducers.budget`),
