@@ -273,14 +273,10 @@ def test_threshold_ramps_fast_until_the_error_shows_then_moves_at_the_usual_rate
     assert budget.ErrorBudget(0.01, tau=1.0).ramp_grow == 2.0  # the subspace reducer's: no faster ramp
 
 
-def test_a_probe_in_a_contact_scene_is_judged_by_the_reduced_frame_after_it():
-    # frames of 1.0 s in full space, 0.8 s of them contact (a resting pile); a reduced frame costs
-    # 0.3 s, its contact on the bodies' DOFs included. A probe pays its reduced work (0.2 s) and a
-    # full frame's contact and solve: 1.2 s, less the full solve (0.2 s) is 1.0 s, "no gain"
-    red = sa.Affinification()
-    sim = sa.scenes.cantilever(resolution=2, reducer=red, solver="direct")
-    sim.step()
-    red.pays = pays = budget.PaysOff(window=5, patience=3, confirm=True, probe_every=2)
+def _probed_after_full_frames(red, **settings):
+    """A fresh PaysOff on ``red``, in full space for three 1 s frames, then a probe that cost 1.2 s
+    (its reduced work 0.2 s and a full frame's contact and solve)."""
+    red.pays = pays = budget.PaysOff(window=5, patience=3, confirm=True, probe_every=2, **settings)
     pays.in_full, pays.wait = True, 0
     for _ in range(3):
         red._judged = {"kind": "full"}
@@ -288,6 +284,17 @@ def test_a_probe_in_a_contact_scene_is_judged_by_the_reduced_frame_after_it():
     assert pays.plan() == "probe"
     red._judged = {"kind": "probe", "reduced": 0.2, "full": 0.2, "ramp": False, "dof_ratio": 0.1}
     red.end_frame({"wall": 1.2})
+    return pays
+
+
+def test_a_probe_in_a_contact_scene_is_judged_by_the_reduced_frame_after_it():
+    # frames of 1.0 s in full space, 0.8 s of them contact (a resting pile); a reduced frame costs
+    # 0.3 s, its contact on the bodies' DOFs included. A probe pays its reduced work (0.2 s) and a
+    # full frame's contact and solve: 1.2 s, less the full solve (0.2 s) is 1.0 s, "no gain"
+    red = sa.Affinification()
+    sim = sa.scenes.cantilever(resolution=2, reducer=red, solver="direct")
+    sim.step()
+    pays = _probed_after_full_frames(red)
     assert pays.in_full and pays.plan() == "trial" and pays.plan() == "trial"  # until a trial is judged
     red._judged = {"kind": "trial", "reduced": 0.2, "full": 0.0, "ramp": False, "dof_ratio": 0.1}
     red.end_frame({"wall": 0.3})
@@ -321,14 +328,7 @@ def test_a_probe_in_a_contact_scene_is_judged_by_the_reduced_frame_after_it():
     red.end_frame({"wall": 1.2})
     assert pays.in_full and pays.plan() == "full"
     # three trial frames: the first after a fall-back pays new analyses; the least of the three decides
-    red.pays = pays = budget.PaysOff(window=5, patience=3, confirm=True, probe_every=2, trial_frames=3)
-    pays.in_full, pays.wait = True, 0
-    for _ in range(3):
-        red._judged = {"kind": "full"}
-        red.end_frame({"wall": 1.0})
-    assert pays.plan() == "probe"
-    red._judged = {"kind": "probe", "reduced": 0.2, "full": 0.2, "ramp": False, "dof_ratio": 0.1}
-    red.end_frame({"wall": 1.2})
+    pays = _probed_after_full_frames(red, trial_frames=3)
     for wall in (1.1, 0.3, 0.5):
         assert pays.in_full and pays.plan() == "trial"
         red._judged = {"kind": "trial", "reduced": 0.2, "full": 0.0, "ramp": False, "dof_ratio": 0.1}

@@ -6,7 +6,7 @@ import skfem_affine as sa
 from skfem_affine.contact import pgs
 from skfem_affine.lab.scenes import box_mesh
 from resuming import resume_bit_identically
-from test_contact_solvers import MU, _coupled, _rigid, _solve
+from test_contact_solvers import MU, _coupled, _rigid, _solve, assert_complementary_and_in_the_cone
 
 
 def _twins(seed, k=10, tilt=0.05, compliance=1e-3, coupling=0.02):
@@ -49,20 +49,7 @@ def test_block_reaches_the_gauss_seidel_solution(problem):
 def test_block_solution_is_complementary_and_in_the_cone(problem):
     W, u0 = problem
     lam, _ = _solve("block", W, u0)
-    u = u0 + W @ lam
-    ln, un = lam[0::3], u[0::3]
-    lt, ut = lam.reshape(-1, 3)[:, 1:], u.reshape(-1, 3)[:, 1:]
-    scale = pgs.velocity_scale(u0)
-    assert np.all(ln >= 0) and np.all(un >= -1e-10 * scale)
-    assert np.abs(np.minimum(un, np.diag(W)[0::3] * ln)).max() <= 1e-10 * scale
-    assert np.all(np.linalg.norm(lt, axis=1) <= MU * ln * (1 + 1e-12))
-    inside = np.linalg.norm(lt, axis=1) < MU * ln * (1 - 1e-6)
-    assert np.abs(ut[inside]).max(initial=0.0) <= 1e-9 * scale    # sticking: no slip
-    sliding = (ln > 1e-12 * ln.max()) & ~inside & (np.linalg.norm(ut, axis=1) > 1e-9 * scale)
-    cosine = -np.einsum("ij,ij->i", lt[sliding], ut[sliding]) / (
-        np.linalg.norm(lt[sliding], axis=1) * np.linalg.norm(ut[sliding], axis=1))
-    assert np.allclose(cosine, 1.0, atol=1e-6)                   # sliding: against the slip
-    assert max(pgs.contact_residual(W, u0, lam, MU)) <= 1e-11 * scale
+    assert_complementary_and_in_the_cone(W, u0, lam)
 
 
 def test_twin_contacts_are_grouped_and_take_far_fewer_sweeps():
