@@ -63,7 +63,9 @@ class BodyBlocks:
             rows = U[idx]  # the body's rows: their columns are its own unknowns, in the same order
             block = sp.csr_matrix((rows.data, local[rows.indices].astype(np.int32), rows.indptr),
                                   shape=(idx.size, idx.size))
-            handle = self.handles.setdefault(b, Pardiso())
+            handle = self.handles.get(b)
+            if handle is None:  # a body's handle, made once (not a new MKL solver per body per frame)
+                handle = self.handles[b] = Pardiso()
             self.analyses += not handle.analysed_for(block, upper=True)
             handle.factorize(block, upper=True, order=local[order[by_body == b]])
             self.blocks.append((handle, idx))
