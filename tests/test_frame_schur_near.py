@@ -12,7 +12,7 @@ from skfem_affine.contact import delassus  # noqa: E402
 from skfem_affine.contact.schur import SchurInverse, inverse_on_positions  # noqa: E402
 from skfem_affine.integrators.problem import Operator  # noqa: E402
 from skfem_affine.reducers.full import touched_unknowns  # noqa: E402
-from skfem_affine.solvers import Pardiso  # noqa: E402
+from skfem_affine.solvers import Pardiso, SolverError  # noqa: E402
 
 from test_delassus import frames_with_contact, plain_delassus  # noqa: E402
 from test_schur import _spd  # noqa: E402
@@ -133,3 +133,11 @@ def test_the_lookahead_is_checked():
     for bad in (-1, float("nan"), "2"):
         with pytest.raises(ValueError, match="lookahead"):
             sim.contact.detector.lookahead = bad
+
+
+@pytest.mark.parametrize("pos", [[0, 1, 2, 3], [1, 3]])
+def test_an_indefinite_complement_is_a_solver_error(pos):
+    # the whole of S inverted, and only part of it (the rest factorised first)
+    S = np.diag([1.0, -2.0, 3.0, -4.0]) if len(pos) == 4 else np.diag([-1.0, 2.0, 3.0, 4.0])
+    with pytest.raises(SolverError, match="not positive definite"):
+        inverse_on_positions(S, np.array(pos))

@@ -230,19 +230,20 @@ def inverse_on_positions(S, pos):
     with serial_blas():
         if pos.size < S.shape[0]:
             rest = np.setdiff1d(np.arange(S.shape[0]), pos, assume_unique=True)
-            L, info = lapack.dpotrf(np.asarray(S[np.ix_(rest, rest)], order="F"), lower=1, clean=1)
-            if info != 0:
-                raise SolverError(f"the Schur complement on {S.shape[0]} unknowns is not positive definite "
-                                  f"(LAPACK info {info}); is A positive definite?")
-            X, info = lapack.dtrtrs(L, np.asarray(S[np.ix_(rest, pos)], order="F"), lower=1)
-            C = np.asarray(S[np.ix_(pos, pos)], order="F")
-            C = C - X.T @ X
-            S, pos = C, np.arange(pos.size)
-        L, info = lapack.dpotrf(S, lower=1, clean=0)
-        if info == 0:
-            L, info = lapack.dpotri(L, lower=1, overwrite_c=1)
-    if info != 0:
-        raise SolverError(f"the Schur complement on {S.shape[0]} unknowns is not positive definite "
-                          f"(LAPACK info {info}); is A positive definite?")
+            L = _checked(S.shape[0], *lapack.dpotrf(np.asarray(S[np.ix_(rest, rest)], order="F"), lower=1, clean=1))
+            X, _ = lapack.dtrtrs(L, np.asarray(S[np.ix_(rest, pos)], order="F"), lower=1)  # L nonsingular
+            S, pos = np.asarray(S[np.ix_(pos, pos)], order="F") - X.T @ X, np.arange(pos.size)
+        n = S.shape[0]
+        L = _checked(n, *lapack.dpotrf(S, lower=1, clean=0))
+        L = _checked(n, *lapack.dpotri(L, lower=1, overwrite_c=1))
     Z = np.tril(L[np.ix_(pos, pos)])  # potri fills the lower triangle only (pos is increasing)
     return Z + np.tril(Z, -1).T
+
+
+def _checked(n, L, info):
+    """A LAPACK factor or inverse L, or the SolverError of a Schur complement (on n unknowns) that is not
+    positive definite."""
+    if info != 0:
+        raise SolverError(f"the Schur complement on {n} unknowns is not positive definite "
+                          f"(LAPACK info {info}); is A positive definite?")
+    return L
