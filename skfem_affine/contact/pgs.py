@@ -570,20 +570,23 @@ def _block_gauss_seidel(W, u0, lam, mu, iterations, tolerance, max_iterations, l
     u = _velocities(W, u0, lam)
     scale = max(velocity_scale(u0), floor)
     goal = tolerance * scale
-    # the groups' rows and blocks of W, gathered once
+    # the groups' rows (group g: rows[3 ptr[g]:3 ptr[g + 1]]) and blocks of W, gathered once
     ng = ptr.size - 1
+    rows = np.empty(3 * members.size, dtype=np.int64)
+    for q in range(rows.size):
+        rows[q] = 3 * members[q // 3] + q % 3
     start = np.zeros(ng + 1, dtype=np.int64)
     for g in range(ng):
         c = 3 * (ptr[g + 1] - ptr[g])
         start[g + 1] = start[g] + (c * c if c > 3 else 0)
     blocks = np.empty(start[ng])
     for g in range(ng):
-        c = ptr[g + 1] - ptr[g]
-        if c > 1:
+        a, b = 3 * ptr[g], 3 * ptr[g + 1]
+        if b - a > 3:
             q = start[g]
-            for i in range(3 * c):
-                for j in range(3 * c):
-                    blocks[q] = W[3 * members[ptr[g] + i // 3] + i % 3, 3 * members[ptr[g] + j // 3] + j % 3]
+            for i in range(a, b):
+                for j in range(a, b):
+                    blocks[q] = W[rows[i], rows[j]]
                     q += 1
     m = lam.size
     for sweep in range(max(iterations, max_iterations)):
@@ -592,12 +595,10 @@ def _block_gauss_seidel(W, u0, lam, mu, iterations, tolerance, max_iterations, l
             if c == 1:
                 _contact_step(W, u, lam, mu, 3 * members[ptr[g]], 1.0)
                 continue
-            rows = np.empty(3 * c, dtype=np.int64)
-            for i in range(3 * c):
-                rows[i] = 3 * members[ptr[g] + i // 3] + i % 3
             Wl = blocks[start[g]:start[g + 1]].reshape(3 * c, 3 * c)
             # its inner sweeps cost at most ``work`` times its contacts' plain steps (3c x m each)
-            _block_visit(W, u, lam, mu, rows, Wl, min(inner, max(1, (work * m) // (3 * c))), 0.1 * goal)
+            _block_visit(W, u, lam, mu, rows[3 * ptr[g]:3 * ptr[g + 1]], Wl, min(inner, max(1, (work * m) // (3 * c))),
+                         0.1 * goal)
         worst = _worst(W, u, lam, mu)
         if worst <= goal or (sweep + 1 >= iterations and worst <= loose * scale):
             return sweep + 1
