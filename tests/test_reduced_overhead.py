@@ -112,7 +112,7 @@ def test_the_constrained_solver_solves_the_reduced_system(kind):
     if kind == "affine-numbered":
         num = FullNumbering(gmap, np.full(gmap.G.shape[0], 2.0))
         Ar = num.matrix(Ar)
-        solver = constrained.ConstrainedSolver(full, gmap, num.columns, num.size, num.idle, num.idle_values)
+        solver = constrained.ConstrainedSolver(full, gmap, num)
     else:
         solver = constrained.ConstrainedSolver(full, gmap)
     assert solver.k == constrained.constraints(gmap) > 0

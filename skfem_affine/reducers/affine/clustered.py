@@ -665,9 +665,7 @@ class ClusteringReducer(Reducer):
     def _constrained_solver(self, problem, gmap, num):
         """A_r^-1 from the factorisation of the frame's full A, kept on its own handle."""
         self.full_handle.factorize(problem.matrix())
-        if num is None:
-            return constrained.ConstrainedSolver(self.full_handle, gmap)
-        return constrained.ConstrainedSolver(self.full_handle, gmap, num.columns, num.size, num.idle, num.idle_values)
+        return constrained.ConstrainedSolver(self.full_handle, gmap, num)
 
     # -------------------------------------------------------------- bodies with pinned vertices
     def _pinned_frame(self, problem, labels, gmap, stats, t3):

@@ -37,26 +37,24 @@ class ConstrainedSolver:
         A direct solver that has factorised the frame's full A (free DOFs).
     gmap : Mapping
         The frame's mapping (compact numbering).
-    columns : (r,) int array, optional
-        The unknown of each compact column when the reduced system is renumbered
-        (:class:`~skfem_affine.reducers.affine.numbering.FullNumbering`); then ``size`` unknowns, those
-        without a column (``idle``) decoupled with the diagonal ``idle_values``.
-    size : int, optional
-    idle, idle_values : arrays, optional
+    numbering : FullNumbering, optional
+        The reduced system's renumbering (:class:`~skfem_affine.reducers.affine.numbering.FullNumbering`):
+        its ``columns`` (the unknown of each compact column) and ``size`` unknowns, those without a column
+        (``idle``) decoupled with the diagonal ``idle_values``; None: the compact numbering.
     """
 
     name = "pardiso-constrained"
     iterative = False
     last_iterations = 1
 
-    def __init__(self, full, gmap, columns=None, size=None, idle=None, idle_values=None):
+    def __init__(self, full, gmap, numbering=None):
         self.full = full
         r, w, nb = gmap.G.shape[1], gmap.width, gmap.n_bodies
         ne = gmap.n_elastic
-        self.columns = np.arange(r) if columns is None else np.asarray(columns, dtype=np.int64)
-        self.size = r if size is None else int(size)
-        self.idle = np.zeros(0, dtype=np.int64) if idle is None else np.asarray(idle, dtype=np.int64)
-        self.idle_values = np.zeros(0) if idle_values is None else np.asarray(idle_values, dtype=float)
+        if numbering is None:
+            self.columns, self.idle, self.idle_values = np.arange(r), np.zeros(0, dtype=np.int64), np.zeros(0)
+        else:
+            self.columns, self.idle, self.idle_values = numbering.columns, numbering.idle, numbering.idle_values
         self.elastic_rows, self.elastic_cols = gmap.elastic_dofs, self.columns[:ne]
         self.body_cols = self.columns[ne:].reshape(nb, w)
         # per body: its free-DOF rows, Gamma_b = Q1 R (thin QR) and the complement Qc (C_b^T)
