@@ -2,12 +2,12 @@
 
 The frame's matrix does not couple the scene's bodies (contact couples them later, through the
 Delassus operator), so it is block diagonal, one block per body. Factorised whole, any cluster that
-forms or dissolves changes the whole pattern and costs a new symbolic analysis of all of it, about
-half a numeric factorisation; factorised per body (:class:`BodyBlocks`), each block keeps its own
-analysis while its clusters stay, and only the bodies whose clusters changed are analysed again. The
-blocks are taken from the frame's upper triangle in the full space's numbering
-(:class:`~skfem_affine.reducers.affine.numbering.FullNumbering`), each with its part of the frame's
-elimination order.
+forms or dissolves changes the whole pattern and costs a new symbolic analysis of all of it
+(docs/affinification.md, "A frame that reduces little"); factorised per body (:class:`BodyBlocks`),
+each block keeps its own analysis while its clusters stay, and only the bodies whose clusters changed
+are analysed again. The blocks are taken from the frame's upper triangle in the full space's
+numbering (:class:`~skfem_affine.reducers.affine.numbering.FullNumbering`), each with its part of the
+frame's elimination order.
 """
 import numpy as np
 import scipy.sparse as sp

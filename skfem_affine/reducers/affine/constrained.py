@@ -2,7 +2,7 @@ r"""The reduced system solved with the full system's factorisation, for frames t
 
 A frame whose bodies are few and small has nearly the full space's unknowns, but a factorisation of
 A_r = G^T A G of a pattern it has not seen pays a new symbolic analysis (ordering and elimination
-tree), about half the cost of the numeric factorisation, while the full A keeps its pattern from frame
+tree), a large part of a numeric factorisation's cost, while the full A keeps its pattern from frame
 to frame. With C (k x n) spanning the complement of G's range, C G = 0 (on each body's rows the
 3 n_b - w directions its w columns do not reach),
 
@@ -19,7 +19,7 @@ import scipy.sparse as sp
 
 # Most constraints k (reduced vertices' DOFs beyond their bodies' columns) for which a frame whose A_r
 # pattern is new is solved through A's factorisation: Z costs a solve of k right-hand sides, well under
-# a new analysis up to a few dozen (the paper's pills at rest reduce about a dozen DOFs).
+# a new analysis up to a few dozen (measured in docs/affinification.md, "A frame that reduces little").
 CONSTRAINTS_MAX = 64
 
 
