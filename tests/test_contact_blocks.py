@@ -142,3 +142,61 @@ def test_a_resting_stack_stays_at_rest_and_resumes_bit_for_bit(tmp_path):
     for part in (slice(0, n), slice(n, None)):   # no sinking or drifting of either box
         assert np.abs(resumed.state.x[part].mean(axis=0) - x[part].mean(axis=0)).max() < 1e-6
     assert resumed.state.x[:, 2].min() > -1e-6
+
+
+@pytest.fixture(scope="module")
+def impact():
+    """The contact problem (W, u0, warm start, friction) of the first frame of two soft cubes meeting
+    head-on at 200 m/s each (tests/test_contact_reliability.py): whole faces meet, 250 contacts."""
+    mat = sa.NeoHookean(E=1e7, nu=0.35)
+    bodies = [sa.ElasticBody(box_mesh(0.5, 4, (s * 0.275, 0.0, 0.0)), mat, density=1000.0, velocity=(-s * 200.0, 0, 0))
+              for s in (-1, 1)]
+    sim = sa.Simulation(bodies, dt=0.01, gravity=(0, 0, 0), contact=sa.PGS(solver="block"))
+    seen, solve = [], pgs.SOLVERS["block"]
+
+    def keeping(W, u0, lam, mu, *args):
+        seen.append((W.copy(), u0.copy(), lam.copy(), mu))
+        return solve(W, u0, lam, mu, *args)
+
+    pgs.SOLVERS["block"] = keeping
+    try:
+        sim.step()
+    finally:
+        pgs.SOLVERS["block"] = solve
+    return seen[0]
+
+
+def test_a_group_visit_solves_its_group_and_keeps_the_velocities(impact):
+    # the impact of two cubes at 200 m/s forms groups of 60 contacts; a visit solves the group's
+    # own problem (the other impulses held) to its goal, and leaves u = u0 + W lam
+    W, u0, lam, mu = impact
+    lam = lam.copy()
+    ptr, members = pgs.contact_groups(W)
+    sizes = np.diff(ptr)
+    assert sizes.max() >= 40
+    scale = pgs.velocity_scale(u0)
+    u = u0 + W @ lam
+    for g in np.argsort(-sizes)[:3]:   # the three largest groups in turn
+        group = members[ptr[g]:ptr[g + 1]]
+        rows = (3 * group[:, None] + np.arange(3)).ravel()
+        before = lam.copy()
+        pgs._block_visit(W, u, lam, mu, rows, W[np.ix_(rows, rows)].copy(), 100000, 1e-12 * scale)
+        others = np.setdiff1d(np.arange(lam.size), rows)
+        assert np.array_equal(lam[others], before[others])
+        assert np.abs(u - (u0 + W @ lam)).max() <= 1e-10 * scale
+        local = u0[rows] + W[np.ix_(rows, others)] @ lam[others]   # the group's problem, the others held
+        assert_complementary_and_in_the_cone(W[np.ix_(rows, rows)], local, lam[rows], mu, scale)
+
+
+def test_the_impact_of_two_cubes_has_one_solution_whatever_the_iteration(impact):
+    # the block sweeps, whose groups here hold 60 contacts, reach the plain sweeps' solution:
+    # the same velocities to round-off of the 400 m/s the contacts remove
+    W, u0, lam0, mu = impact
+    scale = pgs.velocity_scale(u0)
+    lam = {}
+    for solver in ("gauss-seidel", "block"):
+        lam[solver] = lam0.copy()
+        sweeps = pgs.SOLVERS[solver](W, u0, lam[solver], mu, 5000, 1e-11)
+        assert sweeps < 5000
+        assert max(pgs.contact_residual(W, u0, lam[solver], mu)) <= 1e-11 * scale
+    assert np.abs(W @ (lam["block"] - lam["gauss-seidel"])).max() <= 1e-9 * scale

@@ -48,23 +48,24 @@ def test_anderson_reaches_the_gauss_seidel_solution(problem):
     assert np.abs(W @ (lam - ref)).max() <= 1e-9 * np.abs(u0).max()
 
 
-def assert_complementary_and_in_the_cone(W, u0, lam):
+def assert_complementary_and_in_the_cone(W, u0, lam, mu=MU, scale=None):
     """lam solves the contact problem (W, u0): complementary normals, impulses in the friction cone,
-    no slip while sticking, sliding against the slip, and a residual of round-off."""
+    no slip while sticking, sliding against the slip, and a residual of round-off (of ``scale``,
+    default :func:`~skfem_affine.contact.pgs.velocity_scale` of u0)."""
     u = u0 + W @ lam
     ln, un = lam[0::3], u[0::3]
     lt, ut = lam.reshape(-1, 3)[:, 1:], u.reshape(-1, 3)[:, 1:]
-    scale = pgs.velocity_scale(u0)
+    scale = pgs.velocity_scale(u0) if scale is None else scale
     assert np.all(ln >= 0) and np.all(un >= -1e-10 * scale)
     assert np.abs(np.minimum(un, np.diag(W)[0::3] * ln)).max() <= 1e-10 * scale
-    assert np.all(np.linalg.norm(lt, axis=1) <= MU * ln * (1 + 1e-12))
-    inside = np.linalg.norm(lt, axis=1) < MU * ln * (1 - 1e-6)
+    assert np.all(np.linalg.norm(lt, axis=1) <= mu * ln * (1 + 1e-12))
+    inside = np.linalg.norm(lt, axis=1) < mu * ln * (1 - 1e-6)
     assert np.abs(ut[inside]).max(initial=0.0) <= 1e-9 * scale    # sticking: no slip
     sliding = (ln > 1e-12 * ln.max()) & ~inside & (np.linalg.norm(ut, axis=1) > 1e-9 * scale)
     cosine = -np.einsum("ij,ij->i", lt[sliding], ut[sliding]) / (
         np.linalg.norm(lt[sliding], axis=1) * np.linalg.norm(ut[sliding], axis=1))
     assert np.allclose(cosine, 1.0, atol=1e-6)                   # sliding: against the slip
-    assert max(pgs.contact_residual(W, u0, lam, MU)) <= 1e-11 * scale   # recomputed, not the solver's own u
+    assert max(pgs.contact_residual(W, u0, lam, mu)) <= 1e-11 * scale   # recomputed, not the solver's own u
 
 
 @pytest.mark.parametrize("problem", [_coupled(3), _rigid(5)])
@@ -104,7 +105,7 @@ def test_anderson_keeps_the_stopping_rule():
 
 
 def test_solver_setting_is_checked():
-    assert sa.PGS().solver == "gauss-seidel" and sa.PGS(solver="anderson").solver == "anderson"
+    assert sa.PGS().solver == "block" and sa.PGS(solver="anderson").solver == "anderson"
     for bad in ("newton", 3, None):
         with pytest.raises(ValueError, match="solver"):
             sa.PGS(solver=bad)

@@ -30,9 +30,10 @@ One frame, in the order of Algorithm 1:
    solve leaves on one of an affine body's many coplanar contacts would otherwise ask for a
    velocity no affine motion gives it alone (the contacts' W has rank 12 per body), and PGS
    stalls on it at its sweep cap (docs/contact.md).
-   Restitution is zero. ``PGS(solver="anderson")`` accelerates the sweeps by Anderson mixing of
-   the last few (:func:`anderson_gauss_seidel`); ``PGS(solver="block")`` solves groups of
-   strongly coupled contacts together (:func:`block_gauss_seidel`). The velocity correction is
+   Restitution is zero. By default (``PGS(solver="block")``) groups of strongly coupled contacts
+   are solved together (:func:`block_gauss_seidel`); ``PGS(solver="gauss-seidel")`` runs the plain
+   sweeps and ``PGS(solver="anderson")`` accelerates them by Anderson mixing of the last few
+   (:func:`anderson_gauss_seidel`). The velocity correction is
    ``dv_c = A^-1 J^T lambda`` (one more solve), and v_{t+1} = v_t + dv + dv_c.
 5. **Penetration** (split impulse, :meth:`Contact.resolve` sets :attr:`Contact.correction`):
    when a contact penetrates (d < 0, e.g. bodies that start overlapping or inside a collider),
@@ -130,13 +131,13 @@ class PGS:
         face; False leaves vertex contacts only (cheaper for stacks of coarse curved bodies,
         whose many sharp edges add contacts).
     solver : str
-        The iteration on the contact problem: ``"gauss-seidel"`` (plain sweeps,
-        :func:`projected_gauss_seidel`), ``"anderson"`` (sweeps accelerated by Anderson mixing
-        of the last few, :func:`anderson_gauss_seidel`: fewer sweeps to the tolerance on stacks of
-        soft bodies) or ``"block"`` (block Gauss-Seidel over groups of strongly coupled contacts,
-        :func:`block_gauss_seidel`: contacts that are almost the same constraint, as where two soft
-        bodies meet, solved together; measured in ``docs/contact.md``). All solve the same problem
-        to the same residual; ``iterations`` and ``max_iterations`` count sweeps in each.
+        The iteration on the contact problem: ``"block"`` (default: block Gauss-Seidel over groups
+        of strongly coupled contacts, :func:`block_gauss_seidel`: contacts that are almost the same
+        constraint, as where two soft bodies meet, solved together; measured in
+        ``docs/contact.md``), ``"gauss-seidel"`` (plain sweeps, :func:`projected_gauss_seidel`) or
+        ``"anderson"`` (sweeps accelerated by Anderson mixing of the last few,
+        :func:`anderson_gauss_seidel`). All solve the same problem to the same residual;
+        ``iterations`` and ``max_iterations`` count sweeps in each.
     schur : bool
         Build the Delassus operator of a one-body system from the Schur complement of the frame's
         matrix on the unknowns the contacts touch (MKL Pardiso, :mod:`~skfem_affine.contact.schur`)
@@ -156,7 +157,7 @@ class PGS:
     block: int = 64
     edge_contact: bool = True
     max_iterations: int = None
-    solver: str = "gauss-seidel"
+    solver: str = "block"
     schur: bool = True
     slop: float = None
 
