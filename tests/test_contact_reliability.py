@@ -126,8 +126,8 @@ def test_cubes_meeting_head_on_do_not_pass_through(speed):
     assert pen.max() < 1e-3  # at most 1 mm (0.2 % of the cube) inside the other cube
     # at twice the wave speed, whether elements invert two frames after the impact (in the
     # linearized step, the contacts gone) is chance, not contact: solved to 1e-10, plain and block
-    # sweeps take one path, which inverts 56; to 1e-8 the plain sweeps' inverts 46 and diverges, the
-    # block sweeps' none (docs/contact.md, "PGS on the pills")
+    # sweeps take one path, which inverts 56; solved to 1e-8 each inverts 46-79 and diverges
+    # (docs/contact.md, "PGS on the pills")
     assert speed > 100.0 or not inverted.any()
     assert sim.state.x[:n0, 0].max() < sim.state.x[n0:, 0].min()  # separated, each on its side
     assert np.linalg.norm(sim.state.v, axis=1).max() < speed  # not launched

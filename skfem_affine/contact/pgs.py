@@ -459,7 +459,7 @@ def projected_gauss_seidel_lowrank(indptr, indices, data, ncols, u0, lam, iterat
 COUPLING = 0.5
 GROUP = 64
 INNER = 1000
-WORK = 16
+WORK = 4
 
 
 @njit(cache=True)
