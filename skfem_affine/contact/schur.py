@@ -154,10 +154,12 @@ class SchurInverse:
         self._seen = seen
         return self._complement(A, T, upper, None, solves=True, floor=not fresh, near=near)
 
-    def complement_block(self, A, T, key):
+    def complement_block(self, A, T, key, floor=True):
         """One block's factorisation in the solving mode with T (or a kept superset) last: (handle, keep, S),
-        or None when the rules above decline (A: the block's upper triangle, CSR)."""
-        return self._complement(A, np.asarray(T, dtype=np.int64), True, key, solves=True)
+        or None when the rules above decline (A: the block's upper triangle, CSR). ``floor=False``: fewer
+        than ``min_size`` touched unknowns are taken too (the block's plain factorisation would analyse a
+        new pattern as well)."""
+        return self._complement(A, np.asarray(T, dtype=np.int64), True, key, solves=True, floor=floor)
 
     def factorize_blocks(self, A, T, bodies):
         """The frame's factorisation body by body, each body's block (keyed by its size and first unknown)
