@@ -220,6 +220,11 @@ def run(mesh_dir, scene, start, end, cells=4, compare_rows=False, compare_column
         sims.append(builders(mesh_dir, scene, end, cells)[i])
         sims[-1].contact.schur.blocks = False
         methods = METHODS + (f"{plain_blocks}, plain blocks",)
+    if only is not None:  # step only these of the three methods
+        if blocks or frame_schur:
+            raise ValueError("--methods goes with the three methods, not --blocks, --frame-schur or --lookahead")
+        keep = [i for i, m in enumerate(methods) if m.split(",")[0] in only]
+        sims, methods = [sims[i] for i in keep], tuple(methods[i] for i in keep)
     first = 0
     if resume is not None:
         per_method = not (blocks or frame_schur)
@@ -231,9 +236,6 @@ def run(mesh_dir, scene, start, end, cells=4, compare_rows=False, compare_column
         for method, sim in zip(methods, sims):
             load_checkpoint(sim, resume.format(method=method.split(",")[0]) if per_method else resume)
         first = sims[0].state.frame
-    if only is not None:  # step only these of the three methods
-        keep = [i for i, m in enumerate(methods) if m.split(",")[0] in only]
-        sims, methods = [sims[i] for i in keep], tuple(methods[i] for i in keep)
     if frame_schur:
         name = "full" if frame_schur is True else frame_schur
         methods = FRAME_METHODS if name == "full" else (f"{name}, own handle", f"{name}, frame's Schur")
