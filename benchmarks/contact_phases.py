@@ -31,7 +31,12 @@ at most ``--spread`` times the touched unknowns, ``SchurInverse.spread``); ``ana
 analyses per frame.
 ``--resume CHECKPOINT`` (a full-space checkpoint of the scene, e.g. from ``paper_table1.py
 --checkpoint``, or ``Simulation.save``) starts both runs of ``--blocks``, ``--frame-schur`` or
-``--lookahead`` from it instead of frame 0, so that ``--start`` and ``--end`` count on from its frame.
+``--lookahead`` from it instead of frame 0, so that ``--start`` and ``--end`` count on from its frame;
+without those, ``--resume`` names each method's checkpoint with ``{method}`` (``full``,
+``affinification``, ``rigidification``), and ``--methods`` steps only some of the three.
+``--plain-blocks METHOD`` also steps a second run of that reducer whose reduced frames of several bodies
+are factorised plainly, each body's Z then solved from its unit columns (``SchurInverse.blocks`` off),
+beside the one factorising each body's block with its touched unknowns last.
 Usage::
 
     python benchmarks/contact_phases.py MESH_DIR --scene wheel --start 145 --end 160 --rows
@@ -42,6 +47,8 @@ Usage::
     python benchmarks/contact_phases.py MESH_DIR --scene pills --start 50 --end 56 --blocks
     python benchmarks/contact_phases.py MESH_DIR --scene pills --start 277 --end 287 --blocks --resume RUNS/pills/full-000275.npz
     python benchmarks/contact_phases.py MESH_DIR --scene octopus --start 66 --end 82 --lookahead 2 --resume RUN.npz
+    python benchmarks/contact_phases.py MESH_DIR --scene pills --start 2900 --end 2910 --methods full affinification \
+        --resume 'RUNS/pills/{method}-002900.npz' --plain-blocks affinification
 """
 import argparse
 import cProfile
@@ -71,7 +78,8 @@ FRAME_METHODS = ("full, own handle", "full, frame's Schur")  # --frame-schur
 BLOCK_METHODS = ("full, plain + own complements", "full, body by body")  # --blocks
 LOOKAHEAD_METHODS = ("full, touched unknowns", "full, predicted superset")  # --lookahead
 COLUMNS = ("wall", "factorization", "delassus", "delassus_columns", "delassus_schur", "frame_schur", "pgs",
-           "detection", "contact",
+           "detection", "contact", "other", "assembly", "prediction", "clustering", "map_assembly",
+           "reduced_assembly", "solve", "checks",
            "n_contacts",
            "pgs_iterations", "dofs", "analyses")
 ROWS = ("delassus_rows", "rows_columns")
@@ -80,9 +88,11 @@ ROWS = ("delassus_rows", "rows_columns")
 def record(rec):
     """The columns of one frame's record (times in ms)."""
     out = {k: 1e3 * float(rec.get(k, 0.0)) for k in ("wall", "factorization", "delassus", "pgs", "contact",
-                                                      "delassus_rows")}
+                                                      "delassus_rows", "assembly", "prediction", "clustering",
+                                                      "map_assembly", "reduced_assembly", "solve", "checks")}
     out["detection"] = out["contact"] - out["delassus"] - out["pgs"]
     out["wall"] -= out["delassus_rows"]  # the frame without the extra per-row Delassus operator
+    out["other"] = out["wall"] - out["factorization"] - out["contact"]
     out.update({k: float(rec.get(k, 0)) for k in ("n_contacts", "pgs_iterations", "dofs", "delassus_columns",
                                                   "delassus_schur", "frame_schur", "rows_columns")})
     return out
@@ -140,6 +150,26 @@ def profile_table(profile, frames):
     return "\n".join(lines) + "\n"
 
 
+def load_checkpoint(sim, path):
+    """``sim.load_state(path)``; a checkpoint written before the Schur inverse saved the pattern of the
+    last frame it factorised (``contact.schur_seen``) is loaded from a copy with that entry empty (the
+    value of a run that has not factorised yet: its first frame then may decline a small complement
+    that the uninterrupted run would have taken)."""
+    import tempfile
+    try:
+        return sim.load_state(path)
+    except ValueError as err:
+        if "contact.schur_seen is missing" not in str(err):
+            raise
+    with np.load(path, allow_pickle=False) as data:
+        arrays = {k: data[k] for k in data.files}
+    arrays["contact.schur_seen"] = np.zeros(0, np.int64)
+    with tempfile.TemporaryDirectory() as tmp:
+        patched = os.path.join(tmp, os.path.basename(path))
+        np.savez(patched, **arrays)
+        return sim.load_state(patched)
+
+
 def builders(mesh_dir, scene, end, cells, frame_schur=False):
     """full space, affinification, rigidification of the scene (at the paper's thresholds); with
     ``frame_schur`` (True or "full", or a reducer's name) two runs of that method, the second
@@ -168,7 +198,8 @@ def builders(mesh_dir, scene, end, cells, frame_schur=False):
 
 
 def run(mesh_dir, scene, start, end, cells=4, compare_rows=False, compare_columns=False, profile=None,
-        frame_schur=False, blocks=False, resume=None, lookahead=None, spread=2.0):
+        frame_schur=False, blocks=False, resume=None, lookahead=None, spread=2.0, only=None, profile_out=None,
+        plain_blocks=None):
     """The per-phase means of each method over the frames ``start`` to ``end - 1``; with ``profile``
     (a method), also that method's :func:`profile_table` over them (else None)."""
     sims = builders(mesh_dir, scene, end, cells, frame_schur or blocks or lookahead is not None)
@@ -182,14 +213,29 @@ def run(mesh_dir, scene, start, end, cells=4, compare_rows=False, compare_column
         sims[1].contact.detector.lookahead = lookahead
         sims[1].contact.schur.spread = spread
         methods, frame_schur, blocks = LOOKAHEAD_METHODS, False, True
+    if plain_blocks is not None:  # the method again, its frames of several bodies factorised plainly
+        if blocks or frame_schur or lookahead is not None:
+            raise ValueError("--plain-blocks goes with the three methods, not --blocks, --frame-schur or --lookahead")
+        i = METHODS.index(plain_blocks)
+        sims.append(builders(mesh_dir, scene, end, cells)[i])
+        sims[-1].contact.schur.blocks = False
+        methods = METHODS + (f"{plain_blocks}, plain blocks",)
+    if only is not None:  # step only these of the three methods
+        if blocks or frame_schur:
+            raise ValueError("--methods goes with the three methods, not --blocks, --frame-schur or --lookahead")
+        keep = [i for i, m in enumerate(methods) if m.split(",")[0] in only]
+        sims, methods = [sims[i] for i in keep], tuple(methods[i] for i in keep)
     first = 0
     if resume is not None:
-        if not (blocks or frame_schur is True or frame_schur == "full"):
-            raise ValueError("--resume takes a full-space checkpoint: use it with --blocks, --frame-schur or "
-                             "--lookahead")
-        for sim in sims:
-            sim.load_state(resume)
-        first = len(sims[0].stats)
+        per_method = not (blocks or frame_schur)
+        if per_method and "{method}" not in resume:
+            raise ValueError("--resume of the three methods names each method's checkpoint: give a path with "
+                             "{method}, e.g. RUNS/pills/{method}-002800.npz")
+        if not per_method and not (blocks or frame_schur is True or frame_schur == "full"):
+            raise ValueError("--resume of --frame-schur takes a full-space checkpoint: use it with full space")
+        for method, sim in zip(methods, sims):
+            load_checkpoint(sim, resume.format(method=method.split(",")[0]) if per_method else resume)
+        first = sims[0].state.frame
     if frame_schur:
         name = "full" if frame_schur is True else frame_schur
         methods = FRAME_METHODS if name == "full" else (f"{name}, own handle", f"{name}, frame's Schur")
@@ -215,6 +261,8 @@ def run(mesh_dir, scene, start, end, cells=4, compare_rows=False, compare_column
         if frame % 10 == 0:
             print(f"{scene} frame {frame}/{end} ({time.perf_counter() - t0:.0f} s)", file=sys.stderr, flush=True)
     means = {m: {c: float(np.mean([r[c] for r in rs])) for c in COLUMNS + ROWS} for m, rs in rows.items()}
+    if profiler is not None and profile_out:
+        profiler.dump_stats(profile_out)
     return means, (profile_table(profiler, end - start) if profiler is not None else None)
 
 
@@ -250,16 +298,24 @@ def main(argv=None):
                     help="with --lookahead: the largest predicted set, in multiples of the touched unknowns")
     ap.add_argument("--resume", default=None, metavar="CHECKPOINT",
                     help="start the two full-space runs of --blocks, --frame-schur or --lookahead from this "
-                         "checkpoint")
+                         "checkpoint; the three methods each from their own (a path with {method})")
+    ap.add_argument("--methods", nargs="+", choices=METHODS, default=None,
+                    help="step only these of the three methods")
+    ap.add_argument("--plain-blocks", choices=METHODS[1:], default=None, metavar="METHOD",
+                    help="also step METHOD with its frames of several bodies factorised plainly, each body's "
+                         "Z from column solves (SchurInverse.blocks off)")
     ap.add_argument("--start", type=int, required=True)
     ap.add_argument("--end", type=int, required=True)
     ap.add_argument("--threads", default="1", help="BLAS/MKL threads (read before numpy is imported)")
     ap.add_argument("--json", default=None, help="also write the means here")
     ap.add_argument("--profile", choices=METHODS, default=None,
                     help="also profile this method's frames: its contact functions' ms per frame")
+    ap.add_argument("--profile-out", default=None, metavar="FILE",
+                    help="with --profile: also write the whole profile here (for pstats or snakeviz)")
     args = ap.parse_args(argv)
     means, profiled = run(args.mesh_dir, args.scene, args.start, args.end, args.cells, args.rows, args.columns,
-                          args.profile, args.frame_schur, args.blocks, args.resume, args.lookahead, args.spread)
+                          args.profile, args.frame_schur, args.blocks, args.resume, args.lookahead, args.spread,
+                          args.methods, args.profile_out, args.plain_blocks)
     print(f"frames {args.start}-{args.end - 1}, ms per frame (means)")
     print(markdown(args.scene, means))
     if profiled:

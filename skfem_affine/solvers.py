@@ -31,6 +31,26 @@ PARDISO_METIS_MIN = 5000
 AMG_MAX_ITERATIONS = 30
 
 
+def schur_set_fits(indptr, indices, k):
+    """Whether a Schur set of ``k`` unknowns is safe for MKL Pardiso on a symmetric pattern (CSR indptr
+    and indices, whole or its upper triangle): at most half of the unknowns, and at most half of those
+    that couple to another. A set holding every coupled unknown, the others isolated (a diagonal entry
+    alone, as a reduced frame's idle unknowns), corrupts memory as a set of all the unknowns does
+    (reproduced: an affine body's 12 columns in a block of its idle unknowns, segfaults in about half
+    the runs of 400 such complements)."""
+    n = indptr.size - 1
+    if 2 * k > n:
+        return False
+    if 2 * k <= n - int(np.count_nonzero(np.diff(indptr) == 1)):  # rows with more than their diagonal couple
+        return True
+    rows = np.repeat(np.arange(n), np.diff(indptr))
+    off = indices != rows
+    coupled = np.zeros(n, dtype=bool)
+    coupled[rows[off]] = True
+    coupled[indices[off]] = True
+    return 2 * k <= int(np.count_nonzero(coupled))
+
+
 def has_pardiso():
     try:
         import pypardiso  # noqa: F401
@@ -215,7 +235,9 @@ class PardisoSchur(Pardiso):
     kept out: T is at most half the unknowns (with T all of them, Pardiso wrote past its Schur
     buffer), and an analysis' factorisations and release run on the MKL thread count it ran on
     (an analysis on two threads and a factorisation on one segfaulted). Both were reproduced by
-    ``benchmarks/schur_stress.py``, which also checks that this class survives varied calls.
+    ``benchmarks/schur_stress.py``, which also checks that this class survives varied calls. A third
+    (:func:`schur_set_fits`): T at most half of the unknowns that couple to another (T holding every
+    coupled unknown, the others isolated, corrupted memory as T all of them does).
 
     Parameters
     ----------
@@ -238,8 +260,10 @@ class PardisoSchur(Pardiso):
         indptr, indices, data = self._upper(A, upper)
         n, keep = indptr.size - 1, np.asarray(keep, dtype=np.int64)
         k = keep.size
-        if k == 0 or 2 * k > n or (k > 1 and np.any(np.diff(keep) <= 0)) or keep[0] < 0 or keep[-1] >= n:
-            raise ValueError(f"keep must be sorted distinct unknowns, at most half of the {n} (got {k})")
+        if k == 0 or (k > 1 and np.any(np.diff(keep) <= 0)) or keep[0] < 0 or keep[-1] >= n \
+                or not schur_set_fits(indptr, indices, k):
+            raise ValueError(f"keep must be sorted distinct unknowns, at most half of the {n} and of those "
+                             f"coupled to another (got {k})")
         pat = self._pattern
         same = (pat is not None and _same(pat[0], indptr) and _same(pat[1], indices) and _same(pat[2], keep))
         if not same:

@@ -39,3 +39,31 @@ def test_blocks_steps_two_full_space_runs_from_a_checkpoint(benchmark_script, tm
     assert list(means) == list(bench.BLOCK_METHODS)
     plain, by_body = (means[m] for m in bench.BLOCK_METHODS)
     assert plain["n_contacts"] == by_body["n_contacts"] > 0 and plain["frame_schur"] == 0
+
+
+def test_the_methods_resume_from_their_own_checkpoints_beside_a_plain_blocks_run(benchmark_script, tmp_path):
+    """``--resume`` with ``{method}``: each method from its checkpoint (one written before the Schur inverse
+    saved ``schur_seen``, loaded with it empty), ``--methods`` a subset, ``--plain-blocks`` a second run of
+    affinification with ``SchurInverse.blocks`` off."""
+    import numpy as np
+    import pytest
+    bench = benchmark_script("contact_phases")
+    from budget import pile
+    import skfem_affine as sa
+    for name, reducer in (("full", None), ("affinification", sa.Affinification(tau_a=1e-4, tau_e=2e-4))):
+        sim = pile(1, reducer) if reducer is not None else pile(1)
+        list(sim.run(3))
+        sim.save(tmp_path / f"{name}-3.npz")
+    with np.load(tmp_path / "full-3.npz") as data:  # as an older run wrote it
+        older = {k: data[k] for k in data.files if k != "contact.schur_seen"}
+    np.savez(tmp_path / "full-3.npz", **older)
+    with pytest.raises(ValueError, match="schur_seen is missing"):
+        pile(1).load_state(tmp_path / "full-3.npz")
+    means, _ = bench.main(["--scene", "pile", "--cells", "1", "--start", "3", "--end", "5", "--methods", "full",
+                           "affinification", "--plain-blocks", "affinification",
+                           "--resume", str(tmp_path / "{method}-3.npz")])
+    assert list(means) == ["full", "affinification", "affinification, plain blocks"]
+    assert all(m["n_contacts"] > 0 and m["wall"] > m["other"] > 0 for m in means.values())
+    with pytest.raises(ValueError, match="{method}"):
+        bench.main(["--scene", "pile", "--cells", "1", "--start", "3", "--end", "5",
+                    "--resume", str(tmp_path / "full-3.npz")])

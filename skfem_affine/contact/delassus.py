@@ -158,18 +158,21 @@ class Resolvent:
         own factorisation left (:attr:`Operator.schur`), inverting the block's part of S only (A does
         not couple bodies, so neither does S); None without it or when T is not within its unknowns.
         S may be a list of the blocks' complements, one after another in ``keep`` (a frame factorised
-        body by body)."""
+        body by body; each block's unknowns sorted, the blocks in any order)."""
         keep, S = self.operator.schur
         if isinstance(S, list):
             ends = np.cumsum([Sb.shape[0] for Sb in S])
-            pos = np.searchsorted(keep, T)
-            if not pos.size or pos[-1] >= keep.size or not np.array_equal(keep[pos], T):
+            by = np.argsort(keep, kind="stable")
+            at = np.minimum(np.searchsorted(keep[by], T), keep.size - 1)
+            pos = by[at]
+            if not pos.size or not np.array_equal(keep[pos], T):
                 return None
             b = int(np.searchsorted(ends, pos[0], side="right"))
-            if pos[-1] >= ends[b]:
+            start = ends[b] - S[b].shape[0]
+            if pos.min() < start or pos.max() >= ends[b]:
                 return None
             self.schur_unknowns += T.size
-            return inverse_on_positions(S[b], pos - (ends[b] - S[b].shape[0]))
+            return inverse_on_positions(S[b], pos - start)
         part = np.arange(keep.size) if self.labels is None else np.flatnonzero(self.labels[keep] == label)
         pos = np.searchsorted(keep[part], T)
         if pos.size and (pos[-1] >= part.size or not np.array_equal(keep[part][pos], T)):

@@ -7,7 +7,8 @@ up to a few numeric factorisations, so it keeps the last one while the contacts 
 unknowns at most twice as many. Once a kept analysis has served a later frame (the contacts are
 settling), new touched unknowns grow it under the same bound; while every frame needs a new one
 (bodies landing: their contacts move further than a grown set reaches), it is made on the touched
-unknowns alone, the cheaper set. Below ``min_size`` unknowns (or above half of A's) it declines,
+unknowns alone, the cheaper set. Below ``min_size`` unknowns (or above half of A's, or of those that couple to another:
+:func:`~skfem_affine.solvers.schur_set_fits`) it declines,
 and the caller solves the unit columns.
 Several systems (the bodies of a scene, each its own block) each keep their analysis, by key.
 
@@ -28,7 +29,7 @@ from scipy.linalg import lapack
 
 from skfem_affine.checks import flag, integer, real
 from skfem_affine.contact.blocks import UpperBlocks, body_bounds, factorize_blocks
-from skfem_affine.solvers import Pardiso, PardisoSchur, SolverError, has_pardiso
+from skfem_affine.solvers import Pardiso, PardisoSchur, SolverError, has_pardiso, schur_set_fits
 from skfem_affine.threads import serial_blas
 
 # Below this many touched unknowns and without a kept analysis, solves of the unit columns with the
@@ -119,7 +120,7 @@ class SchurInverse:
         handle = self._kept_by.get(key)
         current = handle.analysed(A, upper) if handle is not None and handle.solves == solves else None
         keep, kept = self._kept(current, A.shape[0], T, key, floor, near)
-        if keep is None:
+        if keep is None or not schur_set_fits(A.indptr, A.indices, keep.size):
             return None
         if keep is not current:  # a new set (or pattern): a new analysis
             self.analyses += 1
@@ -154,10 +155,12 @@ class SchurInverse:
         self._seen = seen
         return self._complement(A, T, upper, None, solves=True, floor=not fresh, near=near)
 
-    def complement_block(self, A, T, key):
+    def complement_block(self, A, T, key, floor=True):
         """One block's factorisation in the solving mode with T (or a kept superset) last: (handle, keep, S),
-        or None when the rules above decline (A: the block's upper triangle, CSR)."""
-        return self._complement(A, np.asarray(T, dtype=np.int64), True, key, solves=True)
+        or None when the rules above decline (A: the block's upper triangle, CSR). ``floor=False``: fewer
+        than ``min_size`` touched unknowns are taken too (the block's plain factorisation would analyse a
+        new pattern as well)."""
+        return self._complement(A, np.asarray(T, dtype=np.int64), True, key, solves=True, floor=floor)
 
     def factorize_blocks(self, A, T, bodies):
         """The frame's factorisation body by body, each body's block (keyed by its size and first unknown)

@@ -8,6 +8,14 @@ each block keeps its own analysis while its clusters stay, and only the bodies w
 are analysed again. The blocks are taken from the frame's upper triangle in the full space's
 numbering (:class:`~skfem_affine.reducers.affine.numbering.FullNumbering`), each with its part of the
 frame's elimination order.
+
+Given the unknowns the frame's contacts touch and contact's
+:class:`~skfem_affine.contact.schur.SchurInverse`, a body whose block it accepts is factorised with its
+touched unknowns last, in the mode that also solves (as a full-space frame of several bodies,
+:mod:`skfem_affine.contact.blocks`): the same factorisation then leaves the body's Schur complement
+S_b on them, and the Delassus operator takes ``(A_r^-1)_{T_b T_b} = S_b^-1`` from it instead of
+solving one column per touched unknown. A block whose pattern the body's plain handle has not
+analysed is taken at any number of touched unknowns: its plain factorisation would analyse anew too.
 """
 import numpy as np
 import scipy.sparse as sp
@@ -30,8 +38,11 @@ class BodyBlocks:
     """The frame's system factorised per scene body, one Pardiso handle each (module docstring).
 
     ``factorize(U, labels, order)`` takes the upper triangle U (CSR, rows sorted), the body of each
-    unknown and the elimination order; ``solve(b)`` solves each block. Bodies' handles are kept from
-    frame to frame by body.
+    unknown and the elimination order; ``solve(b)`` solves each block (a block whose rows of b are zero
+    has x = 0 there, unsolved: the Delassus operator's columns of one body). Bodies' handles are kept
+    from frame to frame by body; with ``touched`` and ``schur``, :attr:`complements` holds
+    ``(keep, [S_b])`` of the blocks factorised with their touched unknowns last (``keep``: their
+    unknowns, each block's sorted, block after block), or None.
     """
 
     name = "pardiso-blocks"
@@ -41,10 +52,14 @@ class BodyBlocks:
 
     def __init__(self):
         self.handles = {}
-        self.blocks = []  # (body, its unknowns) of the last factorisation
+        self.blocks = []  # (handle, the body's unknowns) of the last factorisation
         self.analyses = 0  # blocks analysed anew by the last factorisation
+        self.complements = None
 
-    def factorize(self, U, labels, order):
+    def factorize(self, U, labels, order, touched=None, schur=None):
+        """Factorise each body's block of U; ``touched`` (sorted unknowns) and ``schur``
+        (:class:`~skfem_affine.contact.schur.SchurInverse`): with its touched unknowns last where the
+        Schur inverse accepts (its key for body b: ``(0, b)``)."""
         U = sp.csr_matrix(U)
         labels = np.asarray(labels, dtype=np.int64)
         n_bodies = int(labels.max()) + 1 if labels.size else 0
@@ -55,9 +70,12 @@ class BodyBlocks:
             local[rank[cuts[b]:cuts[b + 1]]] = np.arange(cuts[b + 1] - cuts[b])
         order = np.asarray(order, dtype=np.int64)
         by_body = labels[order]
-        self.blocks, self.analyses = [], 0
+        mine = np.zeros(labels.size, dtype=bool)
+        if touched is not None and schur is not None:
+            mine[np.asarray(touched, dtype=np.int64)] = True
+        self.blocks, self.analyses, keep, parts = [], 0, [], []
         for b in range(n_bodies):
-            idx = rank[cuts[b]:cuts[b + 1]]
+            idx = rank[cuts[b]:cuts[b + 1]]  # increasing: local numbers keep the unknowns' order
             if not idx.size:
                 continue
             rows = U[idx]  # the body's rows: their columns are its own unknowns, in the same order
@@ -66,13 +84,26 @@ class BodyBlocks:
             handle = self.handles.get(b)
             if handle is None:  # a body's handle, made once (not a new MKL solver per body per frame)
                 handle = self.handles[b] = Pardiso()
-            self.analyses += not handle.analysed_for(block, upper=True)
-            handle.factorize(block, upper=True, order=local[order[by_body == b]])
+            known = handle.analysed_for(block, upper=True)
+            Tb = np.flatnonzero(mine[idx])
+            before = schur.analyses if Tb.size else 0
+            out = schur.complement_block(block, Tb, (0, b), floor=known) if Tb.size else None
+            if out is not None:
+                handle, kept, S = out
+                self.analyses += schur.analyses - before
+                keep.append(idx[kept])
+                parts.append(S)
+            else:
+                self.analyses += not known
+                handle.factorize(block, upper=True, order=local[order[by_body == b]])
             self.blocks.append((handle, idx))
+        self.complements = (np.concatenate(keep), parts) if parts else None
 
     def solve(self, b):
         b = np.asarray(b, dtype=float)
-        x = np.empty_like(b)
+        x = np.zeros_like(b)
         for handle, idx in self.blocks:
-            x[idx] = handle.solve(b[idx])
+            rhs = b[idx]
+            if np.any(rhs):
+                x[idx] = handle.solve(rhs)
         return x

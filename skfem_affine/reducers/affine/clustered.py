@@ -44,7 +44,7 @@ from skfem_affine.reducers.affine import blocks, clustering, constrained, oracle
 from skfem_affine.reducers.affine import mapping as reduction
 from skfem_affine.reducers.affine.numbering import FullNumbering, several_bodies
 from skfem_affine.reducers.base import Reducer
-from skfem_affine.reducers.full import contact_factorization, factorize_and_solve
+from skfem_affine.reducers.full import contact_factorization, factorize_and_solve, touched_unknowns
 from skfem_affine.solvers import Pardiso, make_solver
 
 SEEDINGS = ("random", "index", "temporal")
@@ -630,10 +630,15 @@ class ClusteringReducer(Reducer):
             stats["frame_schur"] = int(schur[0].size)
         elif n_bodies and num is not None and order is not None and self.blocks is not None \
                 and isinstance(solver, Pardiso) and not solver.analysed_for(Ar, upper):
-            # several bodies, a new pattern: one block per body, analysed again where its clusters changed
+            # several bodies, a new pattern: one block per body, analysed again where its clusters changed,
+            # with the unknowns its contacts touch last where contact's Schur inverse accepts
             solver = self.blocks
-            solver.factorize(Ar, blocks.unknown_labels(self._contact_bodies, num, gmap.width), order)
+            solver.factorize(Ar, blocks.unknown_labels(self._contact_bodies, num, gmap.width), order,
+                             **self._body_schur(problem.contacts, G))
             stats["blocks_analysed"] = solver.analyses
+            if solver.complements is not None:
+                schur = solver.complements
+                stats["frame_schur"] = int(schur[0].size)
         elif n_bodies and self._through_full(labels, gmap, Ar, upper):
             solver = self._constrained_solver(problem, gmap, num)
             stats["through_full"] = True
@@ -651,6 +656,16 @@ class ClusteringReducer(Reducer):
         self.labels = labels
         return StepResult(dv=reduction.lift(G, dq, d), operator=Operator(solver, Ar, G, upper=upper, schur=schur),
                           mapping=gmap, clusters=labels, stats=stats)  # eq. 12
+
+    def _body_schur(self, contacts, G):
+        """The arguments of :meth:`blocks.BodyBlocks.factorize` that factorise each body's block with its
+        touched unknowns last (the columns of J G with a nonzero), or none: no contact, no Schur inverse,
+        or its ``frame`` or ``blocks`` setting off."""
+        schur = self._contact_schur
+        if (schur is None or not (schur.frame and schur.blocks and schur.available) or contacts is None
+                or contacts.J is None):
+            return {}
+        return {"touched": touched_unknowns(contacts.J @ G), "schur": schur}
 
     def _through_full(self, labels, gmap, Ar, upper):
         """Whether the frame solves A_r through the full A's factorisation (:mod:`.constrained`): a
