@@ -1,0 +1,113 @@
+"""What the never-slower fall-back compares: frames costed in CPU time (load from other processes
+does not move its decisions), and frames it solves in full space costed as full space pays them."""
+import numpy as np
+import pytest
+
+import skfem_affine as sa
+from skfem_affine.reducers import budget
+from skfem_affine.reducers.affine.clustered import frame_cost
+
+from test_resting_contact import _stack
+
+
+def test_a_frames_cost_is_its_cpu_time_when_the_record_has_it():
+    reduced = {"kind": "reduced", "reduced": 0.5, "full": 0.0, "reduced_cpu": 0.2, "full_cpu": 0.0}
+    judged, cost = frame_cost(reduced, {"wall": 1.5, "cpu": 0.3})
+    assert cost == 0.3 and judged["reduced"] == 0.2 and judged["full"] == 0.0 and judged["kind"] == "reduced"
+    assert reduced["reduced"] == 0.5  # the reducer's record is not changed
+    assert frame_cost({"kind": "full"}, {"wall": 1.5, "cpu": 0.3}) == ({"kind": "full"}, 0.3)
+    # without a CPU time (a record from elsewhere, or parts measured on the wall clock only): the wall time
+    assert frame_cost(reduced, {"wall": 1.5}) == (reduced, 1.5)
+    wall_only = {"kind": "shadow", "reduced": 0.5, "full": 0.4}
+    assert frame_cost(wall_only, {"wall": 1.5, "cpu": 0.3}) == (wall_only, 1.5)
+
+
+def _frames(rng, n=400):
+    """A run's frames as the reducer reports them: (judged, CPU seconds). Full frames cost 1.0 s of work,
+    reduced ones 0.85 s (reduction pays 15 %), 0.25 s of it the reducer's; a shadow frame, the
+    reducer's 0.25 s, a full solve (0.3 s) and the rest of a full frame (0.7 s); the work scatters by 2 %."""
+    frames = []
+    for i in range(n):
+        work = 1.0 + 0.02 * rng.standard_normal()
+        if i % 10 == 0:
+            frames.append(({"kind": "shadow", "reduced": 0.25 * work, "full": 0.3 * work, "ramp": False,
+                            "settled": True, "dof_ratio": 0.05}, 1.25 * work))
+        else:
+            frames.append(({"kind": "reduced", "reduced": 0.25 * work, "full": 0.0, "ramp": False,
+                            "settled": True, "dof_ratio": 0.05}, 0.85 * work))
+    return frames
+
+
+def _decisions(red, frames, loads, clock):
+    """Feed ``frames`` to the reducer's fall-back (it plans each one); ``loads``: by what the wall time
+    of each frame is stretched by load from elsewhere; ``clock``: "cpu" (records with both times) or
+    "wall" (records with the wall time only). Returns what each frame was planned as."""
+    red.pays = pays = budget.PaysOff(window=5, confirm=True, trial_frames=3)
+    red.shadows = budget.ShadowClock(10)
+    plans = []
+    for (judged, cpu), load in zip(frames, loads):
+        plan = pays.plan()
+        plans.append(plan)
+        if plan in ("full", "confirm"):
+            judged, cpu = {"kind": plan}, cpu / 0.85 if judged["kind"] == "reduced" else cpu / 1.25  # a full frame
+        elif plan in ("probe", "trial"):
+            judged = dict(judged, kind=plan)
+        parts = {"reduced_cpu": judged.get("reduced", 0.0), "full_cpu": judged.get("full", 0.0)}
+        judged = dict(judged, **{k: load * v for k, v in judged.items() if k in ("reduced", "full")})
+        rec = {"wall": load * cpu}
+        if clock == "cpu":
+            judged.update(parts)
+            rec["cpu"] = cpu
+        red._judged = judged
+        red.end_frame(rec)
+    return plans
+
+
+def test_the_fall_back_decides_the_same_under_any_load():
+    # a scene where reduction pays 15 %: judged on CPU time, the run stays reduced whether the machine
+    # is quiet or other processes stretch each frame's wall time 1-3x; judged on the wall time, the
+    # same load sends it to full space
+    red = sa.Affinification()
+    sim = sa.scenes.cantilever(resolution=2, reducer=red, solver="direct")
+    sim.step()
+    rng = np.random.default_rng(1)
+    frames = _frames(rng)
+    quiet, loaded = np.ones(len(frames)), rng.uniform(1.0, 3.0, len(frames))
+    calm = _decisions(red, frames, quiet, "cpu")
+    assert set(calm) == {"reduced"}
+    assert _decisions(red, frames, loaded, "cpu") == calm
+    assert _decisions(red, frames, quiet, "wall") == calm
+    assert "full" in _decisions(red, frames, loaded, "wall")  # the same load, judged on the wall clock
+
+
+def test_the_fall_back_judges_the_cpu_time_simulation_step_measures():
+    red = sa.Affinification()
+    sim = sa.scenes.cantilever(resolution=2, reducer=red, solver="direct")
+    seen = []
+    judge = red._judge
+    red._judge = lambda judged, cost: (seen.append(cost), judge(judged, cost))
+    for _ in range(3):
+        sim.step()
+    assert all(r["cpu"] > 0 for r in sim.stats)
+    assert seen == [r["cpu"] for r in sim.stats]
+
+
+def test_frames_the_fall_back_solves_in_full_space_factorise_as_full_space_does():
+    # with the contacts' unknowns last (their Schur complement gives the Delassus operator), not a
+    # plain factorisation and a second one for the Delassus operator
+    pytest.importorskip("pypardiso")
+    full, red = _stack(None), sa.Affinification()
+    fell_back = _stack(red)
+    for sim in (full, fell_back):
+        sim.contact.schur.min_size = 1  # the small stack touches fewer unknowns than a new analysis needs
+    full.step()
+    fell_back.step()
+    red.pays.in_full, red.pays.wait = True, 10 ** 6  # from the second frame on: the fall-back
+    for _ in range(8):
+        full.step()
+        fell_back.step()
+    rest = fell_back.stats[1:]
+    assert not any(r["reduced"] or r["shadow"] for r in rest)
+    assert [r.get("frame_schur", 0) for r in rest] == [r.get("frame_schur", 0) for r in full.stats[1:]]
+    assert all(r.get("frame_schur", 0) > 0 for r in rest)
+    assert np.abs(fell_back.state.x - full.state.x).max() <= 1e-12
