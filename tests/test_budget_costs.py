@@ -22,7 +22,7 @@ def test_a_frames_cost_is_its_cpu_time_when_the_record_has_it():
     assert frame_cost(wall_only, {"wall": 1.5, "cpu": 0.3}) == (wall_only, 1.5)
 
 
-def _frames(rng, n=400):
+def _frames(rng, n=200):
     """A run's frames as the reducer reports them: (judged, CPU seconds). Full frames cost 1.0 s of work,
     reduced ones 0.85 s (reduction pays 15 %), 0.25 s of it the reducer's; a shadow frame, the
     reducer's 0.25 s, a full solve (0.3 s) and the rest of a full frame (0.7 s); the work scatters by 2 %."""
@@ -68,8 +68,7 @@ def test_the_fall_back_decides_the_same_under_any_load():
     # is quiet or other processes stretch each frame's wall time 1-3x; judged on the wall time, the
     # same load sends it to full space
     red = sa.Affinification()
-    sim = sa.scenes.cantilever(resolution=2, reducer=red, solver="direct")
-    sim.step()
+    red.timer = None  # no time budget; the fall-back's controllers are set by _decisions
     rng = np.random.default_rng(1)
     frames = _frames(rng)
     quiet, loaded = np.ones(len(frames)), rng.uniform(1.0, 3.0, len(frames))
@@ -82,7 +81,7 @@ def test_the_fall_back_decides_the_same_under_any_load():
 
 def test_the_fall_back_judges_the_cpu_time_simulation_step_measures():
     red = sa.Affinification()
-    sim = sa.scenes.cantilever(resolution=2, reducer=red, solver="direct")
+    sim = _stack(red, cells=1)
     seen = []
     judge = red._judge
     red._judge = lambda judged, cost: (seen.append(cost), judge(judged, cost))
@@ -111,3 +110,36 @@ def test_frames_the_fall_back_solves_in_full_space_factorise_as_full_space_does(
     assert [r.get("frame_schur", 0) for r in rest] == [r.get("frame_schur", 0) for r in full.stats[1:]]
     assert all(r.get("frame_schur", 0) > 0 for r in rest)
     assert np.abs(fell_back.state.x - full.state.x).max() <= 1e-12
+
+
+def _counted(judged, rec):
+    """A frame's cost as counted work, whatever the clocks read: a full frame 1, a reduced one 0.2 plus
+    0.8 per kept DOF fraction (contact on the bodies' DOFs included); a shadow frame or a probe, a
+    reduced frame's own work (0.1) besides a full frame, of which 0.3 is the full solve."""
+    if "reduced" not in judged:
+        return judged, 1.0
+    if judged["kind"] in ("shadow", "probe") or judged["full"]:
+        return dict(judged, reduced=0.1, full=0.3), 1.1
+    return dict(judged, reduced=0.1, full=0.0), 0.2 + 0.8 * judged["dof_ratio"]
+
+
+def test_a_resting_stack_under_the_default_budget_goes_affine_where_reduction_pays(monkeypatch):
+    # the default Affinification(), fall-back on, where a frame costs the DOFs it keeps (counted, not
+    # timed): while the boxes settle, frames that keep most DOFs elastic do not pay and the run falls
+    # back to full space; once they rest, a probe returns it to reduction, both boxes affine, within
+    # its budget (measured: full space from frame 13, reduced from frame 34 on)
+    from skfem_affine.reducers.affine import clustered
+    monkeypatch.setattr(clustered, "frame_cost", _counted)
+    full, sim = _stack(None), _stack(sa.Affinification())
+    response, worst = 0.0, 0.0
+    for _ in range(100):
+        full.step()
+        sim.step()
+        response = max(response, np.abs(full.state.x - full.system.p0).max())
+        worst = max(worst, np.linalg.norm(sim.state.x - full.state.x, axis=1).max())
+    settling, rest = sim.stats[:50], sim.stats[50:]
+    assert sum(not (r["reduced"] or r["shadow"]) for r in settling) >= 10  # the fall-back to full space
+    reduced = [r for r in rest if r["reduced"]]
+    assert len(reduced) >= 0.8 * len(rest), [(r["reduced"], r["shadow"]) for r in rest]
+    assert min(r["reduced_fraction"] for r in reduced) >= 0.99 and all(r["n_clusters"] == 2 for r in reduced)
+    assert worst <= 0.01 * response
