@@ -143,3 +143,42 @@ def test_a_resting_stack_under_the_default_budget_goes_affine_where_reduction_pa
     assert len(reduced) >= 0.8 * len(rest), [(r["reduced"], r["shadow"]) for r in rest]
     assert min(r["reduced_fraction"] for r in reduced) >= 0.99 and all(r["n_clusters"] == 2 for r in reduced)
     assert worst <= 0.01 * response
+
+
+def _failed_trial(red, speed):
+    """``red``'s fall-back in full space, then a probe whose trial fails on its own error at ``speed``."""
+    red.timer, red.settling_speed = None, 0.0
+    red.shadows = budget.ShadowClock(10)
+    red.pays = pays = budget.PaysOff(window=5, patience=3, confirm=True, probe_every=4)
+    pays.in_full, pays.wait = True, 0
+    for judged in ({"kind": "probe", "reduced": 0.2, "full": 0.2, "dof_ratio": 0.1},
+                   {"kind": "trial", "reduced": 0.2, "full": 0.0, "dof_ratio": 0.1, "settled": False}):
+        assert pays.plan() == judged["kind"]
+        red._judged = dict(judged, ramp=False, speed=speed)
+        red.end_frame({"wall": 0.5})
+    assert pays.in_full and pays.wait == 8 and red.settling_speed == speed
+    return pays
+
+
+def test_after_a_probe_found_bodies_settling_the_next_comes_once_they_have_slowed_down():
+    red = sa.Affinification()
+    pays = _failed_trial(red, speed=0.2)
+    for speed in (0.18, 0.15, 0.11):  # still settling: the doubled wait runs
+        assert pays.plan() == "full"
+        red._judged = {"kind": "full", "speed": speed}
+        red.end_frame({"wall": 1.0})
+    assert pays.plan() == "full"
+    red._judged = {"kind": "full", "speed": 0.09}  # under half the speed at the failed trial
+    red.end_frame({"wall": 1.0})
+    assert pays.plan() == "probe" and red.settling_speed == 0.0
+    # bodies that keep moving: the whole doubled wait
+    pays = _failed_trial(red, speed=0.2)
+    plans = []
+    for _ in range(9):
+        plans.append(pays.plan())
+        red._judged = {"kind": "full", "speed": 0.15}
+        red.end_frame({"wall": 1.0})
+    assert plans == ["full"] * 8 + ["probe"]
+    # the speed is part of the controllers' state a checkpoint saves
+    pays = _failed_trial(red, speed=0.2)
+    assert red.controllers["thresholds"]["settling_speed"] == 0.2

@@ -53,6 +53,10 @@ SEEDINGS = ("random", "index", "temporal")
 # max(reference, RESIDUAL_FLOOR): a preconditioner that leaves a few percent of ||b|| is as good as
 # exact for the clustering, and relative noise on such a small residual should not trigger rebuilds.
 RESIDUAL_FLOOR = 0.1
+#: A probe of the never-slower fall-back that failed on its own error (bodies still settling) is
+#: followed by the next as soon as the largest vertex speed has fallen under this fraction of its
+#: value then, rather than after the doubled wait (:meth:`ClusteringReducer._judge`).
+SETTLED = 0.5
 
 
 def check_threshold(value, name):
@@ -118,6 +122,12 @@ def frame_cost(judged, rec):
     if "reduced" in judged:
         judged = dict(judged, reduced=judged["reduced_cpu"], full=judged["full_cpu"])
     return judged, float(rec["cpu"])
+
+
+def _speed(problem):
+    """The largest vertex speed at the start of the frame (m/s)."""
+    v = np.asarray(problem.v, float).reshape(-1, 3)
+    return float(np.sqrt(np.max(np.einsum("ij,ij->i", v, v)))) if v.size else 0.0
 
 
 def elements_touching(system, mask):
@@ -204,6 +214,8 @@ class ClusteringReducer(Reducer):
 
     #: The controllers' attribute names; their state is plain numbers (checkpoints save it).
     CONTROLLERS = ("error_budget", "timer", "pays", "shadows")
+    #: The largest vertex speed when a probe of the fall-back last found bodies settling (0: none).
+    settling_speed = 0.0
 
     @property
     def controllers(self):
@@ -212,7 +224,8 @@ class ClusteringReducer(Reducer):
         :meth:`~skfem_affine.reducers.base.Reducer.attach`) restores them."""
         state = budgets.controllers_state(self, self.CONTROLLERS)
         state["thresholds"] = {self.threshold: float(getattr(self, self.threshold)), "tau_e": float(self.tau_e),
-                               "min_fraction": float(self.min_fraction)}
+                               "min_fraction": float(self.min_fraction),
+                               "settling_speed": float(self.settling_speed)}
         return state
 
     @controllers.setter
@@ -336,7 +349,8 @@ class ClusteringReducer(Reducer):
     def _setup_controllers(self):
         """The controllers of :mod:`~skfem_affine.reducers.budget` (plain-number state) and the shadow solver."""
         self.error_budget = self.timer = self.pays = self.shadows = self.full_solver = None
-        self._judged = None  # the frame's costs, for the fall-back once its wall time is known (end_frame)
+        self._judged = None  # the frame's costs, for the fall-back once its whole cost is known (end_frame)
+        self.settling_speed = 0.0  # the largest vertex speed when a probe found bodies settling (0: none)
         self.min_fraction_floor = self.min_fraction
         if not self.controlled:
             return
@@ -396,6 +410,8 @@ class ClusteringReducer(Reducer):
             pays.full_solved(cost, fresh=kind == "confirm")
             if kind == "confirm":
                 pays.decide(self.shadows.every, confirmed=True)
+            elif self.settling_speed and judged.get("speed", np.inf) < SETTLED * self.settling_speed:
+                pays.wait, self.settling_speed = 0, 0.0  # the bodies have slowed down: probe at the next frame
             return
         if kind in ("shadow", "probe") or judged["full"]:  # a refused trial is a shadow frame too
             pays.full_solved(cost - judged["reduced"])
@@ -414,6 +430,8 @@ class ClusteringReducer(Reducer):
             pays.trial -= 1  # more trial frames to come: their least cost decides
             return
         pays.decide(self.shadows.every, probed=probe, settled=settled)
+        if probe:  # a probe or trial that failed on its error: the bodies were still settling
+            self.settling_speed = judged.get("speed", 0.0) if pays.in_full and not settled else 0.0
 
     # -------------------------------------------------------------- frame
     def solve(self, problem):
@@ -472,7 +490,7 @@ class ClusteringReducer(Reducer):
             stats = {}
             dv, op, seconds = self._full(problem, stats, schur=True)
             if pays is not None:
-                self._judged = {"kind": "confirm" if mode == "confirm" else "full"}
+                self._judged = {"kind": "confirm" if mode == "confirm" else "full", "speed": _speed(problem)}
             if eb is not None:
                 eb.decay(h)
                 if mode == "full":  # the fall-back: the probe to come tries a larger threshold
@@ -542,6 +560,7 @@ class ClusteringReducer(Reducer):
             settled = eb.steady <= eb.target
         if pays is not None:  # judged in end_frame, on the frame's cost (frame_cost)
             self._judged = {"kind": mode if mode in ("probe", "trial") else "shadow" if shadow else "reduced",
+                            "speed": _speed(problem),
                             "reduced": reduced_seconds, "full": seconds, "reduced_cpu": reduced_cpu,
                             "full_cpu": full_cpu, "ramp": ramp, "settled": settled,
                             "dof_ratio": stats["reduced_dofs"] / max(sysm.free.size, 1)}
