@@ -170,7 +170,18 @@ def test_after_a_probe_found_bodies_settling_the_next_comes_once_they_have_slowe
     assert pays.plan() == "full"
     red._judged = {"kind": "full", "speed": 0.09}  # under half the speed at the failed trial
     red.end_frame({"wall": 1.0})
-    assert pays.plan() == "probe" and red.settling_speed == 0.0
+    assert pays.plan() == "probe"
+    # the early probe fails on its error too: no series of early probes (speeds at rest keep halving)
+    red._judged = {"kind": "probe", "reduced": 0.2, "full": 0.2, "dof_ratio": 0.1, "ramp": False,
+                   "settled": False, "speed": 0.09}
+    red.end_frame({"wall": 0.5})
+    assert pays.in_full and red.settling_speed == 0.0
+    plans = []
+    for _ in range(4):
+        plans.append(pays.plan())
+        red._judged = {"kind": "full", "speed": 0.001}
+        red.end_frame({"wall": 1.0})
+    assert plans == ["full"] * 4 and pays.plan() == "probe"
     # bodies that keep moving: the whole doubled wait
     pays = _failed_trial(red, speed=0.2)
     plans = []

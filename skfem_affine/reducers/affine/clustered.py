@@ -214,7 +214,8 @@ class ClusteringReducer(Reducer):
 
     #: The controllers' attribute names; their state is plain numbers (checkpoints save it).
     CONTROLLERS = ("error_budget", "timer", "pays", "shadows")
-    #: The largest vertex speed when a probe of the fall-back last found bodies settling (0: none).
+    #: The largest vertex speed when a probe of the fall-back last found bodies settling (0: none; -1:
+    #: the coming probe is the early one it allowed, whose failure does not allow another).
     settling_speed = 0.0
 
     @property
@@ -350,7 +351,7 @@ class ClusteringReducer(Reducer):
         """The controllers of :mod:`~skfem_affine.reducers.budget` (plain-number state) and the shadow solver."""
         self.error_budget = self.timer = self.pays = self.shadows = self.full_solver = None
         self._judged = None  # the frame's costs, for the fall-back once its whole cost is known (end_frame)
-        self.settling_speed = 0.0  # the largest vertex speed when a probe found bodies settling (0: none)
+        self.settling_speed = 0.0  # the largest vertex speed when a probe found bodies settling (class attribute)
         self.min_fraction_floor = self.min_fraction
         if not self.controlled:
             return
@@ -410,8 +411,8 @@ class ClusteringReducer(Reducer):
             pays.full_solved(cost, fresh=kind == "confirm")
             if kind == "confirm":
                 pays.decide(self.shadows.every, confirmed=True)
-            elif self.settling_speed and judged.get("speed", np.inf) < SETTLED * self.settling_speed:
-                pays.wait, self.settling_speed = 0, 0.0  # the bodies have slowed down: probe at the next frame
+            elif self.settling_speed > 0 and judged.get("speed", np.inf) < SETTLED * self.settling_speed:
+                pays.wait, self.settling_speed = 0, -1.0  # the bodies have slowed down: probe at the next frame
             return
         if kind in ("shadow", "probe") or judged["full"]:  # a refused trial is a shadow frame too
             pays.full_solved(cost - judged["reduced"])
@@ -431,7 +432,9 @@ class ClusteringReducer(Reducer):
             return
         pays.decide(self.shadows.every, probed=probe, settled=settled)
         if probe:  # a probe or trial that failed on its error: the bodies were still settling
-            self.settling_speed = judged.get("speed", 0.0) if pays.in_full and not settled else 0.0
+            early, self.settling_speed = self.settling_speed < 0, 0.0
+            if pays.in_full and not settled and not early:  # one early probe per failed one, not a series
+                self.settling_speed = judged.get("speed", 0.0)
 
     # -------------------------------------------------------------- frame
     def solve(self, problem):
