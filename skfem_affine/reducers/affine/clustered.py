@@ -399,12 +399,13 @@ class ClusteringReducer(Reducer):
         solved in full space is a full frame (one that confirms a fall-back replaces the running
         full cost); a shadow frame or a probe is a reduced frame plus a full solve, so it gives
         both, the full frame as its cost minus the reduced part and the reduced frame as its cost
-        minus the full solve. A probe that reduced
-        is judged by the reduced frames after it, the trial (the least cost of three): a shadow
-        frame resolves contact through the full-space operator, at a full frame's contact cost,
-        and the first reduced frame pays new analyses. A probe or a trial whose own error, kept
-        up, would take the estimate over the error budget fails whatever its cost (bodies still
-        settling): the threshold shrinks, and the frames after it would reduce less.
+        minus the full solve. A probe that reduced is judged by the reduced frames after it, the
+        trial (the least cost of three): a shadow frame resolves contact through the full-space
+        operator, at a full frame's contact cost, and the first reduced frame pays new analyses. A
+        probe or a trial whose own error, kept up, would take the estimate over the error budget
+        fails whatever its cost (bodies still settling): the threshold shrinks, and the frames after
+        it would reduce less. The next probe then comes as soon as the largest vertex speed is under
+        :data:`SETTLED` times its value at the failure (once per such failure), else after the wait.
         """
         pays, kind = self.pays, judged["kind"]
         if kind in ("full", "confirm"):
@@ -431,7 +432,7 @@ class ClusteringReducer(Reducer):
             pays.trial -= 1  # more trial frames to come: their least cost decides
             return
         pays.decide(self.shadows.every, probed=probe, settled=settled)
-        if probe:  # a probe or trial that failed on its error: the bodies were still settling
+        if probe:  # one that failed on its error (bodies still settling) allows one early probe
             early, self.settling_speed = self.settling_speed < 0, 0.0
             if pays.in_full and not settled and not early:  # one early probe per failed one, not a series
                 self.settling_speed = judged.get("speed", 0.0)
