@@ -61,7 +61,8 @@ a shadow frame only when it fits (:meth:`TimeBudget.fits`). The frame's wall tim
 ``Simulation.step`` measured (:meth:`Reducer.end_frame`), so that tests can feed it any clock.
 
 **Never slower** (:class:`PaysOff`): the reducer hands it the costs of reduced frames and of
-full-space ones (the affine reducers: whole-frame wall times; the subspace reducer: Newton
+full-space ones (the affine reducers: the CPU time of whole frames, which load from other
+processes does not stretch as it stretches their wall time; the subspace reducer: Newton
 steps); when the reduced frames, shadows included, cost more than a full one, or keep nearly
 every DOF, it solves the next frames in full space, and probes reduction again after
 ``probe_every`` frames (doubling while probes keep failing). A probe is a shadow frame: it

@@ -53,6 +53,10 @@ SEEDINGS = ("random", "index", "temporal")
 # max(reference, RESIDUAL_FLOOR): a preconditioner that leaves a few percent of ||b|| is as good as
 # exact for the clustering, and relative noise on such a small residual should not trigger rebuilds.
 RESIDUAL_FLOOR = 0.1
+#: A probe of the never-slower fall-back that failed on its own error (bodies still settling) is
+#: followed by the next as soon as the largest vertex speed has fallen under this fraction of its
+#: value then, rather than after the doubled wait (:meth:`ClusteringReducer._judge`).
+SETTLED = 0.5
 
 
 def check_threshold(value, name):
@@ -103,6 +107,27 @@ def _response(operator, force):
     if operator.G is None:
         return np.asarray(operator.solver.solve(force)).ravel()
     return operator.G @ np.asarray(operator.solver.solve(operator.G.T @ force)).ravel()
+
+
+def frame_cost(judged, rec):
+    """(judged, cost) as the never-slower fall-back compares frames: the process's CPU seconds when the
+    frame's record has them (``rec["cpu"]``, every thread of the process; the parts in ``judged``
+    measured on the same clock), else its wall seconds.
+
+    On a loaded machine the wall time of a frame scatters by 2-3x with the load from other processes,
+    which the CPU time does not count: judged on it, a fall-back decides the same under any load
+    (measured in ``docs/budget.md``)."""
+    if "cpu" not in rec or ("reduced" in judged and "reduced_cpu" not in judged):
+        return judged, float(rec["wall"])
+    if "reduced" in judged:
+        judged = dict(judged, reduced=judged["reduced_cpu"], full=judged["full_cpu"])
+    return judged, float(rec["cpu"])
+
+
+def _speed(problem):
+    """The largest vertex speed at the start of the frame (m/s)."""
+    v = np.asarray(problem.v, float).reshape(-1, 3)
+    return float(np.sqrt(np.max(np.einsum("ij,ij->i", v, v)))) if v.size else 0.0
 
 
 def elements_touching(system, mask):
@@ -189,6 +214,9 @@ class ClusteringReducer(Reducer):
 
     #: The controllers' attribute names; their state is plain numbers (checkpoints save it).
     CONTROLLERS = ("error_budget", "timer", "pays", "shadows")
+    #: The largest vertex speed when a probe of the fall-back last found bodies settling (0: none; -1:
+    #: the coming probe is the early one it allowed, whose failure does not allow another).
+    settling_speed = 0.0
 
     @property
     def controllers(self):
@@ -197,7 +225,8 @@ class ClusteringReducer(Reducer):
         :meth:`~skfem_affine.reducers.base.Reducer.attach`) restores them."""
         state = budgets.controllers_state(self, self.CONTROLLERS)
         state["thresholds"] = {self.threshold: float(getattr(self, self.threshold)), "tau_e": float(self.tau_e),
-                               "min_fraction": float(self.min_fraction)}
+                               "min_fraction": float(self.min_fraction),
+                               "settling_speed": float(self.settling_speed)}
         return state
 
     @controllers.setter
@@ -321,7 +350,8 @@ class ClusteringReducer(Reducer):
     def _setup_controllers(self):
         """The controllers of :mod:`~skfem_affine.reducers.budget` (plain-number state) and the shadow solver."""
         self.error_budget = self.timer = self.pays = self.shadows = self.full_solver = None
-        self._judged = None  # the frame's costs, for the fall-back once its wall time is known (end_frame)
+        self._judged = None  # the frame's costs, for the fall-back once its whole cost is known (end_frame)
+        self.settling_speed = 0.0  # the largest vertex speed when a probe found bodies settling (class attribute)
         self.min_fraction_floor = self.min_fraction
         if not self.controlled:
             return
@@ -358,33 +388,37 @@ class ClusteringReducer(Reducer):
             rec["min_fraction_next"] = float(self.timer.fraction)
         judged, self._judged = self._judged, None
         if self.pays is not None and judged is not None and "wall" in rec:
-            self._judge(judged, float(rec["wall"]))
+            self._judge(*frame_cost(judged, rec))
             rec["reduction_pays"] = not self.pays.in_full
 
-    def _judge(self, judged, wall):
-        """Feed the fall-back the frame's wall time and let it decide (never slower than full space).
+    def _judge(self, judged, cost):
+        """Feed the fall-back the frame's cost and let it decide (never slower than full space).
 
-        The costs compared are whole frames, as a full-space run pays them (integrator, contact and
-        checks included): a frame solved in full space is a full frame (one that confirms a
-        fall-back replaces the running full cost); a shadow frame or a probe is a reduced frame
-        plus a full solve, so it gives both, the full frame as its wall time minus the reduced
-        part and the reduced frame as its wall time minus the full solve. A probe that reduced
-        is judged by the reduced frames after it, the trial (the least cost of three): a shadow
-        frame resolves contact through the full-space operator, at a full frame's contact cost,
-        and the first reduced frame pays new analyses. A probe or a trial whose own error, kept
-        up, would take the estimate over the error budget fails whatever its cost (bodies still
-        settling): the threshold shrinks, and the frames after it would reduce less.
+        The costs compared (CPU seconds of the process, or wall seconds: :func:`frame_cost`) are whole
+        frames, as a full-space run pays them (integrator, contact and checks included): a frame
+        solved in full space is a full frame (one that confirms a fall-back replaces the running
+        full cost); a shadow frame or a probe is a reduced frame plus a full solve, so it gives
+        both, the full frame as its cost minus the reduced part and the reduced frame as its cost
+        minus the full solve. A probe that reduced is judged by the reduced frames after it, the
+        trial (the least cost of three): a shadow frame resolves contact through the full-space
+        operator, at a full frame's contact cost, and the first reduced frame pays new analyses. A
+        probe or a trial whose own error, kept up, would take the estimate over the error budget
+        fails whatever its cost (bodies still settling): the threshold shrinks, and the frames after
+        it would reduce less. The next probe then comes as soon as the largest vertex speed is under
+        :data:`SETTLED` times its value at the failure (once per such failure), else after the wait.
         """
         pays, kind = self.pays, judged["kind"]
         if kind in ("full", "confirm"):
-            pays.full_solved(wall, fresh=kind == "confirm")
+            pays.full_solved(cost, fresh=kind == "confirm")
             if kind == "confirm":
                 pays.decide(self.shadows.every, confirmed=True)
+            elif self.settling_speed > 0 and judged.get("speed", np.inf) < SETTLED * self.settling_speed:
+                pays.wait, self.settling_speed = 0, -1.0  # the bodies have slowed down: probe at the next frame
             return
         if kind in ("shadow", "probe") or judged["full"]:  # a refused trial is a shadow frame too
-            pays.full_solved(wall - judged["reduced"])
+            pays.full_solved(cost - judged["reduced"])
             pays.shadow_added(judged["full"])
-            wall -= judged["full"]
+            cost -= judged["full"]
             if kind == "probe" and judged["dof_ratio"] < pays.keep_dofs and judged.get("settled", True):
                 pays.await_trial()
                 return
@@ -392,12 +426,16 @@ class ClusteringReducer(Reducer):
         if judged["ramp"] and not probe:
             return  # frames at a threshold still rising from its small start say nothing of the settled cost
         first = kind == "probe" or (kind == "trial" and pays.trial == pays.trial_frames)
-        pays.reduced_solved(wall, judged["dof_ratio"], fresh=first)
+        pays.reduced_solved(cost, judged["dof_ratio"], fresh=first)
         settled = judged.get("settled", True)
         if kind == "trial" and pays.trial > 1 and settled and not judged["full"]:
             pays.trial -= 1  # more trial frames to come: their least cost decides
             return
         pays.decide(self.shadows.every, probed=probe, settled=settled)
+        if probe:  # one that failed on its error (bodies still settling) allows one early probe
+            early, self.settling_speed = self.settling_speed < 0, 0.0
+            if pays.in_full and not settled and not early:  # one early probe per failed one, not a series
+                self.settling_speed = judged.get("speed", 0.0)
 
     # -------------------------------------------------------------- frame
     def solve(self, problem):
@@ -408,14 +446,30 @@ class ClusteringReducer(Reducer):
             return self._frame(problem)
 
     # ------------------------------------------------------- controlled frame
-    def _full(self, problem, stats):
-        """A dv = b in full space with the shadow solver; returns (dv, operator, seconds)."""
+    def _full(self, problem, stats, schur=False):
+        """A dv = b in full space with the shadow solver; returns (dv, operator, seconds).
+
+        ``schur``: a frame solved in full space alone (not a shadow) is factorised as the full-space
+        run factorises it (:func:`contact_factorization`): with contacts, their unknowns last where
+        contact's Schur inverse accepts, so that its Delassus operator costs what full space pays
+        for it, not a factorisation of its own. A shadow frame is not: the reduced frame's
+        operator, which it solves with after, may be on the same Schur handle."""
         t0 = time.perf_counter()
         A = problem.matrix()
         b = problem.b
         t1 = time.perf_counter()
         part = {}
-        dv = factorize_and_solve(self.full_solver, A, b, part)
+        out = None if not schur else contact_factorization(self._contact_schur, self._contact_bodies,
+                                                           self.full_solver, problem.contacts, A)
+        if out is None:
+            dv, op = factorize_and_solve(self.full_solver, A, b, part), Operator(self.full_solver, A)
+        else:
+            handle, keep, S = out
+            t2 = time.perf_counter()
+            dv = handle.solve(b)
+            part.update(factorization=t2 - t1, solve=time.perf_counter() - t2)
+            op = Operator(handle, A, schur=(keep, S))
+            stats["frame_schur"] = int(keep.size)
         seconds = time.perf_counter() - t0
         for key in ("factorization", "solve"):
             stats[key] = stats.get(key, 0.0) + part[key]
@@ -423,7 +477,7 @@ class ClusteringReducer(Reducer):
         stats["full_solve"] = seconds
         if self.timer is not None:
             self.timer.full_cost = seconds
-        return dv, Operator(self.full_solver, A), seconds
+        return dv, op, seconds
 
     def _controlled_frame(self, problem):
         """Plan the frame (full, reduced, or reduced with a shadow), solve it, feed the controllers."""
@@ -438,9 +492,9 @@ class ClusteringReducer(Reducer):
             mode = "impact"
         if mode in ("full", "confirm", "impact"):
             stats = {}
-            dv, op, seconds = self._full(problem, stats)
+            dv, op, seconds = self._full(problem, stats, schur=True)
             if pays is not None:
-                self._judged = {"kind": "confirm" if mode == "confirm" else "full"}
+                self._judged = {"kind": "confirm" if mode == "confirm" else "full", "speed": _speed(problem)}
             if eb is not None:
                 eb.decay(h)
                 if mode == "full":  # the fall-back: the probe to come tries a larger threshold
@@ -453,7 +507,7 @@ class ClusteringReducer(Reducer):
             return StepResult(dv=dv, operator=op, clusters=self.labels, stats=stats)
         if eb is not None:
             self._set_thresholds(eb.tau)
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         result = self._frame(problem)
         stats = result.stats
         proxy = 0.0
@@ -468,7 +522,7 @@ class ClusteringReducer(Reducer):
             proxy = budgets.vertex_max_norm(e, sysm.free, sysm.n)
             stats["estimation"] = time.perf_counter() - t_est
             stats["prediction"] += stats["estimation"]
-        reduced_seconds = time.perf_counter() - t0
+        reduced_seconds, reduced_cpu = time.perf_counter() - t0, time.process_time() - c0
         initial = self.shadows is not None and self.shadows.first > 0
         # a trial (the frame after a probe) is judged as a plain reduced frame: a shadow only if refused
         shadow = mode == "probe" or (mode != "trial" and self.shadows is not None and self.shadows.due())
@@ -480,9 +534,11 @@ class ClusteringReducer(Reducer):
             shadow = False  # the time budget wins: a full solve on top of the frame would miss it
         stats.update(reduced_dofs=stats["dofs"], shadow=bool(shadow), reduced=not shadow, refused=bool(refused))
         measured = None
-        seconds = 0.0
+        seconds = full_cpu = 0.0
         if shadow:
+            c1 = time.process_time()
             dv, op, seconds = self._full(problem, stats)
+            full_cpu = time.process_time() - c1
             gap = result.dv - dv
             if support is not None and stats["n_clusters"]:
                 gap += _response(result.operator, support) - _response(op, support)
@@ -506,9 +562,11 @@ class ClusteringReducer(Reducer):
             reducible = 1.0 - float(np.mean(self.excluded)) if sysm.m else 0.0
             eb.adapt(saturated=stats["reduced_fraction"] >= reducible - 1e-9)
             settled = eb.steady <= eb.target
-        if pays is not None:  # judged in end_frame, on the frame's wall time
+        if pays is not None:  # judged in end_frame, on the frame's cost (frame_cost)
             self._judged = {"kind": mode if mode in ("probe", "trial") else "shadow" if shadow else "reduced",
-                            "reduced": reduced_seconds, "full": seconds, "ramp": ramp, "settled": settled,
+                            "speed": _speed(problem),
+                            "reduced": reduced_seconds, "full": seconds, "reduced_cpu": reduced_cpu,
+                            "full_cpu": full_cpu, "ramp": ramp, "settled": settled,
                             "dof_ratio": stats["reduced_dofs"] / max(sysm.free.size, 1)}
         self._record(stats)
         return result
