@@ -2,8 +2,10 @@
 rigidification stepped in turn in one process, on the paper's contact scenes.
 
 The scenes are those of ``benchmarks/paper_table1.py`` (the paper's meshes, read from MESH_DIR, and
-its thresholds), and ``pile``: the four soft boxes of ``benchmarks/budget.py`` (``--cells`` per box
-edge) coming to rest on the ground, at the thresholds tau_a = 1e-4, tau_e = 2e-4 (no MESH_DIR).
+its thresholds), and, with no MESH_DIR, at the thresholds tau_a = 1e-4, tau_e = 2e-4: ``pile``, the four
+soft boxes of ``benchmarks/budget.py`` (``--cells`` per box edge) coming to rest on the ground;
+``stacked_beams``, ``sa.scenes.stacked_beams`` (three beams, ``--cells`` across a beam's width); and
+``bowling``, ``sa.scenes.bowling`` (three stiff balls onto a soft mattress, resolution ``--cells``).
 Every method runs from frame 0; the frames ``--start`` to ``--end`` are recorded: the frame's wall
 time, the factorisation, the Delassus operator and the columns it solved, the PGS solve (with the
 velocity and position corrections), detection (the rest of contact), the contacts and the DOFs
@@ -31,7 +33,8 @@ at most ``--spread`` times the touched unknowns, ``SchurInverse.spread``); ``ana
 analyses per frame.
 ``--resume CHECKPOINT`` (a full-space checkpoint of the scene, e.g. from ``paper_table1.py
 --checkpoint``, or ``Simulation.save``) starts both runs of ``--blocks``, ``--frame-schur`` or
-``--lookahead`` from it instead of frame 0, so that ``--start`` and ``--end`` count on from its frame.
+``--lookahead`` from it instead of frame 0, so that ``--start`` and ``--end`` count on from its frame (a
+checkpoint written before the Schur complement's state was saved resumes with no kept analysis).
 Usage::
 
     python benchmarks/contact_phases.py MESH_DIR --scene wheel --start 145 --end 160 --rows
@@ -42,6 +45,8 @@ Usage::
     python benchmarks/contact_phases.py MESH_DIR --scene pills --start 50 --end 56 --blocks
     python benchmarks/contact_phases.py MESH_DIR --scene pills --start 277 --end 287 --blocks --resume RUNS/pills/full-000275.npz
     python benchmarks/contact_phases.py MESH_DIR --scene octopus --start 66 --end 82 --lookahead 2 --resume RUN.npz
+    python benchmarks/contact_phases.py --scene stacked_beams --cells 6 --start 8 --end 14 --frame-schur
+    python benchmarks/contact_phases.py --scene bowling --cells 3 --start 20 --end 26 --frame-schur
 """
 import argparse
 import cProfile
@@ -64,12 +69,18 @@ sys.path.insert(0, os.path.dirname(HERE))  # measure the checkout this script si
 sys.path.insert(0, HERE)
 import paper_table1  # noqa: E402
 import skfem_affine as sa  # noqa: E402
+from skfem_affine import checkpoint  # noqa: E402
 from skfem_affine.contact import delassus  # noqa: E402
 
 METHODS = ("full", "affinification", "rigidification")
 FRAME_METHODS = ("full, own handle", "full, frame's Schur")  # --frame-schur
 BLOCK_METHODS = ("full, plain + own complements", "full, body by body")  # --blocks
 LOOKAHEAD_METHODS = ("full, touched unknowns", "full, predicted superset")  # --lookahead
+# The scenes of sa.scenes run without MESH_DIR (--cells: their resolution) and their settings.
+LAB_SCENES = {"stacked_beams": dict(n=3), "bowling": dict(n=3)}
+# The contact state a checkpoint written before the Schur complement's was saved lacks: no kept analysis.
+NO_SCHUR = {"schur_systems": np.zeros((0, 2), np.int64), "schur_served": np.zeros(0, bool),
+            "schur_seen": np.zeros(0, np.int64)}
 COLUMNS = ("wall", "factorization", "delassus", "delassus_columns", "delassus_schur", "frame_schur", "pgs",
            "detection", "contact",
            "n_contacts",
@@ -145,8 +156,12 @@ def builders(mesh_dir, scene, end, cells, frame_schur=False):
     ``frame_schur`` (True or "full", or a reducer's name) two runs of that method, the second
     factorising with the contacts' unknowns last."""
     which = METHODS.index("full" if frame_schur is True else frame_schur) if frame_schur else 0
-    if scene == "pile":
-        from budget import pile
+    if scene == "pile" or scene in LAB_SCENES:
+        if scene == "pile":
+            from budget import pile
+        else:
+            def pile(k, reducer=None):
+                return sa.scenes.SCENES[scene](resolution=k, reducer=reducer, **LAB_SCENES[scene])
         if frame_schur:
             pair = [None, None] if which == 0 else [
                 (sa.Affinification(tau_a=1e-4, tau_e=2e-4) if which == 1 else sa.Rigidification(tau_r=1e-4, tau_e=2e-4))
@@ -165,6 +180,25 @@ def builders(mesh_dir, scene, end, cells, frame_schur=False):
         sims = [build(None if which == 0 else paper_table1.reducers(row, fraction)[which - 1]) for _ in range(2)]
     sims[0].contact.schur.frame = False
     return sims
+
+
+def load_state(sim, path):
+    """``sim.load_state(path)``, a checkpoint without the Schur complement's state taken as having no kept
+    analysis (:data:`NO_SCHUR`)."""
+    unflatten = checkpoint.unflatten
+
+    def filled(arrays, values, component):
+        out = unflatten(arrays, values, component)
+        if component == "contact" and "schur_seen" not in out and sim.contact.schur is not None:
+            for key, value in NO_SCHUR.items():
+                out.setdefault(key, value)
+        return out
+
+    checkpoint.unflatten = filled
+    try:
+        sim.load_state(path)
+    finally:
+        checkpoint.unflatten = unflatten
 
 
 def run(mesh_dir, scene, start, end, cells=4, compare_rows=False, compare_columns=False, profile=None,
@@ -188,7 +222,7 @@ def run(mesh_dir, scene, start, end, cells=4, compare_rows=False, compare_column
             raise ValueError("--resume takes a full-space checkpoint: use it with --blocks, --frame-schur or "
                              "--lookahead")
         for sim in sims:
-            sim.load_state(resume)
+            load_state(sim, resume)
         first = len(sims[0].stats)
     if frame_schur:
         name = "full" if frame_schur is True else frame_schur
@@ -232,8 +266,9 @@ def markdown(scene, means):
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("mesh_dir", nargs="?", default=None, help="the paper's meshes (not for --scene pile)")
-    ap.add_argument("--scene", choices=["wheel", "octopus", "pills", "pile"], required=True)
-    ap.add_argument("--cells", type=int, default=4, help="cells per box edge of the pile")
+    ap.add_argument("--scene", choices=["wheel", "octopus", "pills", "pile"] + list(LAB_SCENES), required=True)
+    ap.add_argument("--cells", type=int, default=4,
+                    help="cells per box edge of the pile; the resolution of stacked_beams and bowling")
     ap.add_argument("--rows", action="store_true", help="also time the Delassus operator built per row of J")
     ap.add_argument("--columns", action="store_true",
                     help="also time it built from solves of the touched unknowns' columns (no Schur complement)")

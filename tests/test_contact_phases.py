@@ -39,3 +39,25 @@ def test_blocks_steps_two_full_space_runs_from_a_checkpoint(benchmark_script, tm
     assert list(means) == list(bench.BLOCK_METHODS)
     plain, by_body = (means[m] for m in bench.BLOCK_METHODS)
     assert plain["n_contacts"] == by_body["n_contacts"] > 0 and plain["frame_schur"] == 0
+
+
+def test_frame_schur_runs_the_stacked_beams_of_the_lab_scenes(benchmark_script):
+    bench = benchmark_script("contact_phases")
+    means, _ = bench.main(["--scene", "stacked_beams", "--cells", "1", "--start", "1", "--end", "3", "--frame-schur"])
+    own, framed = (means[m] for m in bench.FRAME_METHODS)
+    assert own["n_contacts"] == framed["n_contacts"] > 0 and own["dofs"] == framed["dofs"] == 216
+
+
+def test_resume_takes_a_checkpoint_saved_without_the_schur_complements_state(benchmark_script, tmp_path):
+    import pytest
+    bench = benchmark_script("contact_phases")
+    from budget import pile
+    sim = pile(1)
+    list(sim.run(3))
+    sim.contact.schur.state_dict = dict  # as a run saved before that state was
+    sim.save(tmp_path / "old.npz")
+    with pytest.raises(ValueError, match="schur"):
+        pile(1).load_state(tmp_path / "old.npz")
+    resumed = pile(1)
+    bench.load_state(resumed, tmp_path / "old.npz")
+    assert resumed.state.frame == 3 and resumed.contact.schur._resume == {}

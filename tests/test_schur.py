@@ -213,3 +213,15 @@ def test_a_state_without_its_served_flags_or_last_pattern_is_refused():
             SchurInverse().load_state_dict({k: v for k, v in state.items() if k != key})
     with pytest.raises(ValueError, match="schur_seen"):
         SchurInverse().load_state_dict(dict(state, schur_seen=np.arange(3)))
+
+
+def test_bound_script_gives_z_of_the_partial_solve_as_s_inverse_in_a_subprocess():
+    """benchmarks/delassus_bound.py on the smallest stacked beams: per body, the partial solve's Z against
+    S^-1 from the factorisation with the touched unknowns last, and Pardiso's flop counts reported."""
+    run = subprocess.run([sys.executable, os.path.join(ROOT, "benchmarks", "delassus_bound.py"), "--scene",
+                          "stacked_beams", "--cells", "1", "--frame", "1", "--reps", "1"], capture_output=True,
+                         text=True, timeout=300, env=dict(os.environ, PYTHONPATH=ROOT))
+    assert run.returncode == 0, run.stderr[-2000:]
+    head = run.stdout.splitlines()[0]
+    assert float(head.rsplit(" ", 1)[1]) < 1e-12, run.stdout
+    assert "| plain factorisation |" in run.stdout and "at least" in run.stdout
