@@ -8,7 +8,8 @@ factorisation of the frame (every body's block on its own handle, METIS; Pardiso
 ``iparm(19)``, and the entries of its factor, ``iparm(18)``, beside them):
 
 - **plain factorisation**, and the same with **T_b eliminated last** (Schur mode ``iparm(36) = 2``, which
-  also solves the frame: the default full-space route), both on a kept analysis;
+  also solves the frame: the default full-space route), both on a kept analysis; and with T_b last in the
+  mode that forms S_b without factorising it (``iparm(36) = 1``, which does not solve the frame);
 - **the dense work on S_b** (|T_b| x |T_b|): its Cholesky factor (``potrf``, |T_b|^3 / 3 flops), the
   inverse from it (``potri``, 2 |T_b|^3 / 3), W_b = J_b S_b^-1 J_b^T from that inverse (``fill``, the
   sparse J_b on both sides), and instead of the inverse, Y = L^-1 J_b^T (``trsm``, m_b |T_b|^2) and
@@ -84,9 +85,10 @@ def frame_blocks(mesh_dir, scene, cells, frame, resume):
     return blocks, out["frame"]
 
 
-STEPS = ("plain factorisation", "factorisation with T last", "potrf", "potri", "fill", "trsm", "syrk",
+STEPS = ("plain factorisation", "factorisation with T last", "the same, complement only", "potrf", "potri", "fill", "trsm", "syrk",
          "partial solve: factorisation", "partial solve: solve of e_T")
-ALIKE = ("plain factorisation", "factorisation with T last", "partial solve: factorisation")
+ALIKE = ("plain factorisation", "factorisation with T last", "the same, complement only",
+         "partial solve: factorisation")
 
 
 def body(A, T, Jt, reps):
@@ -117,6 +119,8 @@ def body(A, T, Jt, reps):
     plain.call(12)
     schur = Handle(arrays, i18=-1, i19=-1, i36=2)
     schur.call(12, buffer, perm=marks.copy())
+    only = Handle(arrays, i36=1)
+    only.call(12, buffer, perm=marks.copy())
     partial = Handle(arrays, i31=1) if n * k <= PARTIAL_MAX else None
     if partial is not None:
         partial.call(11, perm=marks.copy())
@@ -147,6 +151,9 @@ def body(A, T, Jt, reps):
         Y = timed("trsm", lambda: blas.dtrsm(1.0, L, Jd, lower=1))
         timed("syrk", lambda: blas.dsyrk(1.0, Y, trans=1))
 
+    def step_only():
+        timed("the same, complement only", lambda: only.call(22, buffer, perm=marks.copy()))
+
     def step_partial():
         if partial is None:
             times["partial solve: factorisation"] = times["partial solve: solve of e_T"] = [np.nan]
@@ -156,11 +163,11 @@ def body(A, T, Jt, reps):
         timed("partial solve: factorisation", lambda: partial.call(22, perm=marks.copy()))
         Z["partial"] = timed("partial solve: solve of e_T", lambda: partial.call(33, E, perm=marks.copy()))[T]
 
-    steps = [step_plain, step_schur, step_partial]
+    steps = [step_plain, step_schur, step_only, step_partial]
     for r in range(reps):
-        for step in steps[r % 3:] + steps[:r % 3]:
+        for step in steps[r % 4:] + steps[:r % 4]:
             step()
-    for h in (plain, schur, partial):
+    for h in (plain, schur, only, partial):
         if h is not None:
             h.close()
     diff = float(np.abs(Z["partial"] - Z["Schur"]).max() / np.abs(Z["Schur"]).max()) if partial else np.nan
