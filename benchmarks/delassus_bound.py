@@ -14,6 +14,9 @@ factorisation of the frame (every body's block on its own handle, METIS; Pardiso
   inverse from it (``potri``, 2 |T_b|^3 / 3), W_b = J_b S_b^-1 J_b^T from that inverse (``fill``, the
   sparse J_b on both sides), and instead of the inverse, Y = L^-1 J_b^T (``trsm``, m_b |T_b|^2) and
   W_b = Y^T Y (``syrk``, m_b^2 |T_b|), m_b the body's rows of J;
+- **the frame's solve** with the factorisation with T_b last (phase 33), and in the complement-only mode:
+  forward substitution (phase 331), S_b's own Cholesky factor on T_b, backward substitution (phase 333),
+  its residual printed;
 - **the partial solve** (``iparm(31) = 1``, the unit columns e_{T_b} marked as sparse right-hand sides at
   the analysis, which orders them last): its factorisation and the solve of e_{T_b}, Z compared with S_b^-1.
 
@@ -85,8 +88,9 @@ def frame_blocks(mesh_dir, scene, cells, frame, resume):
     return blocks, out["frame"]
 
 
-STEPS = ("plain factorisation", "factorisation with T last", "the same, complement only", "potrf", "potri", "fill", "trsm", "syrk",
-         "partial solve: factorisation", "partial solve: solve of e_T")
+STEPS = ("plain factorisation", "factorisation with T last", "the same, complement only", "potrf", "potri", "fill",
+         "trsm", "syrk", "partial solve: factorisation", "partial solve: solve of e_T", "frame's solve, T last",
+         "frame's solve, complement only")
 ALIKE = ("plain factorisation", "factorisation with T last", "the same, complement only",
          "partial solve: factorisation")
 
@@ -108,7 +112,7 @@ def body(A, T, Jt, reps):
             plain.call(22)
             ts.append(time.perf_counter() - t0)
         info = dict(n=n, k=0, m=0, plain_mflops=int(plain.lib._ps.iparm[18]), plain_nnz=int(plain.lib._ps.iparm[17]))
-        info.update(schur_mflops=info["plain_mflops"], schur_nnz=info["plain_nnz"])
+        info.update(schur_mflops=info["plain_mflops"], schur_nnz=info["plain_nnz"], residual=0.0)
         plain.close()
         f = float(np.median(ts))
         return {s: f if s in ALIKE else 0.0 for s in STEPS}, info, 0.0
@@ -127,7 +131,8 @@ def body(A, T, Jt, reps):
     info = dict(n=n, k=k, m=Jt.shape[0], plain_mflops=int(plain.lib._ps.iparm[18]),
                 plain_nnz=int(plain.lib._ps.iparm[17]), schur_mflops=int(schur.lib._ps.iparm[18]),
                 schur_nnz=int(schur.lib._ps.iparm[17]))
-    times, Z = {}, {}
+    times, Z, residual = {}, {}, []
+    rhs = np.random.default_rng(0).normal(size=(n, 1))
     Jd = np.asfortranarray(Jt.T.toarray())  # |T| x m
 
     def timed(name, f):
@@ -152,7 +157,17 @@ def body(A, T, Jt, reps):
         timed("syrk", lambda: blas.dsyrk(1.0, Y, trans=1))
 
     def step_only():
-        timed("the same, complement only", lambda: only.call(22, buffer, perm=marks.copy()))
+        x = timed("the same, complement only", lambda: only.call(22, buffer, perm=marks.copy()))
+        L, _ = lapack.dpotrf(np.asfortranarray(x[:k * k, 0].reshape(k, k)), lower=1, clean=1)
+
+        def solve():  # forward substitution, S's own Cholesky factor on T, backward substitution
+            y = only.call(331, np.asfortranarray(rhs.copy()), perm=marks.copy())
+            y[T] = lapack.dpotrs(L, y[T], lower=1)[0]
+            return only.call(333, np.asfortranarray(y), perm=marks.copy())
+
+        x = timed("frame's solve, complement only", solve)
+        residual.append(float(np.abs(A @ x[:, 0] - rhs[:, 0]).max() / np.abs(rhs).max()))
+        timed("frame's solve, T last", lambda: schur.call(33, rhs, perm=marks.copy()))
 
     def step_partial():
         if partial is None:
@@ -171,6 +186,7 @@ def body(A, T, Jt, reps):
         if h is not None:
             h.close()
     diff = float(np.abs(Z["partial"] - Z["Schur"]).max() / np.abs(Z["Schur"]).max()) if partial else np.nan
+    info["residual"] = max(residual)
     return {name: float(np.median(ts)) for name, ts in times.items()}, info, diff
 
 
@@ -182,7 +198,8 @@ def report(scene, frame, rows):
     info = [r[1] for r in rows]
     sizes = sorted(i["k"] for i in info)
     print(f"{scene}, frame {frame}: {len(rows)} bodies, n_b {sorted(i['n'] for i in info)}, "
-          f"|T_b| {sizes}, rows of J {sum(i['m'] for i in info)}; the worst Z of the partial solve against "
+          f"|T_b| {sizes}, rows of J {sum(i['m'] for i in info)}; the frame's solve in the complement-only mode: "
+          f"residual {max(i['residual'] for i in info):.1e}; the worst Z of the partial solve against "
           f"S^-1: {max(r[2] for r in rows):.1e}")
     mf0, mfs = sum(i["plain_mflops"] for i in info), sum(i["schur_mflops"] for i in info)
     dense = sum(i["k"] ** 3 for i in info) / 1e6

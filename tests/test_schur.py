@@ -223,5 +223,5 @@ def test_bound_script_gives_z_of_the_partial_solve_as_s_inverse_in_a_subprocess(
                          text=True, timeout=300, env=dict(os.environ, PYTHONPATH=ROOT))
     assert run.returncode == 0, run.stderr[-2000:]
     head = run.stdout.splitlines()[0]
-    assert float(head.rsplit(" ", 1)[1]) < 1e-12, run.stdout
+    assert float(head.rsplit(" ", 1)[1]) < 1e-12 and float(head.split("residual ")[1].split(";")[0]) < 1e-12, run.stdout
     assert "| plain factorisation |" in run.stdout and "at least" in run.stdout
