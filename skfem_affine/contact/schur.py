@@ -12,8 +12,9 @@ and the caller solves the unit columns.
 Several systems (the bodies of a scene, each its own block) each keep their analysis, by key.
 
 In full space the contacts are found before the frame's solve, so the frame's own factorisation can
-be the one with T last (:meth:`SchurInverse.factorize_on`, Pardiso's mode that also solves the whole
-system): Z then costs S^-1 on top of the frame's factorisation, not a second factorisation. That
+be the one with T last (:meth:`SchurInverse.factorize_on`, a factorisation that also solves the whole
+system, S's Cholesky factor with it): Z then costs S^-1 from that factor on top of the frame's
+factorisation, not a second factorisation. That
 handle is the whole system's (key None), under the same rules but one: when the matrix's pattern
 differs from the previous frame's (a reduced frame whose bodies changed), the plain factorisation
 would make a new analysis too, so one on fewer than ``min_size`` unknowns is not declined. A frame
@@ -219,10 +220,12 @@ def pattern_key(A):
     return np.array([A.shape[0], indices.size, zlib.crc32(indptr), zlib.crc32(indices)], dtype=np.int64)
 
 
-def inverse_on_positions(S, pos):
+def inverse_on_positions(S, pos, factor=None):
     """(S^-1)[pos][:, pos] for the SPD matrix S (dense), from Cholesky factors (LAPACK).
 
-    ``pos`` (increasing) all of S: S^-1 from its Cholesky factor (potrf, potri: half of a solve with I).
+    ``pos`` (increasing) all of S: S^-1 from its Cholesky factor (potrf, potri: half of a solve with I);
+    ``factor``: S's lower Cholesky factor when already made (:meth:`~skfem_affine.solvers.PardisoSchur.factor_of`,
+    left unchanged), so that only potri is left.
     Fewer (S on a kept superset of the touched unknowns): ``(S^-1)_PP`` is the inverse of S's own
     Schur complement on P, ``C = S_PP - S_PN S_NN^-1 S_NP``, so only S_NN is factorised (potrf, trtrs,
     syrk) and C inverted, not the whole of S."""
@@ -234,8 +237,11 @@ def inverse_on_positions(S, pos):
             X, _ = lapack.dtrtrs(L, np.asarray(S[np.ix_(rest, pos)], order="F"), lower=1)  # L nonsingular
             S, pos = np.asarray(S[np.ix_(pos, pos)], order="F") - X.T @ X, np.arange(pos.size)
         n = S.shape[0]
-        L = _checked(n, *lapack.dpotrf(S, lower=1, clean=0))
-        L = _checked(n, *lapack.dpotri(L, lower=1, overwrite_c=1))
+        if factor is not None and factor.shape == S.shape:
+            L = _checked(n, *lapack.dpotri(factor, lower=1, overwrite_c=0))
+        else:
+            L = _checked(n, *lapack.dpotrf(S, lower=1, clean=0))
+            L = _checked(n, *lapack.dpotri(L, lower=1, overwrite_c=1))
     Z = np.tril(L[np.ix_(pos, pos)])  # potri fills the lower triangle only (pos is increasing)
     return Z + np.tril(Z, -1).T
 
