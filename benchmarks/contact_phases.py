@@ -2,8 +2,10 @@
 rigidification stepped in turn in one process, on the paper's contact scenes.
 
 The scenes are those of ``benchmarks/paper_table1.py`` (the paper's meshes, read from MESH_DIR, and
-its thresholds), and ``pile``: the four soft boxes of ``benchmarks/budget.py`` (``--cells`` per box
-edge) coming to rest on the ground, at the thresholds tau_a = 1e-4, tau_e = 2e-4 (no MESH_DIR).
+its thresholds), and, with no MESH_DIR, at the thresholds tau_a = 1e-4, tau_e = 2e-4: ``pile``, the four
+soft boxes of ``benchmarks/budget.py`` (``--cells`` per box edge) coming to rest on the ground;
+``stacked_beams``, ``sa.scenes.stacked_beams`` (three beams, ``--cells`` across a beam's width); and
+``bowling``, ``sa.scenes.bowling`` (three stiff balls onto a soft mattress, resolution ``--cells``).
 Every method runs from frame 0; the frames ``--start`` to ``--end`` are recorded: the frame's wall
 time, the factorisation, the Delassus operator and the columns it solved, the PGS solve (with the
 velocity and position corrections), detection (the rest of contact), the contacts and the DOFs
@@ -49,6 +51,8 @@ Usage::
     python benchmarks/contact_phases.py MESH_DIR --scene octopus --start 66 --end 82 --lookahead 2 --resume RUN.npz
     python benchmarks/contact_phases.py MESH_DIR --scene pills --start 2900 --end 2910 --methods full affinification \
         --resume 'RUNS/pills/{method}-002900.npz' --plain-blocks affinification
+    python benchmarks/contact_phases.py --scene stacked_beams --cells 6 --start 8 --end 14 --frame-schur
+    python benchmarks/contact_phases.py --scene bowling --cells 3 --start 20 --end 26 --frame-schur
 """
 import argparse
 import cProfile
@@ -77,6 +81,8 @@ METHODS = ("full", "affinification", "rigidification")
 FRAME_METHODS = ("full, own handle", "full, frame's Schur")  # --frame-schur
 BLOCK_METHODS = ("full, plain + own complements", "full, body by body")  # --blocks
 LOOKAHEAD_METHODS = ("full, touched unknowns", "full, predicted superset")  # --lookahead
+# The scenes of sa.scenes run without MESH_DIR (--cells: their resolution) and their settings.
+LAB_SCENES = {"stacked_beams": dict(n=3), "bowling": dict(n=3)}
 COLUMNS = ("wall", "factorization", "delassus", "delassus_columns", "delassus_schur", "frame_schur", "pgs",
            "detection", "contact", "other", "assembly", "prediction", "clustering", "map_assembly",
            "reduced_assembly", "solve", "checks",
@@ -175,8 +181,12 @@ def builders(mesh_dir, scene, end, cells, frame_schur=False):
     ``frame_schur`` (True or "full", or a reducer's name) two runs of that method, the second
     factorising with the contacts' unknowns last."""
     which = METHODS.index("full" if frame_schur is True else frame_schur) if frame_schur else 0
-    if scene == "pile":
-        from budget import pile
+    if scene == "pile" or scene in LAB_SCENES:
+        if scene == "pile":
+            from budget import pile
+        else:
+            def pile(k, reducer=None):
+                return sa.scenes.SCENES[scene](resolution=k, reducer=reducer, **LAB_SCENES[scene])
         if frame_schur:
             pair = [None, None] if which == 0 else [
                 (sa.Affinification(tau_a=1e-4, tau_e=2e-4) if which == 1 else sa.Rigidification(tau_r=1e-4, tau_e=2e-4))
@@ -280,8 +290,9 @@ def markdown(scene, means):
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("mesh_dir", nargs="?", default=None, help="the paper's meshes (not for --scene pile)")
-    ap.add_argument("--scene", choices=["wheel", "octopus", "pills", "pile"], required=True)
-    ap.add_argument("--cells", type=int, default=4, help="cells per box edge of the pile")
+    ap.add_argument("--scene", choices=["wheel", "octopus", "pills", "pile"] + list(LAB_SCENES), required=True)
+    ap.add_argument("--cells", type=int, default=4,
+                    help="cells per box edge of the pile; the resolution of stacked_beams and bowling")
     ap.add_argument("--rows", action="store_true", help="also time the Delassus operator built per row of J")
     ap.add_argument("--columns", action="store_true",
                     help="also time it built from solves of the touched unknowns' columns (no Schur complement)")

@@ -20,6 +20,7 @@ import time
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
+from scipy.linalg import lapack
 
 from skfem_affine import threads
 from skfem_affine.checks import choice, flag, integer, positive, real_array
@@ -242,9 +243,10 @@ class PardisoSchur(Pardiso):
     Parameters
     ----------
     solves : bool
-        Factorise in the mode (``iparm(36) = 2``) whose factorisation also solves the whole system
-        (:meth:`solve`, phase 33): then it can be a frame's own factorisation. The default mode
-        (``iparm(36) = 1``) leaves the complement's block unfactorised and does not solve.
+        Also factorise S (LAPACK's Cholesky, :attr:`factor`), so that the factorisation solves the
+        whole system (:meth:`solve`): then it can be a frame's own factorisation. Pardiso forms S without
+        factorising it (``iparm(36) = 1``) either way; its mode that factorises S too (``iparm(36) = 2``)
+        costs more than LAPACK's Cholesky of S (measured in ``docs/contact.md``).
     """
 
     name = "pardiso-schur"
@@ -253,6 +255,8 @@ class PardisoSchur(Pardiso):
         super().__init__()
         self.solves = flag(solves, "solves")
         self._marks = None  # the Schur set's marks of the current analysis (Pardiso's perm argument)
+        self.factor = None  # with ``solves``: the lower Cholesky factor of the last complement S
+        self._complemented = None  # that S
 
     def complement(self, A, keep, upper=False):
         """S (``|keep| x |keep|``, dense) of A (full symmetric CSR, or its upper triangle with
@@ -273,14 +277,28 @@ class PardisoSchur(Pardiso):
         marks[keep] = 1
         self._marks = marks
         self._arrays = (np.ascontiguousarray(data, dtype=float), indptr, indices, n)
+        self.factor = self._complemented = None
         try:
             with threads.mkl_threads(self._threads):  # marks given afresh: Pardiso writes its ordering into perm
-                x = self._lib.schur(12 if not same else 22, self._arrays, marks.copy(), k, 2 if self.solves else 1)
+                x = self._lib.schur(12 if not same else 22, self._arrays, marks.copy(), k)
         except Exception as err:
             self._release()
             raise SolverError(f"Pardiso Schur complement failed ({err}); is the system positive definite?") from err
         self._pattern = (indptr, indices, keep.copy())
-        return x.reshape(k, k)
+        S = x.reshape(k, k)
+        if self.solves:
+            with threads.serial_blas():
+                L, info = lapack.dpotrf(S, lower=1, clean=1)
+            if info != 0:
+                raise SolverError(f"the Schur complement on {k} unknowns is not positive definite (LAPACK info "
+                                  f"{info}); is the system positive definite?")
+            self.factor, self._complemented = L, S
+        return S
+
+    def factor_of(self, S):
+        """The lower Cholesky factor of S when S is the last complement this handle returned (with
+        ``solves``), else None: the Delassus operator then needs no second factorisation of it."""
+        return self.factor if S is self._complemented and self.factor is not None else None
 
     def analysed(self, A, upper=False):
         """The unknowns T of the current analysis when it is of A's pattern, else None (a complement
@@ -314,8 +332,14 @@ class PardisoSchur(Pardiso):
         if self._pattern is None:
             raise TypeError("PardisoSchur.solve needs a factorisation first (complement)")
         b = np.asarray(b, dtype=float)
+        keep = self._pattern[2]
         with threads.mkl_threads(self._threads):  # the analysis' thread count
-            x = self._lib.call(33, self._arrays, np.asfortranarray(b.reshape(b.shape[0], -1)), perm=self._marks.copy())
+            # forward substitution leaves the complement's right-hand side on keep; S's own factor solves it
+            rhs = np.asfortranarray(b.reshape(b.shape[0], -1))
+            y = self._lib.call(331, self._arrays, rhs, perm=self._marks.copy())
+            with threads.serial_blas():
+                y[keep] = lapack.dpotrs(self.factor, y[keep], lower=1)[0]
+            x = self._lib.call(333, self._arrays, np.asfortranarray(y), perm=self._marks.copy())
         return np.ascontiguousarray(x).reshape(b.shape)
 
 

@@ -67,3 +67,11 @@ def test_the_methods_resume_from_their_own_checkpoints_beside_a_plain_blocks_run
     with pytest.raises(ValueError, match="{method}"):
         bench.main(["--scene", "pile", "--cells", "1", "--start", "3", "--end", "5",
                     "--resume", str(tmp_path / "full-3.npz")])
+
+
+def test_frame_schur_runs_the_stacked_beams_of_the_lab_scenes(benchmark_script):
+    bench = benchmark_script("contact_phases")
+    means, _ = bench.main(["--scene", "stacked_beams", "--cells", "1", "--start", "1", "--end", "3", "--frame-schur"])
+    own, framed = (means[m] for m in bench.FRAME_METHODS)
+    assert own["n_contacts"] == framed["n_contacts"] > 0 and own["dofs"] == framed["dofs"] == 216
+

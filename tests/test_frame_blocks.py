@@ -175,3 +175,31 @@ def test_the_blocks_handles_stay_bounded_and_still_solve():
         solver, keep, S = schur.factorize_blocks(A * scale, T, bodies)
         assert len(schur._kept_by) <= 1 and len(schur._plain_by) <= 1
         assert np.abs(solver.solve(b) - plain.solve(b) / scale).max() <= 1e-12 * np.abs(plain.solve(b)).max()
+
+
+def test_the_delassus_operator_inverts_each_bodys_complement_from_the_factor_its_handle_made(monkeypatch):
+    """No second Cholesky factorisation of a body's complement: the handle's factor is handed to the
+    inverse, left unchanged (the handle still solves with it), and W is the one from a factorisation of S."""
+    from skfem_affine.contact import schur as schur_module
+    A, J, bodies = _system()
+    T = touched_unknowns(J)
+    solver, keep, S = SchurInverse(min_size=1).factorize_blocks(A, T, bodies)
+    factors = [h.factor_of(Sb) for h, Sb in zip(solver.handles, S)]
+    assert all(L is not None for L in factors)
+    kept = [L.copy() for L in factors]
+    given = []
+
+    def spy(S_b, pos, factor=None):
+        given.append(factor is not None and any(factor is L for L in factors))
+        return schur_module.inverse_on_positions(S_b, pos, factor)
+
+    monkeypatch.setattr(delassus, "inverse_on_positions", spy)
+    op = Operator(solver, A, schur=(keep, S))
+    W = delassus.Resolvent(op, block=5, cache={}, bodies=bodies).delassus(J)
+    assert given == [True] * 3
+    assert all(np.array_equal(L, k) for L, k in zip(factors, kept))
+    monkeypatch.undo()
+    for h in solver.handles:  # without the factors: LAPACK factorises each S_b again
+        h._complemented = None
+    again = delassus.Resolvent(op, block=5, cache={}, bodies=bodies).delassus(J)
+    assert np.array_equal(W, again)

@@ -183,3 +183,32 @@ def test_the_frames_factorisation_and_solves_run_on_its_analysis_thread_count(mo
         assert np.abs((A * scale) @ x - 1).max() <= 1e-12
         Z = np.linalg.inv((A * scale).toarray())[np.ix_(T, T)]
         assert np.abs(np.linalg.inv(S) - Z).max() <= 1e-12 * np.abs(Z).max()
+
+
+def test_the_solving_complement_keeps_the_cholesky_factor_of_s_and_solves_with_it():
+    """Pardiso forms S without factorising it; LAPACK's factor of S finishes the solve (forward
+    substitution, S's own solve, backward substitution), for one or several right-hand sides."""
+    from skfem_affine.contact.schur import inverse_on_positions
+    A = _spd(80, seed=3)
+    keep = np.array([1, 4, 9, 17, 40, 41, 42, 70, 79])
+    handle = PardisoSchur(solves=True)
+    S = handle.complement(A, keep)
+    L = handle.factor_of(S)
+    assert np.abs(np.tril(L) @ np.tril(L).T - S).max() <= 1e-13 * np.abs(S).max()
+    assert handle.factor_of(S.copy()) is None and PardisoSchur().factor_of(PardisoSchur().complement(A, keep)) is None
+    B = np.random.default_rng(0).normal(size=(80, 3))
+    ref = np.linalg.solve(A.toarray(), B)
+    assert np.abs(handle.solve(B) - ref).max() <= 1e-12 * np.abs(ref).max()
+    assert np.abs(handle.solve(B[:, 1]) - ref[:, 1]).max() <= 1e-12 * np.abs(ref).max()
+    kept = L.copy()
+    Z = inverse_on_positions(S, np.arange(keep.size), L)
+    assert np.array_equal(L, kept)  # the handle's factor is left as it was
+    assert np.array_equal(Z, inverse_on_positions(S, np.arange(keep.size)))
+    assert np.abs(handle.solve(B) - ref).max() <= 1e-12 * np.abs(ref).max()
+
+
+def test_a_complement_that_is_not_positive_definite_is_a_solver_error():
+    A = _spd(40).tolil()
+    A[5, 5] = -1e6
+    with pytest.raises(solvers.SolverError):
+        PardisoSchur(solves=True).complement(sp.csr_matrix(A), np.array([5, 6, 7]))

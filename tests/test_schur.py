@@ -213,3 +213,35 @@ def test_a_state_without_its_served_flags_or_last_pattern_is_refused():
             SchurInverse().load_state_dict({k: v for k, v in state.items() if k != key})
     with pytest.raises(ValueError, match="schur_seen"):
         SchurInverse().load_state_dict(dict(state, schur_seen=np.arange(3)))
+
+
+def test_bound_script_gives_z_of_the_partial_solve_as_s_inverse_in_a_subprocess():
+    """benchmarks/delassus_bound.py on the smallest stacked beams: per body, the partial solve's Z against
+    S^-1 from the factorisation with the touched unknowns last, and Pardiso's flop counts reported."""
+    run = subprocess.run([sys.executable, os.path.join(ROOT, "benchmarks", "delassus_bound.py"), "--scene",
+                          "stacked_beams", "--cells", "1", "--frame", "1", "--reps", "1"], capture_output=True,
+                         text=True, timeout=300, env=dict(os.environ, PYTHONPATH=ROOT))
+    assert run.returncode == 0, run.stderr[-2000:]
+    head = run.stdout.splitlines()[0]
+    assert float(head.rsplit(" ", 1)[1]) < 1e-12 and float(head.split("residual ")[1].split(";")[0]) < 1e-12, run.stdout
+    assert "| plain factorisation |" in run.stdout and "at least" in run.stdout
+
+
+def test_the_inverse_on_positions_takes_a_given_factor_where_it_is_the_cheaper_route():
+    """With S's Cholesky factor given, S^-1 on all or most of S's unknowns comes from it (potri only),
+    on few from S's own complement as without it; the factor is left unchanged."""
+    from scipy.linalg import lapack
+    from skfem_affine.contact.schur import inverse_on_positions
+    rng = np.random.default_rng(0)
+    B = rng.normal(size=(60, 60))
+    S = B @ B.T + 60 * np.eye(60)
+    L = lapack.dpotrf(S, lower=1, clean=1)[0]
+    doubled = np.sqrt(2.0) * L  # the factor of 2 S: shows which route was taken
+    kept = doubled.copy()
+    for size, from_factor in ((60, True), (55, True), (20, False)):
+        pos = np.sort(rng.choice(60, size, replace=False))
+        ref = np.linalg.inv(S)[np.ix_(pos, pos)]
+        assert np.abs(inverse_on_positions(S, pos, L) - ref).max() <= 1e-13 * np.abs(ref).max()
+        Z = inverse_on_positions(S, pos, doubled)
+        assert np.allclose(Z, ref / 2 if from_factor else ref, rtol=0, atol=1e-13 * np.abs(ref).max())
+    assert np.array_equal(doubled, kept)

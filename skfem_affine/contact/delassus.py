@@ -13,6 +13,7 @@ import scipy.sparse as sp
 from numba import njit
 
 from skfem_affine import _compile_notice  # noqa: F401 (one stderr line when the cached kernels compile)
+from skfem_affine.contact.blocks import BlockSolver
 from skfem_affine.contact.schur import inverse_on_positions
 from skfem_affine.solvers import SuperLU, direct_solver
 from skfem_affine.threads import serial_blas
@@ -172,13 +173,26 @@ class Resolvent:
             if pos.min() < start or pos.max() >= ends[b]:
                 return None
             self.schur_unknowns += T.size
-            return inverse_on_positions(S[b], pos - start)
+            return inverse_on_positions(S[b], pos - start, self._factor(S[b], T))
         part = np.arange(keep.size) if self.labels is None else np.flatnonzero(self.labels[keep] == label)
         pos = np.searchsorted(keep[part], T)
         if pos.size and (pos[-1] >= part.size or not np.array_equal(keep[part][pos], T)):
             return None
         self.schur_unknowns += T.size
+        if part.size == keep.size:  # the whole complement: the frame's handle may hold its factor
+            return inverse_on_positions(S, pos, self._factor(S, T))
         return inverse_on_positions(np.ascontiguousarray(S[np.ix_(part, part)]), pos)
+
+    def _factor(self, S, T):
+        """S's Cholesky factor made by the frame's factorisation (the handle of the block of T, the sorted
+        unknowns of one body, when the frame was factorised body by body), or None."""
+        solver = self.solver
+        if isinstance(solver, BlockSolver):
+            if not T.size:
+                return None
+            solver = solver.handles[int(np.searchsorted(solver.bounds, T[0], side="right")) - 1]
+        factor_of = getattr(solver, "factor_of", None)
+        return factor_of(S) if factor_of is not None else None
 
     def _from_schur(self, label, T):
         """Z = (A^-1)_TT on the unknowns T (sorted) of one block from a Schur complement, or None when

@@ -13,8 +13,9 @@ and the caller solves the unit columns.
 Several systems (the bodies of a scene, each its own block) each keep their analysis, by key.
 
 In full space the contacts are found before the frame's solve, so the frame's own factorisation can
-be the one with T last (:meth:`SchurInverse.factorize_on`, Pardiso's mode that also solves the whole
-system): Z then costs S^-1 on top of the frame's factorisation, not a second factorisation. That
+be the one with T last (:meth:`SchurInverse.factorize_on`, a factorisation that also solves the whole
+system, S's Cholesky factor with it): Z then costs S^-1 from that factor on top of the frame's
+factorisation, not a second factorisation. That
 handle is the whole system's (key None), under the same rules but one: when the matrix's pattern
 differs from the previous frame's (a reduced frame whose bodies changed), the plain factorisation
 would make a new analysis too, so one on fewer than ``min_size`` unknowns is not declined. A frame
@@ -222,23 +223,29 @@ def pattern_key(A):
     return np.array([A.shape[0], indices.size, zlib.crc32(indptr), zlib.crc32(indices)], dtype=np.int64)
 
 
-def inverse_on_positions(S, pos):
+def inverse_on_positions(S, pos, factor=None):
     """(S^-1)[pos][:, pos] for the SPD matrix S (dense), from Cholesky factors (LAPACK).
 
     ``pos`` (increasing) all of S: S^-1 from its Cholesky factor (potrf, potri: half of a solve with I).
     Fewer (S on a kept superset of the touched unknowns): ``(S^-1)_PP`` is the inverse of S's own
     Schur complement on P, ``C = S_PP - S_PN S_NN^-1 S_NP``, so only S_NN is factorised (potrf, trtrs,
-    syrk) and C inverted, not the whole of S."""
+    syrk) and C inverted, not the whole of S. ``factor``: S's lower Cholesky factor when already made
+    (:meth:`~skfem_affine.solvers.PardisoSchur.factor_of`; left unchanged): S^-1 then costs potri only,
+    taken whenever its flops are fewer than the route on P's."""
     pos = np.asarray(pos, dtype=np.int64)
+    k, p = S.shape[0], pos.size
+    q = k - p
     with serial_blas():
-        if pos.size < S.shape[0]:
-            rest = np.setdiff1d(np.arange(S.shape[0]), pos, assume_unique=True)
-            L = _checked(S.shape[0], *lapack.dpotrf(np.asarray(S[np.ix_(rest, rest)], order="F"), lower=1, clean=1))
-            X, _ = lapack.dtrtrs(L, np.asarray(S[np.ix_(rest, pos)], order="F"), lower=1)  # L nonsingular
-            S, pos = np.asarray(S[np.ix_(pos, pos)], order="F") - X.T @ X, np.arange(pos.size)
-        n = S.shape[0]
-        L = _checked(n, *lapack.dpotrf(S, lower=1, clean=0))
-        L = _checked(n, *lapack.dpotri(L, lower=1, overwrite_c=1))
+        if factor is not None and 2 * k ** 3 <= q ** 3 + 3 * q * q * p + 6 * q * p * p + 3 * p ** 3:
+            L = _checked(k, *lapack.dpotri(factor, lower=1, overwrite_c=0))
+        else:
+            if p < k:
+                rest = np.setdiff1d(np.arange(k), pos, assume_unique=True)
+                L = _checked(k, *lapack.dpotrf(np.asarray(S[np.ix_(rest, rest)], order="F"), lower=1, clean=1))
+                X, _ = lapack.dtrtrs(L, np.asarray(S[np.ix_(rest, pos)], order="F"), lower=1)  # L nonsingular
+                S, pos = np.asarray(S[np.ix_(pos, pos)], order="F") - X.T @ X, np.arange(p)
+            L = _checked(p, *lapack.dpotrf(S, lower=1, clean=0))
+            L = _checked(p, *lapack.dpotri(L, lower=1, overwrite_c=1))
     Z = np.tril(L[np.ix_(pos, pos)])  # potri fills the lower triangle only (pos is increasing)
     return Z + np.tril(Z, -1).T
 
