@@ -51,7 +51,8 @@ def _same_as_plain(op, J, bodies=None, dense=DENSE_MAX):
 def test_a_moving_reduced_body_takes_w_from_its_block(reducer):
     """A box thrown onto the plane, one affine (rigid) body: its face of vertex contacts takes W from
     its 12 x 12 (6 x 6) block, no column solved, equal to the plain path's 3 solves per contact row."""
-    sim = _box_on_plane(sa.Affinification(tau_a=1.0, tau_e=2.0) if reducer == "affine" else sa.Rigidification(tau_r=10.0))
+    reduced = sa.Affinification(tau_a=1.0, tau_e=2.0) if reducer == "affine" else sa.Rigidification(tau_r=10.0)
+    sim = _box_on_plane(reduced)
     width = 12 if reducer == "affine" else 6
 
     def check(op, J):

@@ -39,3 +39,12 @@ def test_blocks_steps_two_full_space_runs_from_a_checkpoint(benchmark_script, tm
     assert list(means) == list(bench.BLOCK_METHODS)
     plain, by_body = (means[m] for m in bench.BLOCK_METHODS)
     assert plain["n_contacts"] == by_body["n_contacts"] > 0 and plain["frame_schur"] == 0
+
+
+def test_contact_cpu_times_the_contact_parts_of_runs_stepped_in_turn(benchmark_script):
+    bench = benchmark_script("contact_cpu")
+    runs = bench.main(["--cells", "1", "--start", "3", "--end", "5", "--dense", "160,0"])
+    assert len(runs) == 2
+    for ms, frame in runs:
+        assert {"detect", "resolve", "find", "Resolvent.delassus", "PGS sweeps"} <= set(ms)
+        assert 0 < ms["detect"] + ms["resolve"] < frame and ms["Resolvent.delassus"] < ms["resolve"]

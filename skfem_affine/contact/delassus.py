@@ -128,11 +128,12 @@ class Resolvent:
     them) the system is one block. An iterative frame solver would solve the shared columns to
     one tolerance for all bodies: with several bodies A is then factorised once by a direct
     solver, kept in ``cache`` (a dict kept across frames) under (size, 0); after each frame the
-    cache holds only what that frame used. With ``dense`` > 0 the blocks of at most ``dense`` used
-    unknowns (an affine or rigid body's reduced ones and its elastic vertices') add their part of W,
-    and of :meth:`apply`, from their dense inverses (:class:`~skfem_affine.contact.dense.DenseBlocks`).
-    ``columns_solved``: the right-hand sides solved by the last :meth:`delassus`; ``schur_unknowns``: the unknowns whose Z came from Schur complements;
-    ``dense_unknowns``: those whose Z came from dense inverses.
+    cache holds only what that frame used. With ``dense`` > 0 (and no Schur complement of the frame's
+    own) the blocks of at most ``dense`` used unknowns (an affine or rigid body's reduced ones and its
+    elastic vertices') add their part of W, and of :meth:`apply`, from their dense Cholesky factors
+    (:class:`~skfem_affine.contact.dense.DenseBlocks`). ``columns_solved``: the right-hand sides
+    solved by the last :meth:`delassus`; ``schur_unknowns``: the unknowns whose Z came from Schur
+    complements; ``dense_unknowns``: those of the blocks whose part came from their dense factors.
     """
 
     def __init__(self, operator, block=64, cache=None, touched=True, schur=None, bodies=None, dense=0):
@@ -156,10 +157,11 @@ class Resolvent:
             del self.cache[key]
         self.columns_solved = 0  # right-hand sides solved by the last :meth:`delassus`
         self.schur_unknowns = 0  # unknowns whose Z came from the Schur complement instead
-        self.dense_unknowns = 0  # unknowns whose Z came from a block's dense inverse
-        self.dense = None if not (dense and self.touched) else DenseBlocks(
+        self.dense_unknowns = 0  # unknowns of the blocks whose part of W came from their dense factors
+        # a frame factorised with the touched unknowns last has their complement already: no dense blocks
+        self.dense = None if not (dense and self.touched and operator.schur is None) else DenseBlocks(
             operator, self.labels, used_unknowns(self.G, operator.shape[0]), dense)
-        self._dense_blocks, self._small = [], None  # the last W's blocks from dense inverses, their unknowns
+        self._dense_blocks, self._small = [], None  # the last W's blocks from dense factors, their unknowns
 
     def _from_frame(self, label, T):
         """Z = (A^-1)_TT on the unknowns T (sorted) of one block from the Schur complement S the frame's
@@ -275,7 +277,7 @@ class Resolvent:
         W = np.zeros((k, k))
         self._dense_blocks, self._small = [], None
         parts, plans, s, rest = [], [], 0, True
-        if self.dense is not None:  # the small blocks' parts from their dense inverses, the others as below
+        if self.dense is not None:  # the small blocks' parts from their dense factors, the others as below
             T = np.unique(Jr.indices[Jr.data != 0])
             small = T[self.dense.columns(T)]
             if small.size:
@@ -309,7 +311,7 @@ class Resolvent:
 
     def apply(self, lam):
         """dv = A^-1 J^T lambda on the free DOFs (through G when reduced): one solve, the small blocks'
-        part from their dense inverses (no solve when the contacts touch only those)."""
+        part from their dense factors (no solve when the contacts touch only those)."""
         r = self.Jr.T @ lam
         if self._small is None:
             y = _solve(self.solver, r[:, None], self.iterative)[:, 0]

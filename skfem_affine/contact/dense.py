@@ -19,8 +19,10 @@ import scipy.linalg
 from skfem_affine.solvers import SolverError
 
 # Blocks of at most DENSE_MAX used unknowns are factorised densely: an affine body with a few dozen
-# elastic vertices at its contacts; larger blocks (an elastic body) are left to the frame's factorisation.
-DENSE_MAX = 120
+# elastic vertices at its contacts. Dense, an elastic body's block of 81 unknowns costs what its unit
+# columns do, one of 192 1.06 times, one of 375 2.8 times (docs/contact.md): larger blocks are left
+# to the frame's factorisation.
+DENSE_MAX = 160
 
 
 def used_unknowns(G, size):
