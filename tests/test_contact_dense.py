@@ -126,3 +126,16 @@ def test_an_indefinite_block_is_a_solver_error():
         blocks.parts(J, np.array([2]))
     assert blocks.columns(np.arange(4)).all()
     assert not DenseBlocks(Operator(solver, A), None, used_unknowns(None, 4), largest=3).columns(np.arange(4)).any()
+
+
+def test_a_frame_with_its_own_schur_complement_takes_no_dense_blocks():
+    """Full space, the frame factorised with the touched unknowns last: their complement is there
+    already, and W comes from it, not from dense factors of the (small) body's block."""
+    pytest.importorskip("pypardiso")
+    sim = sa.scenes.drop(resolution=1, shape="box")
+    sim.contact.schur.min_size = 1  # this small scene touches fewer unknowns than a new analysis needs
+    for _ in sim.run(40):
+        pass
+    touching = [r for r in sim.stats if r["n_contacts"]]
+    assert touching and all(r["delassus_dense"] == 0 for r in touching)
+    assert any(r["delassus_schur"] > 0 for r in touching)
