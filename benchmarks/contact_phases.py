@@ -9,7 +9,9 @@ soft boxes of ``benchmarks/budget.py`` (``--cells`` per box edge) coming to rest
 Every method runs from frame 0; the frames ``--start`` to ``--end`` are recorded: the frame's wall
 time, the factorisation, the Delassus operator and the columns it solved, the PGS solve (with the
 velocity and position corrections), detection (the rest of contact), the contacts and the DOFs
-solved. The order of the methods rotates from frame to frame. With ``--rows`` each frame's
+solved, and the CPU time (all threads) of the frame and of its contact (detection and resolve), which a
+loaded machine inflates less than wall time (``cpu``, ``contact_cpu``, ``contact share of the CPU``).
+The order of the methods rotates from frame to frame. With ``--rows`` each frame's
 Delassus operator is also built per row of J (3 solves per contact on the whole system:
 ``Resolvent(touched=False)``) on the same factorisation, before or after the frame's own in turn
 (``delassus_rows``, ``rows_columns``); with ``--columns`` instead from solves of the unit columns of
@@ -83,9 +85,9 @@ BLOCK_METHODS = ("full, plain + own complements", "full, body by body")  # --blo
 LOOKAHEAD_METHODS = ("full, touched unknowns", "full, predicted superset")  # --lookahead
 # The scenes of sa.scenes run without MESH_DIR (--cells: their resolution) and their settings.
 LAB_SCENES = {"stacked_beams": dict(n=3), "bowling": dict(n=3)}
-COLUMNS = ("wall", "factorization", "delassus", "delassus_columns", "delassus_schur", "frame_schur", "pgs",
-           "detection", "contact", "other", "assembly", "prediction", "clustering", "map_assembly",
-           "reduced_assembly", "solve", "checks",
+COLUMNS = ("wall", "factorization", "delassus", "delassus_columns", "delassus_schur", "delassus_dense",
+           "frame_schur", "pgs", "detection", "contact", "cpu", "contact_cpu", "other", "assembly", "prediction",
+           "clustering", "map_assembly", "reduced_assembly", "solve", "checks",
            "n_contacts",
            "pgs_iterations", "dofs", "analyses")
 ROWS = ("delassus_rows", "rows_columns")
@@ -100,7 +102,7 @@ def record(rec):
     out["wall"] -= out["delassus_rows"]  # the frame without the extra per-row Delassus operator
     out["other"] = out["wall"] - out["factorization"] - out["contact"]
     out.update({k: float(rec.get(k, 0)) for k in ("n_contacts", "pgs_iterations", "dofs", "delassus_columns",
-                                                  "delassus_schur", "frame_schur", "rows_columns")})
+                                                  "delassus_schur", "delassus_dense", "frame_schur", "rows_columns")})
     return out
 
 
@@ -133,6 +135,24 @@ def per_row(sim, columns=False):
     sim.contact.resolve = resolve
 
 
+def contact_clock(sim):
+    """Count the CPU time (``time.process_time``, s) of the simulation's contact detection and resolve:
+    returns a one-entry list that the two add to."""
+    spent, contact = [0.0], sim.contact
+
+    def timed(fn):
+        def call(*args, **kwargs):
+            t0 = time.process_time()
+            try:
+                return fn(*args, **kwargs)
+            finally:
+                spent[0] += time.process_time() - t0
+        return call
+
+    contact.detect, contact.resolve = timed(contact.detect), timed(contact.resolve)
+    return spent
+
+
 # The contact functions outside the Delassus operator that --profile lists (file, function).
 PROFILED = (("pgs.py", "detect"), ("geometry.py", "find"), ("geometry.py", "_body_contacts"),
             ("geometry.py", "_edge_contacts"), ("geometry.py", "frames"), ("delassus.py", "jacobian"),
@@ -140,7 +160,7 @@ PROFILED = (("pgs.py", "detect"), ("geometry.py", "find"), ("geometry.py", "_bod
             ("pgs.py", "resolve"), ("delassus.py", "delassus"), ("delassus.py", "apply"),
             ("pgs.py", "projected_gauss_seidel"), ("pgs.py", "anderson_gauss_seidel"),
             ("pgs.py", "contact_residual"), ("pgs.py", "_rigid_motions"),
-            ("pgs.py", "projected_gauss_seidel_lowrank"))
+            ("pgs.py", "projected_gauss_seidel_lowrank"), ("dense.py", "parts"))
 
 
 def profile_table(profile, frames):
@@ -254,6 +274,7 @@ def run(mesh_dir, scene, start, end, cells=4, compare_rows=False, compare_column
         for sim in sims:
             per_row(sim, columns=compare_columns)
     rows = {m: [] for m in methods}
+    clocks = [contact_clock(sim) for sim in sims]
     t0 = time.perf_counter()
     for frame in range(first, end):
         turn = [(frame + i) % len(sims) for i in range(len(sims))]  # rotate who steps first
@@ -262,11 +283,14 @@ def run(mesh_dir, scene, start, end, cells=4, compare_rows=False, compare_column
             if timed:
                 profiler.enable()
             analyses = sims[i].contact.schur.analyses
+            spent, cpu = clocks[i][0], time.process_time()
             sims[i].step()
+            cpu, spent = time.process_time() - cpu, clocks[i][0] - spent
             if timed:
                 profiler.disable()
             if frame >= start:
                 rows[methods[i]].append(record(sims[i].stats[-1]))
+                rows[methods[i]][-1].update(cpu=1e3 * cpu, contact_cpu=1e3 * spent)
                 rows[methods[i]][-1]["analyses"] = float(sims[i].contact.schur.analyses - analyses)
         if frame % 10 == 0:
             print(f"{scene} frame {frame}/{end} ({time.perf_counter() - t0:.0f} s)", file=sys.stderr, flush=True)
@@ -284,6 +308,8 @@ def markdown(scene, means):
                                                 for m in methods) + " |")
     share = [means[m]["contact"] / max(means[m]["wall"], 1e-300) for m in methods]
     lines.append("| contact share of the frame | " + " | ".join(f"{100 * s:.0f} %" for s in share) + " |")
+    share = [means[m]["contact_cpu"] / max(means[m]["cpu"], 1e-300) for m in methods]
+    lines.append("| contact share of the CPU | " + " | ".join(f"{100 * s:.0f} %" for s in share) + " |")
     return "\n".join(lines) + "\n"
 
 

@@ -75,3 +75,11 @@ def test_frame_schur_runs_the_stacked_beams_of_the_lab_scenes(benchmark_script):
     own, framed = (means[m] for m in bench.FRAME_METHODS)
     assert own["n_contacts"] == framed["n_contacts"] > 0 and own["dofs"] == framed["dofs"] == 216
 
+
+def test_contact_cpu_times_the_contact_parts_of_runs_stepped_in_turn(benchmark_script):
+    bench = benchmark_script("contact_cpu")
+    runs = bench.main(["--cells", "1", "--start", "3", "--end", "5", "--dense", "160,0"])
+    assert len(runs) == 2
+    for ms, frame in runs:
+        assert {"detect", "resolve", "find", "Resolvent.delassus", "PGS sweeps"} <= set(ms)
+        assert 0 < ms["detect"] + ms["resolve"] < frame and ms["Resolvent.delassus"] < ms["resolve"]

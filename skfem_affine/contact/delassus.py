@@ -14,6 +14,7 @@ from numba import njit
 
 from skfem_affine import _compile_notice  # noqa: F401 (one stderr line when the cached kernels compile)
 from skfem_affine.contact.blocks import BlockSolver
+from skfem_affine.contact.dense import DenseBlocks, used_unknowns
 from skfem_affine.contact.schur import inverse_on_positions
 from skfem_affine.solvers import SuperLU, direct_solver
 from skfem_affine.threads import serial_blas
@@ -128,11 +129,15 @@ class Resolvent:
     them) the system is one block. An iterative frame solver would solve the shared columns to
     one tolerance for all bodies: with several bodies A is then factorised once by a direct
     solver, kept in ``cache`` (a dict kept across frames) under (size, 0); after each frame the
-    cache holds only what that frame used. ``columns_solved``: the right-hand sides solved by the
-    last :meth:`delassus`; ``schur_unknowns``: the unknowns whose Z came from Schur complements.
+    cache holds only what that frame used. With ``dense`` > 0 (and no Schur complement of the frame's
+    own) the blocks of at most ``dense`` used unknowns (an affine or rigid body's reduced ones and its
+    elastic vertices') add their part of W, and of :meth:`apply`, from their dense Cholesky factors
+    (:class:`~skfem_affine.contact.dense.DenseBlocks`). ``columns_solved``: the right-hand sides
+    solved by the last :meth:`delassus`; ``schur_unknowns``: the unknowns whose Z came from Schur
+    complements; ``dense_unknowns``: those of the blocks whose part came from their dense factors.
     """
 
-    def __init__(self, operator, block=64, cache=None, touched=True, schur=None, bodies=None):
+    def __init__(self, operator, block=64, cache=None, touched=True, schur=None, bodies=None, dense=0):
         self.operator, self.solver, self.G = operator, operator.solver, operator.G
         self.block, self.touched, self.schur = int(block), bool(touched), schur
         self.iterative = operator.iterative
@@ -153,6 +158,11 @@ class Resolvent:
             del self.cache[key]
         self.columns_solved = 0  # right-hand sides solved by the last :meth:`delassus`
         self.schur_unknowns = 0  # unknowns whose Z came from the Schur complement instead
+        self.dense_unknowns = 0  # unknowns of the blocks whose part of W came from their dense factors
+        # a frame factorised with the touched unknowns last has their complement already: no dense blocks
+        self.dense = None if not (dense and self.touched and operator.schur is None) else DenseBlocks(
+            operator, self.labels, used_unknowns(self.G, operator.shape[0]), dense)
+        self._dense_blocks, self._small = [], None  # the last W's blocks from dense factors, their unknowns
 
     def _from_frame(self, label, T):
         """Z = (A^-1)_TT on the unknowns T (sorted) of one block from the Schur complement S the frame's
@@ -279,11 +289,24 @@ class Resolvent:
     def delassus(self, J):
         """W = J A^-1 J^T (dense, symmetric), A^-1 ~ G A_r^-1 G^T in a reduced frame."""
         Jr = sp.csr_matrix(J @ self.G) if self.G is not None else sp.csr_matrix(J)
-        self.Jr, self.columns_solved, self.schur_unknowns = Jr, 0, 0
+        self.Jr, self.columns_solved, self.schur_unknowns, self.dense_unknowns = Jr, 0, 0, 0
         k = Jr.shape[0]
         W = np.zeros((k, k))
-        blocks, T = self._blocks(Jr)
-        parts, plans, s = [], [], 0
+        self._dense_blocks, self._small = [], None
+        parts, plans, s, rest = [], [], 0, True
+        if self.dense is not None:  # the small blocks' parts from their dense factors, the others as below
+            T = np.unique(Jr.indices[Jr.data != 0])
+            small = T[self.dense.columns(T)]
+            if small.size:
+                dense, self._dense_blocks = self.dense.parts(Jr, small)
+                parts += [(rows, C, C.T, False) for rows, C in dense]  # W_b = C C^T
+                self._small, self.dense_unknowns, rest = small, small.size, small.size < T.size
+                if rest:
+                    Jr = Jr.copy()
+                    on_small = np.zeros(Jr.shape[1], dtype=bool)
+                    on_small[small] = True
+                    Jr.data[on_small[Jr.indices]] = 0.0
+        blocks, T = self._blocks(Jr) if rest else ([], None)
         for label, Tb, rows, Jt in blocks:
             e = s + Tb.size
             Z = self._from_schur(label, Tb)
@@ -298,12 +321,20 @@ class Resolvent:
                       for s, e, rows, Jt, unit in plans]
         with serial_blas():  # small products: spinning BLAS threads would cost more than they do
             for rows, Jt, X, unit in parts:
-                if 10 * Jt.nnz >= Jt.shape[0] * Jt.shape[1]:  # e.g. an affine body's 12 unknowns: dense products
+                if sp.issparse(Jt) and 10 * Jt.nnz >= Jt.shape[0] * Jt.shape[1]:  # e.g. an affine body's 12 unknowns
                     Jt = Jt.toarray()
                 _add_symmetric(W, rows, np.ascontiguousarray(Jt @ (Jt @ X).T if unit else Jt @ X))
         return W
 
     def apply(self, lam):
-        """dv = A^-1 J^T lambda on the free DOFs (through G when reduced): one solve."""
-        y = _solve(self.solver, (self.Jr.T @ lam)[:, None], self.iterative)[:, 0]
+        """dv = A^-1 J^T lambda on the free DOFs (through G when reduced): one solve, the small blocks'
+        part from their dense factors (no solve when the contacts touch only those)."""
+        r = self.Jr.T @ lam
+        if self._small is None:
+            y = _solve(self.solver, r[:, None], self.iterative)[:, 0]
+        else:
+            rest = r.copy()
+            rest[self._small] = 0.0
+            y = _solve(self.solver, rest[:, None], self.iterative)[:, 0] if np.any(rest) else np.zeros_like(r)
+            self.dense.solve(r, self._dense_blocks, y)
         return self.G @ y if self.G is not None else y

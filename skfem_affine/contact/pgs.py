@@ -70,6 +70,7 @@ from skfem_affine import _compile_notice  # noqa: F401 (one stderr line when the
 from skfem_affine.checks import flag, integer, nonnegative, positive, real
 from skfem_affine.contact.colliders import check_colliders
 from skfem_affine.contact.delassus import Resolvent, block_solver, jacobian, vertex_unknowns
+from skfem_affine.contact.dense import DENSE_MAX
 from skfem_affine.contact.schur import SchurInverse
 from skfem_affine.contact.geometry import Detector
 from skfem_affine.monitor import SimulationWarning
@@ -855,7 +856,7 @@ class Contact:
         t0 = time.perf_counter()
         st = self.settings
         resolvent = Resolvent(result.operator, block=st.block, cache=self.block_solvers, schur=self.schur,
-                              bodies=self.bodies)
+                              bodies=self.bodies, dense=DENSE_MAX)
         v_star = problem.v.reshape(-1)[problem.system.free] + dv
         W = resolvent.delassus(cs.J)
         t1 = time.perf_counter()
@@ -887,7 +888,8 @@ class Contact:
         self.lam = lam
         t2 = time.perf_counter()
         rec.update(pgs_iterations=int(sweeps), delassus=t1 - t0, pgs=t2 - t1,
-                   delassus_columns=int(resolvent.columns_solved), delassus_schur=int(resolvent.schur_unknowns))
+                   delassus_columns=int(resolvent.columns_solved), delassus_schur=int(resolvent.schur_unknowns),
+                   delassus_dense=int(resolvent.dense_unknowns))
         rec["contact"] = rec.get("contact", 0.0) + t2 - t0
         return dvc
 
