@@ -201,3 +201,39 @@ def test_a_schur_set_of_every_coupled_unknown_is_refused():
     blocks = BodyBlocks()
     blocks.factorize(U, labels, np.arange(U.shape[0], dtype=np.int32), touched=pos, schur=schur)
     assert blocks.complements is None and type(blocks.blocks[0][0]) is Pardiso
+
+
+def test_idle_unknowns_are_solved_by_their_diagonal_and_left_out_of_the_blocks():
+    """Unknowns whose row and column hold the diagonal alone (a reduced vertex's, idle in the full
+    numbering) are not given to a body's handle: the blocks hold only the coupled unknowns and the
+    touched ones, and the solve equals the plain factorisation's; a non-positive idle diagonal is a
+    SolverError."""
+    from skfem_affine.reducers.affine.blocks import isolated_unknowns
+    from skfem_affine.solvers import SolverError
+    A, _, labels, T = _scattered()
+    rng = np.random.default_rng(5)
+    idle = np.sort(rng.choice(A.shape[0], 20, replace=False))
+    A = sp.lil_matrix(A)
+    A[idle, :] = 0.0
+    A[:, idle] = 0.0
+    A[idle, idle] = rng.uniform(1.0, 3.0, idle.size)
+    A = sp.csr_matrix(A)
+    U = sp.triu(A, format="csr")
+    U.sort_indices()
+    assert np.array_equal(np.flatnonzero(isolated_unknowns(U)), idle)
+    touched = np.union1d(T, idle[:3])  # a touched idle unknown stays in its body's block
+    order = np.arange(A.shape[0], dtype=np.int32)
+    plain = Pardiso()
+    plain.factorize(A)
+    b = rng.normal(size=A.shape[0])
+    for args in ((), (touched, SchurInverse(min_size=1))):
+        blocks = BodyBlocks()
+        blocks.factorize(U, labels, order, *args)
+        held = np.concatenate([idx for _, idx in blocks.blocks])
+        left_out = np.setdiff1d(idle, args[0] if args else [])
+        assert np.intersect1d(held, left_out).size == 0 and held.size + left_out.size == A.shape[0]
+        assert np.abs(blocks.solve(b) - plain.solve(b)).max() <= 1e-12 * np.abs(plain.solve(b)).max()
+    A = sp.lil_matrix(A)
+    A[idle[5], idle[5]] = 0.0
+    with pytest.raises(SolverError, match="positive definite"):
+        BodyBlocks().factorize(sp.triu(sp.csr_matrix(A), format="csr"), labels, order)

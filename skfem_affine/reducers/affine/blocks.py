@@ -16,11 +16,29 @@ touched unknowns last, in the mode that also solves (as a full-space frame of se
 S_b on them, and the Delassus operator takes ``(A_r^-1)_{T_b T_b} = S_b^-1`` from it instead of
 solving one column per touched unknown. A block whose pattern the body's plain handle has not
 analysed is taken at any number of touched unknowns: its plain factorisation would analyse anew too.
+
+The unknowns of a body's reduced vertices stay in the numbering, idle: their rows hold the diagonal
+alone. A block's Pardiso handle takes only its coupled unknowns (and its touched ones); the idle
+ones are solved by their diagonal, so that a box reduced to its 12 affine unknowns is factorised
+at that size, not at its vertices' count.
 """
 import numpy as np
 import scipy.sparse as sp
 
-from skfem_affine.solvers import Pardiso
+from skfem_affine.solvers import Pardiso, SolverError
+
+
+def isolated_unknowns(U):
+    """The unknowns whose row and column of the upper triangle U (CSR, rows sorted) hold the diagonal
+    alone: they couple to no other unknown."""
+    n = U.shape[0]
+    counts = np.diff(U.indptr)
+    rows = np.repeat(np.arange(n), counts)
+    off = U.indices != rows
+    coupled = np.zeros(n, dtype=bool)
+    coupled[rows[off]] = True
+    coupled[U.indices[off]] = True
+    return ~coupled
 
 
 def unknown_labels(bodies, numbering, width):
@@ -42,7 +60,8 @@ class BodyBlocks:
     has x = 0 there, unsolved: the Delassus operator's columns of one body). Bodies' handles are kept
     from frame to frame by body; with ``touched`` and ``schur``, :attr:`complements` holds
     ``(keep, [S_b])`` of the blocks factorised with their touched unknowns last (``keep``: their
-    unknowns, each block's sorted, block after block), or None.
+    unknowns, each block's sorted, block after block), or None. Idle unknowns (:func:`isolated_unknowns`)
+    are left out of the blocks and solved by their diagonal.
     """
 
     name = "pardiso-blocks"
@@ -52,7 +71,9 @@ class BodyBlocks:
 
     def __init__(self):
         self.handles = {}
-        self.blocks = []  # (handle, the body's unknowns) of the last factorisation
+        self.blocks = []  # (handle, the body's coupled unknowns) of the last factorisation
+        self.idle = np.zeros(0, dtype=np.int64)  # the unknowns solved by their diagonal
+        self.idle_diagonal = np.zeros(0)
         self.analyses = 0  # blocks analysed anew by the last factorisation
         self.complements = None
 
@@ -62,23 +83,30 @@ class BodyBlocks:
         Schur inverse accepts (its key for body b: ``(0, b)``)."""
         U = sp.csr_matrix(U)
         labels = np.asarray(labels, dtype=np.int64)
+        mine = np.zeros(labels.size, dtype=bool)
+        if touched is not None and schur is not None:
+            mine[np.asarray(touched, dtype=np.int64)] = True
+        idle = isolated_unknowns(U) & ~mine
+        self.idle = np.flatnonzero(idle)
+        self.idle_diagonal = U.diagonal()[self.idle]
+        if np.any(~(self.idle_diagonal > 0.0)):
+            raise SolverError("the frame's matrix is not positive definite: an unknown that couples to no other "
+                              "has a diagonal entry <= 0")
+        labels = np.where(idle, -1, labels)  # an idle unknown belongs to no block
         n_bodies = int(labels.max()) + 1 if labels.size else 0
         local = np.empty(labels.size, dtype=np.int64)
         rank = np.argsort(labels, kind="stable")
-        cuts = np.searchsorted(labels[rank], np.arange(n_bodies + 1))
+        cuts = np.searchsorted(labels[rank], np.arange(n_bodies + 1))  # labels -1 (idle) sort first
         for b in range(n_bodies):
             local[rank[cuts[b]:cuts[b + 1]]] = np.arange(cuts[b + 1] - cuts[b])
         order = np.asarray(order, dtype=np.int64)
         by_body = labels[order]
-        mine = np.zeros(labels.size, dtype=bool)
-        if touched is not None and schur is not None:
-            mine[np.asarray(touched, dtype=np.int64)] = True
         self.blocks, self.analyses, keep, parts = [], 0, [], []
         for b in range(n_bodies):
             idx = rank[cuts[b]:cuts[b + 1]]  # increasing: local numbers keep the unknowns' order
             if not idx.size:
                 continue
-            rows = U[idx]  # the body's rows: their columns are its own unknowns, in the same order
+            rows = U[idx]  # the body's rows: their columns are its own coupled unknowns, in the same order
             block = sp.csr_matrix((rows.data, local[rows.indices].astype(np.int32), rows.indptr),
                                   shape=(idx.size, idx.size))
             handle = self.handles.get(b)
@@ -102,6 +130,7 @@ class BodyBlocks:
     def solve(self, b):
         b = np.asarray(b, dtype=float)
         x = np.zeros_like(b)
+        x[self.idle] = b[self.idle] / self.idle_diagonal.reshape((-1,) + (1,) * (b.ndim - 1))
         for handle, idx in self.blocks:
             rhs = b[idx]
             if np.any(rhs):
