@@ -44,12 +44,28 @@ def schur_set_fits(indptr, indices, k):
         return False
     if 2 * k <= n - int(np.count_nonzero(np.diff(indptr) == 1)):  # rows with more than their diagonal couple
         return True
+    return 2 * k <= int(np.count_nonzero(coupled_unknowns(indptr, indices)))
+
+
+def coupled_unknowns(indptr, indices):
+    """Mask of the unknowns of a symmetric pattern (CSR indptr and indices, whole or its upper
+    triangle) that couple to another: an entry off the diagonal in their row or column."""
+    n = indptr.size - 1
     rows = np.repeat(np.arange(n), np.diff(indptr))
     off = indices != rows
     coupled = np.zeros(n, dtype=bool)
     coupled[rows[off]] = True
     coupled[indices[off]] = True
-    return 2 * k <= int(np.count_nonzero(coupled))
+    return coupled
+
+
+def positive_definite(n, L, info):
+    """A LAPACK Cholesky factor or inverse L of a Schur complement on n unknowns, or its SolverError when
+    LAPACK's ``info`` says the complement is not positive definite."""
+    if info != 0:
+        raise SolverError(f"the Schur complement on {n} unknowns is not positive definite "
+                          f"(LAPACK info {info}); is A positive definite?")
+    return L
 
 
 def has_pardiso():
@@ -288,11 +304,8 @@ class PardisoSchur(Pardiso):
         S = x.reshape(k, k)
         if self.solves:
             with threads.serial_blas():
-                L, info = lapack.dpotrf(S, lower=1, clean=1)
-            if info != 0:
-                raise SolverError(f"the Schur complement on {k} unknowns is not positive definite (LAPACK info "
-                                  f"{info}); is the system positive definite?")
-            self.factor, self._complemented = L, S
+                self.factor = positive_definite(k, *lapack.dpotrf(S, lower=1, clean=1))
+            self._complemented = S
         return S
 
     def factor_of(self, S):

@@ -30,7 +30,7 @@ from scipy.linalg import lapack
 
 from skfem_affine.checks import flag, integer, real
 from skfem_affine.contact.blocks import UpperBlocks, body_bounds, factorize_blocks
-from skfem_affine.solvers import Pardiso, PardisoSchur, SolverError, has_pardiso, schur_set_fits
+from skfem_affine.solvers import Pardiso, PardisoSchur, has_pardiso, positive_definite, schur_set_fits
 from skfem_affine.threads import serial_blas
 
 # Below this many touched unknowns and without a kept analysis, solves of the unit columns with the
@@ -237,23 +237,14 @@ def inverse_on_positions(S, pos, factor=None):
     q = k - p
     with serial_blas():
         if factor is not None and 2 * k ** 3 <= q ** 3 + 3 * q * q * p + 6 * q * p * p + 3 * p ** 3:
-            L = _checked(k, *lapack.dpotri(factor, lower=1, overwrite_c=0))
+            L = positive_definite(k, *lapack.dpotri(factor, lower=1, overwrite_c=0))
         else:
             if p < k:
                 rest = np.setdiff1d(np.arange(k), pos, assume_unique=True)
-                L = _checked(k, *lapack.dpotrf(np.asarray(S[np.ix_(rest, rest)], order="F"), lower=1, clean=1))
+                L = positive_definite(k, *lapack.dpotrf(np.asarray(S[np.ix_(rest, rest)], order="F"), lower=1, clean=1))
                 X, _ = lapack.dtrtrs(L, np.asarray(S[np.ix_(rest, pos)], order="F"), lower=1)  # L nonsingular
                 S, pos = np.asarray(S[np.ix_(pos, pos)], order="F") - X.T @ X, np.arange(p)
-            L = _checked(p, *lapack.dpotrf(S, lower=1, clean=0))
-            L = _checked(p, *lapack.dpotri(L, lower=1, overwrite_c=1))
+            L = positive_definite(p, *lapack.dpotrf(S, lower=1, clean=0))
+            L = positive_definite(p, *lapack.dpotri(L, lower=1, overwrite_c=1))
     Z = np.tril(L[np.ix_(pos, pos)])  # potri fills the lower triangle only (pos is increasing)
     return Z + np.tril(Z, -1).T
-
-
-def _checked(n, L, info):
-    """A LAPACK factor or inverse L, or the SolverError of a Schur complement (on n unknowns) that is not
-    positive definite."""
-    if info != 0:
-        raise SolverError(f"the Schur complement on {n} unknowns is not positive definite "
-                          f"(LAPACK info {info}); is A positive definite?")
-    return L

@@ -25,20 +25,7 @@ at that size, not at its vertices' count.
 import numpy as np
 import scipy.sparse as sp
 
-from skfem_affine.solvers import Pardiso, SolverError
-
-
-def isolated_unknowns(U):
-    """The unknowns whose row and column of the upper triangle U (CSR, rows sorted) hold the diagonal
-    alone: they couple to no other unknown."""
-    n = U.shape[0]
-    counts = np.diff(U.indptr)
-    rows = np.repeat(np.arange(n), counts)
-    off = U.indices != rows
-    coupled = np.zeros(n, dtype=bool)
-    coupled[rows[off]] = True
-    coupled[U.indices[off]] = True
-    return ~coupled
+from skfem_affine.solvers import Pardiso, SolverError, coupled_unknowns
 
 
 def unknown_labels(bodies, numbering, width):
@@ -60,8 +47,8 @@ class BodyBlocks:
     has x = 0 there, unsolved: the Delassus operator's columns of one body). Bodies' handles are kept
     from frame to frame by body; with ``touched`` and ``schur``, :attr:`complements` holds
     ``(keep, [S_b])`` of the blocks factorised with their touched unknowns last (``keep``: their
-    unknowns, each block's sorted, block after block), or None. Idle unknowns (:func:`isolated_unknowns`)
-    are left out of the blocks and solved by their diagonal.
+    unknowns, each block's sorted, block after block), or None. Idle unknowns (coupled to no other,
+    :func:`~skfem_affine.solvers.coupled_unknowns`) are left out of the blocks and solved by their diagonal.
     """
 
     name = "pardiso-blocks"
@@ -86,7 +73,7 @@ class BodyBlocks:
         mine = np.zeros(labels.size, dtype=bool)
         if touched is not None and schur is not None:
             mine[np.asarray(touched, dtype=np.int64)] = True
-        idle = isolated_unknowns(U) & ~mine
+        idle = ~coupled_unknowns(U.indptr, U.indices) & ~mine  # a diagonal entry alone, not touched
         self.idle = np.flatnonzero(idle)
         self.idle_diagonal = U.diagonal()[self.idle]
         if np.any(~(self.idle_diagonal > 0.0)):
