@@ -85,6 +85,20 @@ def test_acceleration_and_warm_start_save_products():
     assert warm.converged and warm.products < cold.products
 
 
+def test_other_steps_same_solution():
+    """Steps from other blocks (here three times W's, as the lumped mass's bound W's from above) reach
+    the same impulses."""
+    W, u0 = _problem(k=10, seed=2)
+    blocks, goal = apgd.diagonal_blocks(W), 1e-9 * pgs.velocity_scale(u0)
+    ref = apgd.apgd(lambda y: W @ y, u0, np.zeros_like(u0), 0.3, blocks, goal, max_products=20000)
+    out = apgd.apgd(lambda y: W @ y, u0, np.zeros_like(u0), 0.3, blocks, goal, max_products=20000,
+                    steps=3 * blocks * np.linspace(1, 2, 10)[:, None, None])
+    assert ref.converged and out.converged
+    assert out.lam == pytest.approx(ref.lam, abs=1e-6 * np.abs(ref.lam).max())
+    with pytest.raises(ValueError, match="blocks"):
+        apgd.apgd(lambda y: W @ y, u0, np.zeros_like(u0), 0.3, blocks, goal, steps=blocks[1:])
+
+
 def test_convex_relaxation_lifts_sliding_contacts():
     """Without De Saxce's shift a sliding contact separates at mu |u_t| (the cone complementarity
     problem): PGS's complementarity residual is then not met."""

@@ -113,7 +113,7 @@ class Result:
     history: list = field(default_factory=list)
 
 
-def apgd(apply, u0, lam, mu, blocks, goal, max_products=1000, coulomb=True, accelerate=True):
+def apgd(apply, u0, lam, mu, blocks, goal, max_products=1000, coulomb=True, accelerate=True, steps=None):
     """Solve the frictional contact problem of PGS with products ``apply(y) = W y`` only.
 
     Parameters
@@ -127,7 +127,7 @@ def apgd(apply, u0, lam, mu, blocks, goal, max_products=1000, coulomb=True, acce
     mu : float
         Coulomb's coefficient.
     blocks : ndarray (k, 3, 3)
-        W's diagonal blocks: the per-contact step and the residual.
+        W's diagonal blocks: the residual, and the per-contact step unless ``steps`` is given.
     goal : float
         Stop once the residual (:func:`block_residual`, m/s) is at most this.
     max_products : int
@@ -137,6 +137,9 @@ def apgd(apply, u0, lam, mu, blocks, goal, max_products=1000, coulomb=True, acce
         iterate returned is still the one of least PGS residual, which that relaxation need not reduce).
     accelerate : bool
         Nesterov's extrapolation with restarts; False: plain projected (Jacobi-like) gradient steps.
+    steps : ndarray (k, 3, 3), optional
+        Other blocks for the per-contact steps (e.g. those of J M^-1 J^T, which need no solve);
+        default ``blocks``. The solution does not depend on them, the products spent do.
 
     Returns
     -------
@@ -152,7 +155,7 @@ def apgd(apply, u0, lam, mu, blocks, goal, max_products=1000, coulomb=True, acce
     mu = nonnegative(mu, "mu")
     goal = nonnegative(goal, "goal")
     max_products = integer(max_products, "max_products", low=1)
-    top = np.linalg.eigvalsh(blocks)[:, -1]
+    top = np.linalg.eigvalsh(blocks if steps is None else _blocks(steps, u0.size // 3))[:, -1]
     d = np.repeat(np.where(top > 0, 1.0 / np.where(top > 0, top, 1.0), 0.0), 3)  # per-contact step
     inv_d = np.where(d > 0, 1.0 / np.where(d > 0, d, 1.0), 0.0)
 

@@ -1,0 +1,236 @@
+"""Contact without forming W: a matrix-free contact solver through the frame's plain factor, against today's
+exact W and block PGS, on two consecutive full-space contact frames of a scene.
+
+The scene (``benchmarks/contact_phases.py``'s, with the frame factorised with the contacts' unknowns
+last, today's default) runs from frame 0 to ``--frame`` or from ``--resume CHECKPOINT`` and steps the
+first two frames with contacts from there on. On each, today's route is timed as the frame runs: the
+factorisation, the Delassus operator W (exact, dense), the PGS kernel (block Gauss-Seidel, the
+default), the rest of PGS's phase (the velocity correction, the split impulse) and detection, with the
+residual PGS reached (:func:`skfem_affine.contact.pgs.contact_residual`). Then, from the frame's matrix
+A, its Jacobian J, free velocities u0 and warm start (the previous frame's PGS impulses, matched by
+contact identity), in the same process (one MKL thread):
+
+- the **plain factorisation** of A (Pardiso, METIS, a kept analysis; median of ``--reps``);
+- **one product** W y = J (A^-1 (J^T y)) (one forward and backward solve), and the solve of a block of
+  ``--block`` right-hand sides, per right-hand side;
+- **W's diagonal blocks**: exact ones need Z = (A^-1)_TT on each contact's own columns, i.e. the solves
+  of the unit columns of the touched unknowns T (|T| / ``--block`` blocks, the cost extrapolated from
+  the block timed); the lumped-mass ones (J M^-1 J^T, free) bound them from above;
+- **APGD** (:func:`skfem_affine.contact.apgd.apgd`, products through the factor, the exact diagonal
+  blocks given to it for free) to PGS's residual on that frame (or the tolerance, whichever is larger),
+  from the warm start and from zero, and from the warm start with its steps from the lumped-mass
+  blocks (``lumped``): its products, its wall time, and the residual with the exact W.
+
+The implied frame of the matrix-free route is the frame's own time outside factorisation and contact
+(assembly, the step's solve), the plain factorisation, detection, the rest of PGS's phase and APGD's
+time; its contact share is the last three over that sum; ``budget`` is the number of products that
+would keep contact at 35 % of it. Usage::
+
+    python benchmarks/matrix_free_bound.py MESH_DIR --scene octopus --resume RUNS/octopus/full-000325.npz \
+        --saved-solver gauss-seidel
+    python benchmarks/matrix_free_bound.py MESH_DIR --scene pills --resume RUNS/pills/full-004000.npz
+    python benchmarks/matrix_free_bound.py --scene bowling --cells 3 --frame 120
+"""
+import argparse
+import dataclasses
+import os
+import sys
+import time
+
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ[_var] = "1"
+
+import numpy as np  # noqa: E402
+import scipy.sparse as sp  # noqa: E402
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+sys.path.insert(0, os.path.dirname(HERE))
+sys.path.insert(0, HERE)
+import contact_phases  # noqa: E402
+from delassus_routes import Handle  # noqa: E402
+from skfem_affine.contact import apgd, pgs  # noqa: E402
+
+SHARE = 0.35  # the goal: contact at most this share of the frame
+
+
+def capture(mesh_dir, scene, cells, frame, resume, frames=2, saved_solver=None):
+    """The first ``frames`` full-space frames with contacts from ``frame`` on (or from the checkpoint's):
+    per frame a dict of A, J, W, u0, the warm start, mu, PGS's impulses, sweeps and kernel time, the
+    tolerance's scale, the frame's record and the lumped inverse masses. ``saved_solver``: the PGS
+    iteration the checkpoint was run with, when not the default (the frames then step the default)."""
+    sim = contact_phases.builders(mesh_dir, scene, frame + frames + 50, cells, frame_schur=True)[1]
+    if resume is not None:
+        default = sim.contact.settings
+        if saved_solver is not None:
+            sim.contact.settings = dataclasses.replace(default, solver=saved_solver)
+            sim._settings["contact_settings"] = repr(sim.contact.settings)
+        contact_phases.load_checkpoint(sim, resume)
+        sim.contact.settings = default
+        frame = sim.state.frame
+    st = sim.contact.settings
+    kernel = pgs.SOLVERS[st.solver]
+    caught, current = [], {}
+
+    def solver(W, u0, lam, mu, iterations, tolerance, limit, loose, floor):
+        if current:
+            current.update(W=np.array(W), u0=u0.copy(), lam0=lam.copy(), mu=mu, tolerance=tolerance,
+                           scale=max(float(pgs.velocity_scale(u0)), floor))
+        t0 = time.perf_counter()
+        sweeps = kernel(W, u0, lam, mu, iterations, tolerance, limit, loose, floor)
+        if current:
+            current.update(kernel=time.perf_counter() - t0, sweeps=int(sweeps), lam=lam.copy())
+        return sweeps
+
+    original = sim.contact.resolve
+
+    def resolve(problem, result, rec):
+        if problem.frame >= frame and sim.contact.current is not None and len(caught) < frames:
+            current.update(A=sp.csr_matrix(result.operator.matrix), J=sp.csr_matrix(sim.contact.current.J),
+                           frame=problem.frame)
+        return original(problem, result, rec)
+
+    sim.contact.resolve = resolve
+    pgs.SOLVERS[st.solver] = solver
+    try:
+        for _ in range(frame + frames + 50 - sim.state.frame):
+            if len(caught) == frames:
+                break
+            sim.step()
+            if current:
+                current.update(rec=dict(sim.stats[-1]), inv_mass=sim.contact.inv_mass)
+                caught.append(dict(current))
+                current.clear()
+                print(f"{scene}: frame {caught[-1]['frame']} captured", file=sys.stderr, flush=True)
+    finally:
+        pgs.SOLVERS[st.solver] = kernel
+    if len(caught) < frames:
+        raise SystemExit(f"fewer than {frames} contact frames from frame {frame} on")
+    return caught
+
+
+def median_time(f, reps):
+    ts = []
+    for _ in range(reps):
+        t0 = time.perf_counter()
+        f()
+        ts.append(time.perf_counter() - t0)
+    return float(np.median(ts))
+
+
+def lumped_blocks(J, inv_mass):
+    """The diagonal 3 x 3 blocks of J M^-1 J^T (M lumped), which bound W's from above (A >= M)."""
+    Js = sp.csr_matrix(J.multiply(np.sqrt(inv_mass)[None, :]))
+    G = sp.csr_matrix(Js @ Js.T)
+    k = J.shape[0] // 3
+    idx = 3 * np.arange(k)[:, None] + np.arange(3)
+    return np.asarray(G[idx[:, :, None].repeat(3, 2).ravel(), idx[:, None, :].repeat(3, 1).ravel()]).reshape(k, 3, 3)
+
+
+def measure(cap, reps, block, max_products):
+    """The matrix-free route on one captured frame (times in s)."""
+    A, J = cap["A"], cap["J"]
+    JT = sp.csr_matrix(J.T)
+    U = sp.triu(A, format="csr")
+    U.sort_indices()
+    n = A.shape[0]
+    h = Handle((U.data.copy(), U.indptr.astype(np.int32), U.indices.astype(np.int32), n))
+    h.call(12)
+    out = dict(n=n, contacts=J.shape[0] // 3, touched=int(np.count_nonzero(np.diff(sp.csc_matrix(J).indptr))))
+    out["factorisation"] = median_time(lambda: h.call(22), reps)
+
+    def product(y):
+        return J @ h.call(33, np.asfortranarray((JT @ y)[:, None]))[:, 0]
+
+    rng = np.random.default_rng(0)
+    y = rng.normal(size=J.shape[0])
+    out["product"] = median_time(lambda: product(y), reps)
+    R = np.asfortranarray(rng.normal(size=(n, block)))
+    out["block_column"] = median_time(lambda: h.call(33, R), reps) / block
+    out["diag_exact"] = np.ceil(out["touched"] / block) * block * out["block_column"]
+    W, u0, mu = cap["W"], cap["u0"], float(cap["mu"])
+    check = np.abs(product(y) - W @ y).max() / np.abs(W @ y).max()
+    blocks = apgd.diagonal_blocks(W)
+    lumped = lumped_blocks(J, cap["inv_mass"])
+    out["lumped_over_exact"] = float(np.median(lumped[:, 0, 0] / np.maximum(blocks[:, 0, 0], 1e-300)))
+    r_pgs = max(pgs.contact_residual(W, u0, cap["lam"], mu))
+    goal = max(r_pgs, cap["tolerance"] * cap["scale"])
+    out.update(product_error=float(check), pgs_residual=r_pgs / cap["scale"], goal=goal / cap["scale"],
+               sweeps=cap["sweeps"], kernel=cap["kernel"],
+               warm_residual=max(pgs.contact_residual(W, u0, cap["lam0"], mu)) / cap["scale"])
+    for name, start, steps in (("warm", cap["lam0"], None), ("cold", np.zeros_like(u0), None),
+                               ("lumped", cap["lam0"], lumped)):
+        t0 = time.perf_counter()
+        res = apgd.apgd(product, u0, start, mu, blocks, goal, max_products=max_products, steps=steps)
+        out[name] = dict(time=time.perf_counter() - t0, products=res.products, converged=res.converged,
+                         residual=max(pgs.contact_residual(W, u0, res.lam, mu)) / cap["scale"],
+                         history=res.history)
+    h.close()
+    rec = cap["rec"]
+    out["wall"], out["frame_factorisation"] = rec["wall"], rec["factorization"]
+    out["delassus"], out["pgs_phase"] = rec["delassus"], rec["pgs"]
+    out["detection"] = rec["contact"] - rec["delassus"] - rec["pgs"]
+    out["rest_of_pgs"] = rec["pgs"] - cap["kernel"]
+    out["outside"] = rec["wall"] - rec["factorization"] - rec["contact"]
+    return out
+
+
+def report(scene, frames, rows):
+    ms = 1e3
+    print(f"\n{scene}: {rows[0]['contacts']} contacts, {rows[0]['touched']} touched unknowns of {rows[0]['n']}; "
+          f"W y through the factor against the dense W: {max(r['product_error'] for r in rows):.1e}; lumped W_nn "
+          f"over the exact (median) {rows[0]['lumped_over_exact']:.2f}")
+    print("| frame | today: frame / factorisation / Delassus / PGS kernel (sweeps) / contact share | PGS residual "
+          "(goal) | plain factorisation | one product | per column in a block | exact diagonal blocks | APGD warm: "
+          "products / ms | APGD cold: products / ms | APGD warm, lumped steps: products / ms | matrix-free contact share (warm) | budget at 35 % |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
+    for f, r in zip(frames, rows):
+        today = (r["wall"], r["frame_factorisation"], r["delassus"], r["kernel"])
+        contact_today = r["detection"] + r["delassus"] + r["pgs_phase"]
+        fixed = r["detection"] + r["rest_of_pgs"]
+        base = r["outside"] + r["factorisation"]
+        contact = fixed + r["warm"]["time"]
+        budget = (SHARE * base - (1 - SHARE) * fixed) / ((1 - SHARE) * r["product"])
+        w, c, m = r["warm"], r["cold"], r["lumped"]
+        mark = {True: "", False: " (not reached)"}
+        print(f"| {f} | {' / '.join(f'{ms * t:.0f}' for t in today)} ({r['sweeps']}) / "
+              f"{100 * contact_today / r['wall']:.0f} % | {r['pgs_residual']:.1e} ({r['goal']:.1e}) | "
+              f"{ms * r['factorisation']:.0f} | {ms * r['product']:.1f} | {ms * r['block_column']:.2f} | "
+              f"{ms * r['diag_exact']:.0f} | {w['products']}{mark[w['converged']]} / {ms * w['time']:.0f} | "
+              f"{c['products']}{mark[c['converged']]} / {ms * c['time']:.0f} | "
+              f"{m['products']}{mark[m['converged']]} / {ms * m['time']:.0f} | "
+              f"{100 * contact / (base + contact):.0f} % | {max(budget, 0):.0f} |")
+    for f, r in zip(frames, rows):
+        for name in ("warm", "cold", "lumped"):
+            hist = np.asarray(r[name]["history"]) / r["goal"]
+            marks = [i for i in (0, 10, 30, 100, 300, 1000, 3000) if i < hist.size]
+            print(f"frame {f} {name}: residual / goal after "
+                  + ", ".join(f"{i} it {hist[i]:.2g}" for i in marks) + f"; final {r[name]['residual']:.2e} of the "
+                  f"scale (goal {r['goal']:.2e}); the start's {r['warm_residual']:.2e}" * (name == "warm"))
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("mesh_dir", nargs="?", default=None, help="the paper's meshes (wheel, octopus, pills)")
+    ap.add_argument("--scene", choices=["wheel", "octopus", "pills", "pile"] + list(contact_phases.LAB_SCENES),
+                    required=True)
+    ap.add_argument("--cells", type=int, default=4, help="as contact_phases.py's --cells")
+    ap.add_argument("--frame", type=int, default=0, help="the first frame with contacts from this one on")
+    ap.add_argument("--resume", default=None, metavar="CHECKPOINT", help="a full-space checkpoint to start from")
+    ap.add_argument("--saved-solver", default=None, choices=sorted(pgs.SOLVERS),
+                    help="the PGS iteration the checkpoint was run with, when not the default (the frames measured "
+                         "then step the default)")
+    ap.add_argument("--reps", type=int, default=3)
+    ap.add_argument("--block", type=int, default=64, help="right-hand sides of the block solve")
+    ap.add_argument("--max-products", type=int, default=1500, help="APGD's most products W y per solve")
+    args = ap.parse_args(argv)
+    caps = capture(args.mesh_dir, args.scene, args.cells, args.frame, args.resume, saved_solver=args.saved_solver)
+    frames, rows = [c["frame"] for c in caps], []
+    for cap in caps:
+        rows.append(measure(cap, args.reps, args.block, args.max_products))
+        cap.clear()
+    report(args.scene, frames, rows)
+    return rows
+
+
+if __name__ == "__main__":
+    main()
