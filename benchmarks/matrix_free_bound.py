@@ -18,8 +18,12 @@ contact identity), in the same process (one MKL thread):
   the block timed); the lumped-mass ones (J M^-1 J^T, free) bound them from above;
 - **APGD** (:func:`skfem_affine.contact.apgd.apgd`, products through the factor, the exact diagonal
   blocks given to it for free) to PGS's residual on that frame (or the tolerance, whichever is larger),
-  from the warm start and from zero, and from the warm start with its steps from the lumped-mass
-  blocks (``lumped``): its products, its wall time, and the residual with the exact W.
+  from the warm start and from zero; from the warm start with its steps from the lumped-mass blocks
+  (``lumped``) or one step for all contacts (``scalar``, W's Rayleigh quotient), and without Nesterov's
+  acceleration (projected Jacobi): its products, its wall time, and the residual with the exact W;
+- **PCG with the active set known**: conjugate gradients (block Jacobi) on the contacts PGS's solution
+  presses, taken as sticking, from the warm start, products counted until max |u| is within the goal
+  (with the dense W: only the count is used).
 
 The implied frame of the matrix-free route is the frame's own time outside factorisation and contact
 (assembly, the step's solve), the plain factorisation, detection, the rest of PGS's phase and APGD's
@@ -126,6 +130,42 @@ def lumped_blocks(J, inv_mass):
     return np.asarray(G[idx[:, :, None].repeat(3, 2).ravel(), idx[:, None, :].repeat(3, 1).ravel()]).reshape(k, 3, 3)
 
 
+def active_pcg(W, u0, lam0, lam, blocks, goal, max_products):
+    """Products a preconditioned CG needs on the contacts PGS's solution presses (lam_n > 0), taken as
+    sticking (u = 0 on their three rows), from the warm start, block Jacobi with W's exact diagonal
+    blocks: the least a CG-type scheme that knew the active set would spend (max |u| <= goal)."""
+    act = np.flatnonzero(lam[0::3] > 0)
+    if act.size == 0:
+        return 0
+    rows = (3 * act[:, None] + np.arange(3)).ravel()
+    Wa, b = W[np.ix_(rows, rows)], -u0[rows]
+    Binv = np.linalg.pinv(blocks[act])
+    x = lam0[rows].copy()
+    r = b - Wa @ x
+    products = 1
+    if np.abs(r).max() <= goal:
+        return products
+    z = np.einsum("kij,kj->ki", Binv, r.reshape(-1, 3)).ravel()
+    p, rz = z.copy(), float(r @ z)
+    while products < max_products:
+        q = Wa @ p
+        products += 1
+        alpha = rz / float(p @ q)
+        x += alpha * p
+        r -= alpha * q
+        if np.abs(r).max() <= goal:
+            return products
+        z = np.einsum("kij,kj->ki", Binv, r.reshape(-1, 3)).ravel()
+        rz, old = float(r @ z), rz
+        p = z + (rz / old) * p
+    return -products  # not reached
+
+
+# The APGD runs: name, start ("warm" or "cold"), steps ("exact", "lumped", "scalar"), accelerated
+RUNS = (("warm", "warm", "exact", True), ("cold", "cold", "exact", True), ("lumped", "warm", "lumped", True),
+        ("scalar", "warm", "scalar", True), ("jacobi", "warm", "exact", False))
+
+
 def measure(cap, reps, block, max_products):
     """The matrix-free route on one captured frame (times in s)."""
     A, J = cap["A"], cap["J"]
@@ -150,21 +190,25 @@ def measure(cap, reps, block, max_products):
     W, u0, mu = cap["W"], cap["u0"], float(cap["mu"])
     check = np.abs(product(y) - W @ y).max() / np.abs(W @ y).max()
     blocks = apgd.diagonal_blocks(W)
-    lumped = lumped_blocks(J, cap["inv_mass"])
-    out["lumped_over_exact"] = float(np.median(lumped[:, 0, 0] / np.maximum(blocks[:, 0, 0], 1e-300)))
+    steps = dict(exact=blocks, lumped=lumped_blocks(J, cap["inv_mass"]),
+                 # one number for all contacts: W's Rayleigh quotient at a random y (one product)
+                 scalar=np.broadcast_to(float(y @ (W @ y)) / float(y @ y) * np.eye(3), blocks.shape))
+    out["lumped_over_exact"] = float(np.median(steps["lumped"][:, 0, 0] / np.maximum(blocks[:, 0, 0], 1e-300)))
     r_pgs = max(pgs.contact_residual(W, u0, cap["lam"], mu))
     goal = max(r_pgs, cap["tolerance"] * cap["scale"])
     out.update(product_error=float(check), pgs_residual=r_pgs / cap["scale"], goal=goal / cap["scale"],
                sweeps=cap["sweeps"], kernel=cap["kernel"],
-               warm_residual=max(pgs.contact_residual(W, u0, cap["lam0"], mu)) / cap["scale"])
-    for name, start, steps in (("warm", cap["lam0"], None), ("cold", np.zeros_like(u0), None),
-                               ("lumped", cap["lam0"], lumped)):
+               warm_residual=max(pgs.contact_residual(W, u0, cap["lam0"], mu)) / cap["scale"],
+               pressed=int(np.count_nonzero(cap["lam"][0::3] > 0)))
+    for name, start, step, accelerate in RUNS:
         t0 = time.perf_counter()
-        res = apgd.apgd(product, u0, start, mu, blocks, goal, max_products=max_products, steps=steps)
+        res = apgd.apgd(product, u0, cap["lam0"] if start == "warm" else np.zeros_like(u0), mu, blocks, goal,
+                        max_products=max_products, steps=steps[step], accelerate=accelerate)
         out[name] = dict(time=time.perf_counter() - t0, products=res.products, converged=res.converged,
                          residual=max(pgs.contact_residual(W, u0, res.lam, mu)) / cap["scale"],
                          history=res.history)
     h.close()
+    out["pcg"] = active_pcg(W, u0, cap["lam0"], cap["lam"], blocks, goal, max_products)
     rec = cap["rec"]
     out["wall"], out["frame_factorisation"] = rec["wall"], rec["factorization"]
     out["delassus"], out["pgs_phase"] = rec["delassus"], rec["pgs"]
@@ -179,10 +223,12 @@ def report(scene, frames, rows):
     print(f"\n{scene}: {rows[0]['contacts']} contacts, {rows[0]['touched']} touched unknowns of {rows[0]['n']}; "
           f"W y through the factor against the dense W: {max(r['product_error'] for r in rows):.1e}; lumped W_nn "
           f"over the exact (median) {rows[0]['lumped_over_exact']:.2f}")
-    print("| frame | today: frame / factorisation / Delassus / PGS kernel (sweeps) / contact share | PGS residual "
-          "(goal) | plain factorisation | one product | per column in a block | exact diagonal blocks | APGD warm: "
-          "products / ms | APGD cold: products / ms | APGD warm, lumped steps: products / ms | matrix-free contact share (warm) | budget at 35 % |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
+    print("\nms; today: the frame as it ran (factorisation with the touched unknowns last, exact W, block PGS); "
+          "matrix-free: outside + plain factorisation + detection + rest of PGS + APGD (warm, exact blocks)")
+    print("| frame | today: frame / factorisation / Delassus / PGS kernel (sweeps) | today's contact share | outside "
+          "| detection | rest of PGS | plain factorisation | matrix-free: frame / APGD | its contact share | "
+          "products within 35 % |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
     for f, r in zip(frames, rows):
         today = (r["wall"], r["frame_factorisation"], r["delassus"], r["kernel"])
         contact_today = r["detection"] + r["delassus"] + r["pgs_phase"]
@@ -190,22 +236,33 @@ def report(scene, frames, rows):
         base = r["outside"] + r["factorisation"]
         contact = fixed + r["warm"]["time"]
         budget = (SHARE * base - (1 - SHARE) * fixed) / ((1 - SHARE) * r["product"])
-        w, c, m = r["warm"], r["cold"], r["lumped"]
-        mark = {True: "", False: " (not reached)"}
-        print(f"| {f} | {' / '.join(f'{ms * t:.0f}' for t in today)} ({r['sweeps']}) / "
-              f"{100 * contact_today / r['wall']:.0f} % | {r['pgs_residual']:.1e} ({r['goal']:.1e}) | "
-              f"{ms * r['factorisation']:.0f} | {ms * r['product']:.1f} | {ms * r['block_column']:.2f} | "
-              f"{ms * r['diag_exact']:.0f} | {w['products']}{mark[w['converged']]} / {ms * w['time']:.0f} | "
-              f"{c['products']}{mark[c['converged']]} / {ms * c['time']:.0f} | "
-              f"{m['products']}{mark[m['converged']]} / {ms * m['time']:.0f} | "
-              f"{100 * contact / (base + contact):.0f} % | {max(budget, 0):.0f} |")
+        print(f"| {f} | {' / '.join(f'{ms * t:.0f}' for t in today)} ({r['sweeps']}) | "
+              f"{100 * contact_today / r['wall']:.0f} % | {ms * r['outside']:.0f} | {ms * r['detection']:.0f} | "
+              f"{ms * r['rest_of_pgs']:.0f} | {ms * r['factorisation']:.0f} | {ms * (base + contact):.0f} / "
+              f"{ms * r['warm']['time']:.0f} | {100 * contact / (base + contact):.0f} % | {max(budget, 0):.0f} |")
+    print("\nproducts W y to PGS's residual (goal, relative to the velocity scale); APGD: warm / cold start with the "
+          "exact diagonal blocks, warm with lumped-mass or one scalar step, warm without acceleration (projected "
+          "Jacobi); PCG: on the pressed contacts taken as sticking; - : not reached within the cap")
+    print("| frame | goal (PGS reached) | warm start's residual | one product (ms, / plain factorisation) | per "
+          "column in a block of RHS | exact diagonal blocks (ms) | APGD warm | cold | lumped | scalar | projected "
+          "Jacobi | PCG, active set known (pressed contacts) |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
+
+    def count(run):
+        return f"{run['products']}" if run["converged"] else f"- ({run['products']})"
+
     for f, r in zip(frames, rows):
-        for name in ("warm", "cold", "lumped"):
-            hist = np.asarray(r[name]["history"]) / r["goal"]
+        pcg = f"{r['pcg']}" if r["pcg"] >= 0 else f"- ({-r['pcg']})"
+        print(f"| {f} | {r['goal']:.1e} ({r['pgs_residual']:.1e}) | {r['warm_residual']:.1e} | "
+              f"{ms * r['product']:.1f} ({r['product'] / r['factorisation']:.3f}) | {ms * r['block_column']:.2f} | "
+              f"{ms * r['diag_exact']:.0f} | " + " | ".join(count(r[name]) for name, *_ in RUNS)
+              + f" | {pcg} ({r['pressed']}) |")
+    for f, r in zip(frames, rows):
+        for name, *_ in RUNS:
+            hist = np.asarray(r[name]["history"]) / (r["goal"])
             marks = [i for i in (0, 10, 30, 100, 300, 1000, 3000) if i < hist.size]
-            print(f"frame {f} {name}: residual / goal after "
-                  + ", ".join(f"{i} it {hist[i]:.2g}" for i in marks) + f"; final {r[name]['residual']:.2e} of the "
-                  f"scale (goal {r['goal']:.2e}); the start's {r['warm_residual']:.2e}" * (name == "warm"))
+            print(f"frame {f} {name}: residual / goal after " + ", ".join(f"{i} it {hist[i]:.2g}" for i in marks)
+                  + f"; final {r[name]['residual']:.2e} of the scale")
 
 
 def main(argv=None):
