@@ -2,8 +2,9 @@
 exact W and block PGS, on two consecutive full-space contact frames of a scene.
 
 The scene (``benchmarks/contact_phases.py``'s, with the frame factorised with the contacts' unknowns
-last, today's default) runs from frame 0 to ``--frame`` or from ``--resume CHECKPOINT`` and steps the
-first two frames with contacts from there on. On each, today's route is timed as the frame runs: the
+last, today's default) runs from frame 0 to ``--frame`` or from ``--resume CHECKPOINT``, steps ``--skip``
+frames (default 1: the first frame after a resume makes new analyses) and then the first two frames with
+contacts. On each, today's route is timed as the frame runs: the
 factorisation, the Delassus operator W (exact, dense), the PGS kernel (block Gauss-Seidel, the
 default), the rest of PGS's phase (the velocity correction, the split impulse) and detection, with the
 residual PGS reached (:func:`skfem_affine.contact.pgs.contact_residual`). Then, from the frame's matrix
@@ -57,12 +58,13 @@ from skfem_affine.contact import apgd, pgs  # noqa: E402
 SHARE = 0.35  # the goal: contact at most this share of the frame
 
 
-def capture(mesh_dir, scene, cells, frame, resume, frames=2, saved_solver=None):
+def capture(mesh_dir, scene, cells, frame, resume, frames=2, saved_solver=None, skip=1):
     """The first ``frames`` full-space frames with contacts from ``frame`` on (or from the checkpoint's):
     per frame a dict of A, J, W, u0, the warm start, mu, PGS's impulses, sweeps and kernel time, the
     tolerance's scale, the frame's record and the lumped inverse masses. ``saved_solver``: the PGS
-    iteration the checkpoint was run with, when not the default (the frames then step the default)."""
-    sim = contact_phases.builders(mesh_dir, scene, frame + frames + 50, cells, frame_schur=True)[1]
+    iteration the checkpoint was run with, when not the default (the frames then step the default).
+    ``skip``: frames stepped first (the first frame after a resume makes new analyses)."""
+    sim = contact_phases.builders(mesh_dir, scene, frame + skip + frames + 50, cells, frame_schur=True)[1]
     if resume is not None:
         default = sim.contact.settings
         if saved_solver is not None:
@@ -76,9 +78,11 @@ def capture(mesh_dir, scene, cells, frame, resume, frames=2, saved_solver=None):
     caught, current = [], {}
 
     def solver(W, u0, lam, mu, iterations, tolerance, limit, loose, floor):
-        if current:
+        if current:  # the copies' time is taken off the frame's record
+            t0 = time.perf_counter()
             current.update(W=np.array(W), u0=u0.copy(), lam0=lam.copy(), mu=mu, tolerance=tolerance,
                            scale=max(float(pgs.velocity_scale(u0)), floor))
+            current["copy"] = time.perf_counter() - t0
         t0 = time.perf_counter()
         sweeps = kernel(W, u0, lam, mu, iterations, tolerance, limit, loose, floor)
         if current:
@@ -88,7 +92,7 @@ def capture(mesh_dir, scene, cells, frame, resume, frames=2, saved_solver=None):
     original = sim.contact.resolve
 
     def resolve(problem, result, rec):
-        if problem.frame >= frame and sim.contact.current is not None and len(caught) < frames:
+        if problem.frame >= frame + skip and sim.contact.current is not None and len(caught) < frames:
             current.update(A=sp.csr_matrix(result.operator.matrix), J=sp.csr_matrix(sim.contact.current.J),
                            frame=problem.frame)
         return original(problem, result, rec)
@@ -96,7 +100,7 @@ def capture(mesh_dir, scene, cells, frame, resume, frames=2, saved_solver=None):
     sim.contact.resolve = resolve
     pgs.SOLVERS[st.solver] = solver
     try:
-        for _ in range(frame + frames + 50 - sim.state.frame):
+        for _ in range(frame + skip + frames + 50 - sim.state.frame):
             if len(caught) == frames:
                 break
             sim.step()
@@ -108,7 +112,7 @@ def capture(mesh_dir, scene, cells, frame, resume, frames=2, saved_solver=None):
     finally:
         pgs.SOLVERS[st.solver] = kernel
     if len(caught) < frames:
-        raise SystemExit(f"fewer than {frames} contact frames from frame {frame} on")
+        raise SystemExit(f"fewer than {frames} contact frames from frame {frame + skip} on")
     return caught
 
 
@@ -209,7 +213,9 @@ def measure(cap, reps, block, max_products):
                          history=res.history)
     h.close()
     out["pcg"] = active_pcg(W, u0, cap["lam0"], cap["lam"], blocks, goal, max_products)
-    rec = cap["rec"]
+    rec = dict(cap["rec"])
+    for key in ("wall", "contact", "pgs"):  # without the benchmark's copies of W
+        rec[key] -= cap["copy"]
     out["wall"], out["frame_factorisation"] = rec["wall"], rec["factorization"]
     out["delassus"], out["pgs_phase"] = rec["delassus"], rec["pgs"]
     out["detection"] = rec["contact"] - rec["delassus"] - rec["pgs"]
@@ -272,6 +278,7 @@ def main(argv=None):
                     required=True)
     ap.add_argument("--cells", type=int, default=4, help="as contact_phases.py's --cells")
     ap.add_argument("--frame", type=int, default=0, help="the first frame with contacts from this one on")
+    ap.add_argument("--skip", type=int, default=1, help="frames stepped before the two measured")
     ap.add_argument("--resume", default=None, metavar="CHECKPOINT", help="a full-space checkpoint to start from")
     ap.add_argument("--saved-solver", default=None, choices=sorted(pgs.SOLVERS),
                     help="the PGS iteration the checkpoint was run with, when not the default (the frames measured "
@@ -280,7 +287,8 @@ def main(argv=None):
     ap.add_argument("--block", type=int, default=64, help="right-hand sides of the block solve")
     ap.add_argument("--max-products", type=int, default=1500, help="APGD's most products W y per solve")
     args = ap.parse_args(argv)
-    caps = capture(args.mesh_dir, args.scene, args.cells, args.frame, args.resume, saved_solver=args.saved_solver)
+    caps = capture(args.mesh_dir, args.scene, args.cells, args.frame, args.resume, saved_solver=args.saved_solver,
+                   skip=args.skip)
     frames, rows = [c["frame"] for c in caps], []
     for cap in caps:
         rows.append(measure(cap, args.reps, args.block, args.max_products))
