@@ -72,7 +72,7 @@ def capture(mesh_dir, scene, cells, frame, resume, frames=2, saved_solver=None, 
             sim._settings["contact_settings"] = repr(sim.contact.settings)
         contact_phases.load_checkpoint(sim, resume)
         sim.contact.settings = default
-        frame = sim.state.frame
+        frame = sim.state.frame + 1  # the first frame it steps
     st = sim.contact.settings
     kernel = pgs.SOLVERS[st.solver]
     caught, current = [], {}
