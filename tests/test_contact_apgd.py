@@ -1,4 +1,8 @@
 """The matrix-free contact iteration (APGD) against projected Gauss-Seidel on small problems."""
+import os
+import subprocess
+import sys
+
 import numpy as np
 import pytest
 
@@ -137,3 +141,17 @@ def test_bad_input_names_the_argument():
         apgd.cone_projection(np.zeros(3), -1.0)
     with pytest.raises(ValueError, match="W"):
         apgd.diagonal_blocks(np.zeros((4, 4)))
+
+
+def test_bound_script_reaches_pgs_residual_through_the_factor_in_a_subprocess():
+    """benchmarks/matrix_free_bound.py on the smallest stacked beams: W y through the plain factor equals
+    the dense W's, and APGD from the warm start reaches PGS's residual on both frames."""
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    run = subprocess.run([sys.executable, os.path.join(root, "benchmarks", "matrix_free_bound.py"), "--scene",
+                          "stacked_beams", "--cells", "1", "--frame", "12", "--reps", "1", "--max-products", "300"],
+                         capture_output=True, text=True, timeout=300, env=dict(os.environ, PYTHONPATH=root))
+    assert run.returncode == 0, run.stderr[-2000:]
+    out = run.stdout
+    assert float(out.split("against the dense W: ")[1].split(";")[0]) < 1e-12, out
+    table = out.split("| frame | goal")[1].splitlines()[2:4]
+    assert len(table) == 2 and all(row.split("|")[7].strip().isdigit() for row in table), out  # APGD warm reached
