@@ -58,10 +58,12 @@ Usage::
 """
 import argparse
 import cProfile
+import dataclasses
 import io
 import json
 import os
 import pstats
+import re
 import sys
 import time
 
@@ -185,6 +187,13 @@ def load_checkpoint(sim, path):
     try:
         return sim.load_state(path)
     except ValueError as err:
+        saved = re.search(r"contact_settings: file \"PGS\([^\"]*solver='([\w-]+)'", str(err))
+        if saved is not None and sim.contact is not None and sim.contact.settings.solver != saved.group(1):
+            # a run with the PGS sweeps of its time (e.g. the plain ones, before the block sweeps became
+            # the default) resumes with them
+            sim.contact.settings = dataclasses.replace(sim.contact.settings, solver=saved.group(1))
+            sim._settings["contact_settings"] = repr(sim.contact.settings)
+            return load_checkpoint(sim, path)
         if "contact.schur_seen is missing" not in str(err):
             raise
     with np.load(path, allow_pickle=False) as data:

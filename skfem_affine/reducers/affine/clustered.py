@@ -623,7 +623,8 @@ class ClusteringReducer(Reducer):
         t1 = time.perf_counter()
         # prediction (eq. 13-14): one PCG iteration, gravity split out, A p = M p + H p (A never formed)
         b = problem.b
-        b_ng = b - h * model.f_gravity[free] + problem.contact_impulse  # contact impulses as explicit forces
+        # contact impulses as explicit forces: the support, and new contacts' estimates on bodies an impact hits
+        b_ng = b - h * model.f_gravity[free] + oracle.explicit_impulse(problem)
         apply_A = oracle.system_operator(self.mdiag, problem.Hmat, model.coefficients)
         if self._pending is not None:
             self._swap_if_ready(stats)
