@@ -90,6 +90,7 @@ class Affinification(ClusteringReducer):
 
     threshold = "tau_a"
     tau_start = 1e-3
+    mapping_from_rest = True  # Gamma_i from the rest positions (eq. 8)
 
     def __init__(self, tau_a=None, tau_e=None, *, target_error=None, relative_to=None, time_budget=None, never_slower=None,
                  min_fraction=None, seeding="random", preconditioner="ichol", seed=0, solver=None,
