@@ -157,3 +157,31 @@ def test_a_spinning_affine_box_reuses_its_mapping_and_moves_as_when_rebuilt():
     assert all(k is kept[1] for k in kept[2:])                      # kept while it moves and turns
     assert np.array_equal(reusing.state.x, rebuilding.state.x) and np.array_equal(reusing.state.v, rebuilding.state.v)
     assert np.abs(reusing.state.x.mean(axis=0)[0] - 0.2) < 1e-2      # it flew 0.2 m along x
+
+
+def test_the_clustering_sees_predicted_rates_where_affine_and_actual_rates_elsewhere(monkeypatch):
+    """Algorithm 2's rates: the predicted velocities' for elements affine the frame before, the actual
+    ones' for the others, whether most elements were affine (one pass with the predicted velocities)
+    or few (one pass with the actual ones), bit for bit."""
+    from skfem_affine.reducers.affine import clustering
+    sim = _box_on_two_planes(sa.Affinification(1e-5, 1e-4))
+    sim.step()
+    red, sysm = sim.reducer, sim.system
+    rng = np.random.default_rng(0)
+    v, v_pred = rng.normal(size=(sysm.n, 3)), rng.normal(size=(sysm.n, 3))
+    seen = []
+
+    def recording(Fdot, *args, **kwargs):
+        seen.append(np.array(Fdot))
+        return np.full(sysm.m, -1), np.zeros(0, dtype=np.int64)
+    monkeypatch.setattr(clustering, "cluster_deformation_rates", recording)
+
+    class Problem:
+        system = sysm
+    Problem.v = v
+    for fraction in (0.0, 0.2, 0.8, 1.0):
+        red.was_reduced = rng.random(sysm.m) < fraction
+        red._labels(Problem, v_pred)
+        expected = np.where(red.was_reduced[:, None, None], sysm.deformation_gradients(v_pred),
+                            sysm.deformation_gradients(v))
+        assert np.array_equal(seen[-1], expected)
