@@ -58,10 +58,12 @@ Usage::
 """
 import argparse
 import cProfile
+import dataclasses
 import io
 import json
 import os
 import pstats
+import re
 import sys
 import time
 
@@ -180,11 +182,17 @@ def load_checkpoint(sim, path):
     """``sim.load_state(path)``; a checkpoint written before the Schur inverse saved the pattern of the
     last frame it factorised (``contact.schur_seen``) is loaded from a copy with that entry empty (the
     value of a run that has not factorised yet: its first frame then may decline a small complement
-    that the uninterrupted run would have taken)."""
+    that the uninterrupted run would have taken). A checkpoint of a run with other PGS sweeps (e.g. the
+    plain ones, ``PGS(solver="gauss-seidel")``) resumes with its own sweeps."""
     import tempfile
     try:
         return sim.load_state(path)
     except ValueError as err:
+        saved = re.search(r"contact_settings: file \"PGS\([^\"]*solver='([\w-]+)'", str(err))
+        if saved is not None and sim.contact is not None and sim.contact.settings.solver != saved.group(1):
+            sim.contact.settings = dataclasses.replace(sim.contact.settings, solver=saved.group(1))
+            sim._settings["contact_settings"] = repr(sim.contact.settings)
+            return load_checkpoint(sim, path)
         if "contact.schur_seen is missing" not in str(err):
             raise
     with np.load(path, allow_pickle=False) as data:

@@ -90,6 +90,7 @@ class Affinification(ClusteringReducer):
 
     threshold = "tau_a"
     tau_start = 1e-3
+    mapping_from_rest = True  # Gamma_i from the rest positions (eq. 8)
 
     def __init__(self, tau_a=None, tau_e=None, *, target_error=None, relative_to=None, time_budget=None, never_slower=None,
                  min_fraction=None, seeding="random", preconditioner="ichol", seed=0, solver=None,
@@ -114,12 +115,18 @@ class Affinification(ClusteringReducer):
     def _labels(self, problem, v_pred):
         """Deformation rates (eq. 4; predicted velocities for previously affine elements) and BFS."""
         sysm = problem.system
-        Fdot = sysm.deformation_gradients(problem.v)
         was = np.flatnonzero(self.was_reduced)
+        # one pass over every element with the velocities most of them need, the others' rates element
+        # by element (the same sums): at rest, with nearly all elements affine, one pass, not two
         if 2 * was.size > sysm.m:
-            np.copyto(Fdot, sysm.deformation_gradients(v_pred), where=self.was_reduced[:, None, None])
-        elif was.size:  # few were reduced: their rates only (the same sums, element by element)
-            Fdot[was] = element_rates(v_pred, sysm.t[:, was], sysm.grads[was])
+            Fdot = sysm.deformation_gradients(v_pred)
+            other = np.flatnonzero(~self.was_reduced)
+            if other.size:
+                Fdot[other] = element_rates(problem.v, sysm.t[:, other], sysm.grads[other])
+        else:
+            Fdot = sysm.deformation_gradients(problem.v)
+            if was.size:
+                Fdot[was] = element_rates(v_pred, sysm.t[:, was], sysm.grads[was])
         forced = clustering.forced_set(Fdot, self.adjacency, self.min_fraction) if self.min_fraction > 0 else None
         labels, seeds = clustering.cluster_deformation_rates(
             Fdot, self.adjacency, sysm.t, sysm.n, self.tau_a, self.tau_e, was_affine=self.was_reduced,

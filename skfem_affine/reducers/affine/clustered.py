@@ -4,12 +4,14 @@ One frame, with the phase names of ``sim.stats`` (``assembly``, f and H at x_t, 
 integrator's, in the :class:`~skfem_affine.integrators.problem.StepProblem`):
 
 1. ``prediction``: one PCG iteration (eq. 13-14), dv_approx, the contact impulses of
-   the problem taken as explicit forces (sec. 3.4), started from the bodies' mean
+   the problem taken as explicit forces (sec. 3.4: the warm-started support, and the new
+   contacts' estimates on the bodies an impact hits, :func:`oracle.explicit_impulse`), started from the bodies' mean
    response to the warm-started support when there is any and the thresholds are explicit
    (:func:`oracle.coarse_guess`);
 2. ``clustering``: which elements are reduced and how they group (the subclass's
    :meth:`ClusteringReducer._labels`);
-3. ``map_assembly``: G (eq. 7-8, the subclass's body kind), projection
+3. ``map_assembly``: G (eq. 7-8, the subclass's body kind; affine bodies in the last frame's
+   clusters keep its G, numbering and order: :meth:`ClusteringReducer._frame_mapping`), projection
    q = (G^T M G)^-1 G^T M v (eq. 9), discrepancy d = G q - v (eq. 11);
 4. ``reduced_assembly``: G^T A G and G^T b (eq. 10), the matrix gathered from the
    assembled A's vertex blocks (:func:`mapping.reduced_matrix`), upper triangle
@@ -207,6 +209,9 @@ class ClusteringReducer(Reducer):
     #: The threshold the error budget drives, its start and bounds (the subclass's unit).
     threshold = "tau"
     tau_start, tau_min, tau_max = 1e-3, 1e-8, 1e3
+    #: Whether the body kind's G depends on the clusters alone (not on the pose): a frame with the
+    #: last frame's clusters then reuses its mapping (:meth:`_frame_mapping`).
+    mapping_from_rest = False
 
     # carried across frames: who was reduced, the clusters and seeds, the random seeding's generator
     _state_keys = ("was_reduced", "labels", "previous_seeds", "rng_state", "controllers", "refresh_counters",
@@ -345,6 +350,7 @@ class ClusteringReducer(Reducer):
         self.full_numbering = several_bodies(self._contact_bodies)
         self.gravity_dv = np.tile(model.gravity, sysm.n)[sysm.free] * model.dt
         self.translations = oracle.body_translations(sysm)
+        self._kept = None  # the last frame's mapping and what derives from it (_frame_mapping)
         self._setup_controllers()
 
     def _setup_controllers(self):
@@ -623,7 +629,8 @@ class ClusteringReducer(Reducer):
         t1 = time.perf_counter()
         # prediction (eq. 13-14): one PCG iteration, gravity split out, A p = M p + H p (A never formed)
         b = problem.b
-        b_ng = b - h * model.f_gravity[free] + problem.contact_impulse  # contact impulses as explicit forces
+        # contact impulses as explicit forces: the support, and new contacts' estimates on bodies an impact hits
+        b_ng = b - h * model.f_gravity[free] + oracle.explicit_impulse(problem)
         apply_A = oracle.system_operator(self.mdiag, problem.Hmat, model.coefficients)
         if self._pending is not None:
             self._swap_if_ready(stats)
@@ -651,7 +658,8 @@ class ClusteringReducer(Reducer):
         t3 = time.perf_counter()
         stats["clustering"] = t3 - t2
         # map assembly: G, projection (eq. 9), discrepancy (eq. 11)
-        gmap = self._mapping(problem, vcluster, n_bodies)
+        kept = self._frame_mapping(problem, labels, vcluster, n_bodies)
+        gmap = kept["gmap"]
         if self.pinned_bodies and n_bodies and np.any(sysm.fixed[vcluster >= 0]):
             return self._pinned_frame(problem, labels, gmap, stats, t3)
         G = gmap.G
@@ -668,14 +676,19 @@ class ClusteringReducer(Reducer):
             Ar = reduction.reduced_matrix(model, problem.data, gmap, upper=self.upper)
             br = G.T @ problem.rhs(vp)
             if self.vertex_rank is not None:
-                order = gmap.elimination_order(self.vertex_rank)
+                if "order" not in kept:
+                    kept["order"] = gmap.elimination_order(self.vertex_rank)
+                order = kept["order"]
         else:
             Ar, br = problem.matrix(), b
         dofs, num = Ar.shape[0], None
         if n_bodies and self.full_numbering:  # each scene body's unknowns where full space has them
-            num = FullNumbering(gmap, model.coefficients[0] * self.mdiag)
+            if "num" not in kept:
+                kept["num"] = FullNumbering(gmap, model.coefficients[0] * self.mdiag)
+                kept["num_order"] = None if order is None else kept["num"].order(order)
+            num = kept["num"]
             Ar, br, G = num.matrix(Ar), num.vector(br), num.mapping(G)
-            order = None if order is None else num.order(order)
+            order = kept["num_order"]
         t5 = time.perf_counter()
         stats["reduced_assembly"] = t5 - t4
         upper = bool(self.upper and n_bodies)
@@ -714,6 +727,16 @@ class ClusteringReducer(Reducer):
         self.labels = labels
         return StepResult(dv=reduction.lift(G, dq, d), operator=Operator(solver, Ar, G, upper=upper, schur=schur),
                           mapping=gmap, clusters=labels, stats=stats)  # eq. 12
+
+    def _frame_mapping(self, problem, labels, vcluster, n_bodies):
+        """The frame's mapping as ``{"labels", "gmap"}`` (plus, once asked, its elimination order and
+        full-space numbering): the last frame's when the clusters are the same and G depends on
+        them alone (:attr:`mapping_from_rest`: affine bodies' rows come from the rest positions), so
+        that a body at rest in the same clusters does not rebuild G, its order and numbering."""
+        kept = self._kept
+        if not (self.mapping_from_rest and kept is not None and np.array_equal(kept["labels"], labels)):
+            kept = self._kept = {"labels": labels, "gmap": self._mapping(problem, vcluster, n_bodies)}
+        return kept
 
     def _body_schur(self, contacts, G):
         """The arguments of :meth:`blocks.BodyBlocks.factorize` that factorise each body's block with its

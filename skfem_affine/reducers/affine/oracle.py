@@ -316,6 +316,47 @@ def body_translations(system):
     return sp.csr_matrix((np.ones(col.size), (np.arange(col.size), col)), shape=(col.size, used.size))
 
 
+def explicit_impulse(problem):
+    r"""The contact impulses the oracle takes as explicit forces (sec. 3.4), on the free DOFs.
+
+    The contact solver offers J^T lambda_pred (``problem.contact_impulse``): the warm-started
+    support, plus for every contact that carried no impulse last frame a bilateral estimate that
+    stops its vertex's approach, gravity's step included. For a new contact that is an impact
+    (``problem.contacts.impact``: it closes its gap faster than one step of gravity) the estimate is
+    the push the oracle must see (the paper's: a dropped ball elastifies the region it hits). On a
+    body at rest it is not: a vertex that touches without carrying an impulse (its neighbours carry
+    the body's weight) has only gravity's step to stop, which the warm-started support already
+    balances, so the estimate is a spurious local push of the vertex's weight, predicted as a
+    deformation rate of 1e-4 to 1e-3 1/s on the paper's resting pills, above the paper's thresholds
+    (docs/contact.md, the pills at rest). The body then turns elastic, is measured on its actual
+    velocities (at rest: far below the thresholds), turns affine again, and its clusters change
+    every frame.
+
+    So a body touched by an impact takes the contact solver's impulses (support and estimates), and
+    every other body its warm-started support alone. Without impact flags, the contact solver's
+    impulses as given.
+
+    Returns
+    -------
+    (n_free,) array or 0.0
+    """
+    offered, support, cs = problem.contact_impulse, problem.support_impulse, problem.contacts
+    if cs is None or cs.impact is None or not np.ndim(offered):
+        return offered
+    support = np.zeros_like(offered) if not np.ndim(support) else support
+    if not np.any(cs.impact):
+        return support
+    sysm = problem.system
+    # the bodies of the vertices an impact's normal row moves
+    rows = cs.J[0::3][np.flatnonzero(cs.impact)]
+    dofs = np.unique(sp.csr_matrix(rows).indices)
+    body = np.searchsorted(sysm.vertex_offsets, sysm.free[dofs] // 3, side="right") - 1
+    hit = np.zeros(len(sysm.vertex_offsets) - 1, dtype=bool)
+    hit[body] = True
+    dof_body = np.searchsorted(sysm.vertex_offsets, sysm.free // 3, side="right") - 1
+    return np.where(hit[dof_body], offered, support)
+
+
 def coarse_guess(T, mdiag, H, coefficients, b):
     r"""The Galerkin guess in the span of ``T``: :math:`T (T^T A T)^{-1} T^T b`, A = c_M M + c_K H.
 
