@@ -70,11 +70,24 @@ def unknown_bodies(bodies, G):
     blocks are then unknown, and the system is taken whole."""
     if G is None:
         return bodies
-    G = sp.csr_matrix(G)
-    of_entry = np.repeat(bodies, np.diff(G.indptr))
-    out = np.full(G.shape[1], -1, dtype=np.int64)
-    out[G.indices] = of_entry
-    return out if np.array_equal(out[G.indices], of_entry) else None
+    G = G if sp.issparse(G) and G.format == "csr" else sp.csr_matrix(G)
+    out, mixed = _column_bodies(G.indptr, G.indices, np.asarray(bodies, dtype=np.int64), G.shape[1])
+    return None if mixed else out
+
+
+@njit(cache=True)
+def _column_bodies(indptr, indices, bodies, ncols):
+    """(the body of each column of G from its rows' ``bodies``, -1 for an empty column; whether a column
+    spans two bodies)."""
+    out = np.full(ncols, -1, dtype=np.int64)
+    for i in range(indptr.size - 1):
+        for p in range(indptr[i], indptr[i + 1]):
+            c = indices[p]
+            if out[c] < 0:
+                out[c] = bodies[i]
+            elif out[c] != bodies[i]:
+                return out, True
+    return out, False
 
 
 def _checked_bodies(bodies, operator):
@@ -139,9 +152,10 @@ class Resolvent:
 
     def __init__(self, operator, block=64, cache=None, touched=True, schur=None, bodies=None, dense=0):
         self.operator, self.solver, self.G = operator, operator.solver, operator.G
+        self._Gcsr = None if self.G is None else self.G.tocsr()
         self.block, self.touched, self.schur = int(block), bool(touched), schur
         self.iterative = operator.iterative
-        labels = None if bodies is None else unknown_bodies(_checked_bodies(bodies, operator), self.G)
+        labels = None if bodies is None else unknown_bodies(_checked_bodies(bodies, operator), self._Gcsr)
         known = labels[labels >= 0] if labels is not None else np.zeros(0, dtype=np.int64)
         self.labels = labels if known.size and known.min() < known.max() else None
         self.parts = None if self.labels is None else int(self.labels.max()) + 1  # None: one block
@@ -161,8 +175,9 @@ class Resolvent:
         self.dense_unknowns = 0  # unknowns of the blocks whose part of W came from their dense factors
         # a frame factorised with the touched unknowns last has their complement already: no dense blocks
         self.dense = None if not (dense and self.touched and operator.schur is None) else DenseBlocks(
-            operator, self.labels, used_unknowns(self.G, operator.shape[0]), dense)
-        self._dense_blocks, self._small = [], None  # the last W's blocks from dense factors, their unknowns
+            operator, self.labels, used_unknowns(self._Gcsr, operator.shape[0]), dense)
+        self._J = self._Jr = None  # the last J and Jr = J G (:attr:`Jr`)
+        self._dense_blocks, self._small = [], None  # the last W's blocks from dense factors; the small blocks' unknowns
 
     def _from_frame(self, label, T):
         """Z = (A^-1)_TT on the unknowns T (sorted) of one block from the Schur complement S the frame's
@@ -286,26 +301,35 @@ class Resolvent:
         self.columns_solved = width
         return X
 
+    @property
+    def Jr(self):
+        """Jr = J G (CSR) of the last :meth:`delassus`, J in full space; made on first use (a frame whose
+        contacts touch small blocks only never needs it)."""
+        if self._Jr is None:
+            J = self._J
+            self._Jr = sp.csr_matrix(J @ self.G) if self.G is not None else sp.csr_matrix(J)
+        return self._Jr
+
     def delassus(self, J):
         """W = J A^-1 J^T (dense, symmetric), A^-1 ~ G A_r^-1 G^T in a reduced frame."""
-        Jr = sp.csr_matrix(J @ self.G) if self.G is not None else sp.csr_matrix(J)
-        self.Jr, self.columns_solved, self.schur_unknowns, self.dense_unknowns = Jr, 0, 0, 0
-        k = Jr.shape[0]
+        J = J if sp.issparse(J) and J.format == "csr" else sp.csr_matrix(J)
+        self._J, self._Jr, self.columns_solved, self.schur_unknowns, self.dense_unknowns = J, None, 0, 0, 0
+        k = J.shape[0]
         W = np.zeros((k, k))
         self._dense_blocks, self._small = [], None
         parts, plans, s, rest = [], [], 0, True
         if self.dense is not None:  # the small blocks' parts from their dense factors, the others as below
-            T = np.unique(Jr.indices[Jr.data != 0])
-            small = T[self.dense.columns(T)]
-            if small.size:
-                dense, self._dense_blocks = self.dense.parts(Jr, small)
-                parts += [(rows, C, C.T, False) for rows, C in dense]  # W_b = C C^T
-                self._small, self.dense_unknowns, rest = small, small.size, small.size < T.size
-                if rest:
-                    Jr = Jr.copy()
-                    on_small = np.zeros(Jr.shape[1], dtype=bool)
-                    on_small[small] = True
-                    Jr.data[on_small[Jr.indices]] = 0.0
+            dense, labels = self.dense.parts(J, self._Gcsr)
+            if labels.size:
+                self._dense_blocks = labels
+                self._small, self.dense_unknowns, rest = self.dense.in_small(), self.dense.touched, self.dense.rest
+                with serial_blas():
+                    for rows, C in dense:  # W_b = C C^T
+                        _add_symmetric(W, rows, C @ C.T)
+        Jr = self.Jr if rest else None
+        if rest and self._small is not None:
+            Jr = Jr.copy()
+            Jr.data[self._small[Jr.indices]] = 0.0
         blocks, T = self._blocks(Jr) if rest else ([], None)
         for label, Tb, rows, Jt in blocks:
             e = s + Tb.size
@@ -329,12 +353,14 @@ class Resolvent:
     def apply(self, lam):
         """dv = A^-1 J^T lambda on the free DOFs (through G when reduced): one solve, the small blocks'
         part from their dense factors (no solve when the contacts touch only those)."""
-        r = self.Jr.T @ lam
         if self._small is None:
-            y = _solve(self.solver, r[:, None], self.iterative)[:, 0]
+            y = _solve(self.solver, (self.Jr.T @ lam)[:, None], self.iterative)[:, 0]
         else:
-            rest = r.copy()
-            rest[self._small] = 0.0
-            y = _solve(self.solver, rest[:, None], self.iterative)[:, 0] if np.any(rest) else np.zeros_like(r)
-            self.dense.solve(r, self._dense_blocks, y)
+            y = np.zeros(self.operator.shape[0])
+            if self.dense.rest:
+                rest = self.Jr.T @ lam
+                rest[self._small] = 0.0
+                if np.any(rest):
+                    y = _solve(self.solver, rest[:, None], self.iterative)[:, 0]
+            self.dense.apply(lam, y)
         return self.G @ y if self.G is not None else y
