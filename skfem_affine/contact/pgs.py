@@ -473,6 +473,22 @@ def _find(parent, i):
 
 
 @njit(cache=True)
+def _joined(pairs, order, k, largest):
+    """The union-find forest of k contacts joining ``pairs`` in ``order`` while their groups keep at most
+    ``largest`` contacts, each group's root its first contact."""
+    parent = np.arange(k)
+    size = np.ones(k, dtype=np.int64)
+    for p in order:
+        a, b = _find(parent, pairs[p, 0]), _find(parent, pairs[p, 1])
+        if a != b and size[a] + size[b] <= largest:
+            if a > b:
+                a, b = b, a
+            parent[b] = a
+            size[a] += size[b]
+    return parent
+
+
+@njit(cache=True)
 def _groups(W, coupling, largest):
     """(ptr, members) of :func:`contact_groups` (arguments checked there)."""
     k = W.shape[0] // 3
@@ -485,11 +501,10 @@ def _groups(W, coupling, largest):
     n = 0
     row = np.empty(3 * k)
     for i in range(k):
-        row[:] = 0.0
-        for a in range(3):  # the largest coupling of contact i's rows to each row after i's
-            s = inv[3 * i + a]
-            for q in range(3 * i + 3, 3 * k):
-                row[q] = max(row[q], abs(W[3 * i + a, q]) * s * inv[q])
+        s0, s1, s2 = inv[3 * i], inv[3 * i + 1], inv[3 * i + 2]
+        w0, w1, w2 = W[3 * i], W[3 * i + 1], W[3 * i + 2]
+        for q in range(3 * i + 3, 3 * k):  # the largest coupling of contact i's rows to each row after i's
+            row[q] = max(max(abs(w0[q]) * s0 * inv[q], abs(w1[q]) * s1 * inv[q]), abs(w2[q]) * s2 * inv[q])
         for j in range(i + 1, k):
             c = max(row[3 * j], row[3 * j + 1], row[3 * j + 2])
             if c > coupling:
@@ -499,16 +514,14 @@ def _groups(W, coupling, largest):
                     pairs, values = grown, more
                 pairs[n, 0], pairs[n, 1], values[n] = i, j, c
                 n += 1
-    # the strongest pairs first, joined while their groups stay within ``largest`` contacts
-    parent = np.arange(k)
-    size = np.ones(k, dtype=np.int64)
-    for p in np.argsort(-values[:n]):
-        a, b = _find(parent, pairs[p, 0]), _find(parent, pairs[p, 1])
-        if a != b and size[a] + size[b] <= largest:
-            if a > b:
-                a, b = b, a
-            parent[b] = a  # the root is the group's first contact
-            size[a] += size[b]
+    # the strongest pairs first, joined while their groups stay within ``largest`` contacts; when no
+    # connected set of coupled contacts is larger, every pair joins whatever the order: no sort
+    parent = _joined(pairs, np.arange(n), k, k)
+    size = np.zeros(k, dtype=np.int64)
+    for i in range(k):
+        size[_find(parent, i)] += 1
+    if size.max() > largest:
+        parent = _joined(pairs, np.argsort(-values[:n]), k, largest)
     root = np.empty(k, dtype=np.int64)
     for i in range(k):
         root[i] = _find(parent, i)
