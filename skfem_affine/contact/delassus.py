@@ -28,23 +28,54 @@ BLOCK_DIRECT_MIN = 2000
 
 
 def jacobian(contacts, n_vertices, free):
-    """J (3k x n_free): row 3i + r is frame row r of contact i on w_a v_a - sum_k w_k v_k (w_a the
-    contact's ``own`` weight, 1 for a vertex; fixed DOFs dropped)."""
+    """J (3k x n_free, CSR, sorted indices): row 3i + r is frame row r of contact i on w_a v_a - sum_k w_k v_k
+    (w_a the contact's ``own`` weight, 1 for a vertex; fixed DOFs and zero entries dropped)."""
     k = contacts.size
-    frames = contacts.frames()                                        # (k, 3, 3)
-    verts = np.column_stack([contacts.vertex, contacts.others])       # (k, 4)
+    verts = np.column_stack([contacts.vertex, contacts.others]).astype(np.int64)   # (k, 4)
     own = np.ones(k) if contacts.own is None else contacts.own
-    coef = np.column_stack([own, -contacts.weights])                  # (k, 4)
-    vals = coef[:, None, :, None] * frames[:, :, None, :]             # (k, 3 rows, 4 verts, 3 comps)
-    rows = np.broadcast_to((3 * np.arange(k)[:, None] + np.arange(3))[:, :, None, None], vals.shape)
-    cols = np.broadcast_to((3 * verts[:, :, None] + np.arange(3))[:, None, :, :], vals.shape)
+    coef = np.column_stack([own, -contacts.weights]).astype(float)                 # (k, 4)
     dof_map = np.full(3 * n_vertices, -1, dtype=np.int64)
     dof_map[free] = np.arange(free.size)
-    c = dof_map[cols.ravel()]
-    keep = (c >= 0) & (vals.ravel() != 0)
-    J = sp.csr_matrix((vals.ravel()[keep], (rows.ravel()[keep], c[keep])), shape=(3 * k, free.size))
-    J.sum_duplicates()
+    indptr, indices, data = _jacobian_rows(np.ascontiguousarray(contacts.frames(), dtype=float), verts, coef, dof_map)
+    J = sp.csr_matrix((data, indices, indptr), shape=(3 * k, free.size))
+    J.has_sorted_indices = True
     return J
+
+
+@njit(cache=True)
+def _jacobian_rows(frames, verts, coef, dof_map):
+    """The CSR arrays of :func:`jacobian`: entry (3i + r, DOF d of vertex verts[i, v]) is coef[i, v] frames[i, r, d],
+    each row's columns increasing, a column met twice summed."""
+    k, nv = verts.shape
+    indptr = np.zeros(3 * k + 1, dtype=np.int64)
+    indices = np.empty(9 * k * nv, dtype=np.int64)
+    data = np.empty(9 * k * nv)
+    cols, vals = np.empty(3 * nv, dtype=np.int64), np.empty(3 * nv)
+    n = 0
+    for i in range(k):
+        for r in range(3):
+            m = 0
+            for v in range(nv):
+                for d in range(3):
+                    val = coef[i, v] * frames[i, r, d]
+                    at = 3 * verts[i, v] + d
+                    c = dof_map[at + dof_map.size if at < 0 else at]
+                    if c < 0 or val == 0.0:
+                        continue
+                    q = m
+                    while q > 0 and cols[q - 1] > c:
+                        q -= 1
+                    if q > 0 and cols[q - 1] == c:
+                        vals[q - 1] += val
+                        continue
+                    for t in range(m, q, -1):
+                        cols[t], vals[t] = cols[t - 1], vals[t - 1]
+                    cols[q], vals[q] = c, val
+                    m += 1
+            indices[n:n + m], data[n:n + m] = cols[:m], vals[:m]
+            n += m
+            indptr[3 * i + r + 1] = n
+    return indptr, indices[:n], data[:n]
 
 
 def vertex_unknowns(vertices, n_vertices, free):
@@ -104,8 +135,12 @@ def _add_symmetric(W, rows, Wb):
     """W[rows_i, rows_j] += (Wb_ij + Wb_ji) / 2: a body's part of W, made exactly symmetric."""
     m = rows.size
     for i in range(m):
-        for j in range(m):
-            W[rows[i], rows[j]] += 0.5 * (Wb[i, j] + Wb[j, i])
+        r = rows[i]
+        for j in range(i):
+            v = 0.5 * (Wb[i, j] + Wb[j, i])
+            W[r, rows[j]] += v
+            W[rows[j], r] += v
+        W[r, r] += 0.5 * (Wb[i, i] + Wb[i, i])
 
 
 def _solve(solver, R, iterative=False):

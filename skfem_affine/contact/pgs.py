@@ -453,6 +453,16 @@ def projected_gauss_seidel_lowrank(indptr, indices, data, ncols, u0, lam, iterat
     return w
 
 
+@njit(cache=True)
+def _lumped_diagonal(indptr, indices, data, inv_mass):
+    """The diagonal of J M^-1 J^T (J as CSR, M lumped: ``inv_mass`` per column), each row summed in order."""
+    out = np.zeros(indptr.size - 1)
+    for i in range(out.size):
+        for p in range(indptr[i], indptr[i + 1]):
+            out[i] += data[p] * data[p] * inv_mass[indices[p]]
+    return out
+
+
 # PGS(solver="block"): contacts whose rows of W are coupled by more than COUPLING (the largest
 # |W_ij| / sqrt(W_ii W_jj) over their two 3 x 3 blocks) are solved together, in groups of at most
 # GROUP contacts, each visit by up to INNER sweeps on the group's own block, costing at most WORK
@@ -822,7 +832,7 @@ class Contact:
         lam = self.lam0.copy()
         Jn = self.Jn
         un = Jn @ v_free + self.bias[0::3]
-        wnn = np.asarray(Jn.multiply(Jn) @ self.inv_mass).ravel()
+        wnn = _lumped_diagonal(Jn.indptr, Jn.indices, Jn.data, self.inv_mass)
         new = (self.lam0[0::3] == 0) & (wnn > 0)
         lam[0::3][new] = np.maximum(0.0, -un[new]) / wnn[new]
         return lam
