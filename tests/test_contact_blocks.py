@@ -244,3 +244,17 @@ def test_groups_equal_their_definition(largest):
     want = _reference_groups(W, 0.5, largest)
     assert got == want
     assert max(len(g) for g in got) == min(largest, 8)
+
+
+def test_tied_couplings_keep_the_compiled_sort_order():
+    """Identical clusters (tied couplings) beyond the group size: the pairs are joined in the order the compiled
+    sort gives the ties, as before the pairs were sorted outside it."""
+    rng = np.random.default_rng(5)
+    B = rng.normal(size=(18, 3))
+    block = B @ B.T + 0.05 * np.eye(18)  # 6 contacts of rank 3: coupled
+    W = scipy.linalg.block_diag(block, block, block)
+    pairs, values = pgs._coupled_pairs(W, 0.5)
+    assert np.unique(values).size < values.size  # ties
+    want = pgs._members(pgs._joined(pairs, pgs._strongest_first(values), 18, 4))
+    got = pgs.contact_groups(W, largest=4)
+    assert all(np.array_equal(a, b) for a, b in zip(got, want))

@@ -499,14 +499,13 @@ def _joined(pairs, order, k, largest):
 
 
 @njit(cache=True)
-def _groups(W, coupling, largest):
-    """(ptr, members) of :func:`contact_groups` (arguments checked there)."""
+def _coupled_pairs(W, coupling):
+    """The pairs of contacts (i < j, in that order) coupled above ``coupling`` and their couplings."""
     k = W.shape[0] // 3
     inv = np.zeros(3 * k)
     for i in range(3 * k):
         if W[i, i] > 0.0:
             inv[i] = 1.0 / np.sqrt(W[i, i])
-    # the coupled pairs (i < j), stored as found
     pairs, values = np.empty((16, 2), dtype=np.int64), np.empty(16)
     n = 0
     row = np.empty(3 * k)
@@ -524,18 +523,32 @@ def _groups(W, coupling, largest):
                     pairs, values = grown, more
                 pairs[n, 0], pairs[n, 1], values[n] = i, j, c
                 n += 1
-    # the strongest pairs first, joined while their groups stay within ``largest`` contacts; when no
-    # connected set of coupled contacts is larger, every pair joins whatever the order: no sort
-    parent = _joined(pairs, np.arange(n), k, k)
-    size = np.zeros(k, dtype=np.int64)
-    for i in range(k):
+    return pairs[:n], values[:n]
+
+
+@njit(cache=True)
+def _largest_set(parent):
+    """The size of the largest set of the union-find forest ``parent``."""
+    size = np.zeros(parent.size, dtype=np.int64)
+    for i in range(parent.size):
         size[_find(parent, i)] += 1
-    if size.max() > largest:
-        parent = _joined(pairs, np.argsort(-values[:n]), k, largest)
+    return size.max() if parent.size else 0
+
+
+@njit(cache=True)
+def _strongest_first(values):
+    """The order of ``values``, largest first (a tie is ordered as this sort leaves it)."""
+    return np.argsort(-values)
+
+
+@njit(cache=True)
+def _members(parent):
+    """(ptr, members) of the groups of the forest ``parent``: by first contact, each in order."""
+    k = parent.size
     root = np.empty(k, dtype=np.int64)
     for i in range(k):
         root[i] = _find(parent, i)
-    members = np.argsort(root * k + np.arange(k))  # by first contact, then in order
+    members = np.argsort(root * k + np.arange(k))
     ptr = np.zeros(k + 1, dtype=np.int64)
     g = 0
     for q in range(k):
@@ -544,6 +557,21 @@ def _groups(W, coupling, largest):
             ptr[g] = q
     ptr[g + 1] = k
     return ptr[:g + 2], members
+
+
+def _groups(W, coupling, largest):
+    """(ptr, members) of :func:`contact_groups` (arguments checked there)."""
+    k = W.shape[0] // 3
+    pairs, values = _coupled_pairs(W, coupling)
+    # the strongest pairs first, joined while their groups stay within ``largest`` contacts; when no
+    # connected set of coupled contacts is larger, every pair joins whatever the order: no sort
+    parent = _joined(pairs, np.arange(values.size), k, k)
+    if _largest_set(parent) > largest:
+        order = np.argsort(-values)
+        if np.any(values[order[1:]] == values[order[:-1]]):  # ties: the order a compiled sort gives them
+            order = _strongest_first(values)
+        parent = _joined(pairs, order, k, largest)
+    return _members(parent)
 
 
 def contact_groups(W, coupling=COUPLING, largest=GROUP):
