@@ -358,9 +358,7 @@ class Resolvent:
             if labels.size:
                 self._dense_blocks = labels
                 self._small, self.dense_unknowns, rest = self.dense.in_small(), self.dense.touched, self.dense.rest
-                with serial_blas():
-                    for rows, C in dense:  # W_b = C C^T
-                        _add_symmetric(W, rows, C @ C.T)
+                parts += [(rows, C, C.T, False) for rows, C in dense]  # W_b = C C^T
         Jr = self.Jr if rest else None
         if rest and self._small is not None:
             Jr = Jr.copy()
@@ -378,6 +376,8 @@ class Resolvent:
             X = self._packed(plans, T)
             parts += [(rows, Jt, X[s:e, :Jt.shape[1] if unit else rows.size], unit)
                       for s, e, rows, Jt, unit in plans]
+        if not parts:
+            return W
         with serial_blas():  # small products: spinning BLAS threads would cost more than they do
             for rows, Jt, X, unit in parts:
                 if sp.issparse(Jt) and 10 * Jt.nnz >= Jt.shape[0] * Jt.shape[1]:  # e.g. an affine body's 12 unknowns
