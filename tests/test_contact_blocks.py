@@ -1,6 +1,7 @@
 """PGS(solver="block"): block Gauss-Seidel over groups of strongly coupled contacts."""
 import numpy as np
 import pytest
+import scipy.linalg
 
 import skfem_affine as sa
 from skfem_affine.contact import pgs
@@ -200,3 +201,60 @@ def test_the_impact_of_two_cubes_has_one_solution_whatever_the_iteration(impact)
         assert sweeps < 5000
         assert max(pgs.contact_residual(W, u0, lam[solver], mu)) <= 1e-11 * scale
     assert np.abs(W @ (lam["block"] - lam["gauss-seidel"])).max() <= 1e-9 * scale
+
+
+def _reference_groups(W, coupling, largest):
+    """contact_groups by its definition: the coupled pairs, the strongest first, joined under the size cap."""
+    k = W.shape[0] // 3
+    d = np.sqrt(np.diag(W))
+    C = np.abs(W) / np.outer(d, d)
+    c = C.reshape(k, 3, k, 3).max(axis=(1, 3))
+    i, j = np.nonzero(np.triu(c > coupling, 1))
+    parent, size = list(range(k)), [1] * k
+
+    def find(a):
+        while parent[a] != a:
+            a = parent[a]
+        return a
+
+    for p in np.argsort(-c[i, j], kind="stable"):
+        a, b = sorted((find(i[p]), find(j[p])))
+        if a != b and size[a] + size[b] <= largest:
+            parent[b], size[a] = a, size[a] + size[b]
+    groups = {}
+    for q in range(k):
+        groups.setdefault(find(q), []).append(q)
+    return [groups[r] for r in sorted(groups)]
+
+
+@pytest.mark.parametrize("largest", [3, 8, 64])
+def test_groups_equal_their_definition(largest):
+    """Random couplings in clusters of up to 8 contacts: with a cap of 64 (and 8) every cluster is one group,
+    joined without sorting the pairs; with 3 the strongest pairs first. Both as the definition."""
+    rng = np.random.default_rng(11)
+    k, blocks = 40, []
+    for size in (8, 6, 5, 8, 3, 4, 6):
+        B = rng.normal(size=(3 * size, 4))  # rank 4 per cluster: strongly coupled rows
+        blocks.append(B @ B.T + 0.05 * np.eye(3 * size))
+    W = scipy.linalg.block_diag(*blocks)
+    perm = np.repeat(3 * rng.permutation(k), 3) + np.tile(np.arange(3), k)  # clusters interleaved
+    W = W[np.ix_(perm, perm)]
+    ptr, members = pgs.contact_groups(W, largest=largest)
+    got = [list(members[ptr[g]:ptr[g + 1]]) for g in range(ptr.size - 1)]
+    want = _reference_groups(W, 0.5, largest)
+    assert got == want
+    assert max(len(g) for g in got) == min(largest, 8)
+
+
+def test_tied_couplings_keep_the_compiled_sort_order():
+    """Identical clusters (tied couplings) beyond the group size: the pairs are joined in the order the compiled
+    sort gives the ties, as before the pairs were sorted outside it."""
+    rng = np.random.default_rng(5)
+    B = rng.normal(size=(18, 3))
+    block = B @ B.T + 0.05 * np.eye(18)  # 6 contacts of rank 3: coupled
+    W = scipy.linalg.block_diag(block, block, block)
+    pairs, values = pgs._coupled_pairs(W, 0.5)
+    assert np.unique(values).size < values.size  # ties
+    want = pgs._members(pgs._joined(pairs, pgs._strongest_first(values), 18, 4))
+    got = pgs.contact_groups(W, largest=4)
+    assert all(np.array_equal(a, b) for a, b in zip(got, want))

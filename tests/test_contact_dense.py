@@ -3,6 +3,7 @@ body's reduced unknowns with its elastic vertices'), against the plain path of 3
 row on the frame's factorisation: W, the PGS impulses and the velocity correction to round-off."""
 import numpy as np
 import pytest
+import scipy.linalg
 import scipy.sparse as sp
 
 import skfem_affine as sa
@@ -123,7 +124,7 @@ def test_an_indefinite_block_is_a_solver_error():
     blocks = DenseBlocks(Operator(solver, A), np.array([0, 0, 1, 1]), used_unknowns(None, 4), largest=2)
     J = sp.csr_matrix(np.eye(4)[[2]])
     with pytest.raises(SolverError, match="block 1"):
-        blocks.parts(J, np.array([2]))
+        blocks.parts(J, None)
     assert blocks.columns(np.arange(4)).all()
     assert not DenseBlocks(Operator(solver, A), None, used_unknowns(None, 4), largest=3).columns(np.arange(4)).any()
 
@@ -139,3 +140,67 @@ def test_a_frame_with_its_own_schur_complement_takes_no_dense_blocks():
     touching = [r for r in sim.stats if r["n_contacts"]]
     assert touching and all(r["delassus_dense"] == 0 for r in touching)
     assert any(r["delassus_schur"] > 0 for r in touching)
+
+
+def _random_frame(rng, upper):
+    """Three bodies' SPD blocks (sizes 5, 7, 4) in one system given whole or by its upper triangle, a G of
+    12 free DOFs onto its 16 unknowns (body of each row) and a J of 4 rows on the free DOFs."""
+    sizes, blocks = [5, 7, 4], []
+    for m in sizes:
+        M = rng.normal(size=(m, m))
+        blocks.append(M @ M.T + m * np.eye(m))
+    A = sp.block_diag(blocks, format="csr")
+    bodies = np.repeat([0, 1, 2], 4)  # 4 free DOFs per body
+    start = np.cumsum([0] + sizes)
+    rows, cols = [], []
+    for b in range(3):
+        for i in range(4):
+            for c in start[b] + (3 * i + np.arange(3)) % sizes[b]:  # every unknown of the body used
+                rows.append(4 * b + i)
+                cols.append(c)
+    G = sp.csr_matrix((rng.normal(size=len(rows)), (rows, cols)), shape=(12, 16))
+    J = sp.csr_matrix(rng.normal(size=(4, 12)) * (rng.random((4, 12)) < 0.4))
+    stored = sp.triu(A, format="csr") if upper else A
+    return A, stored, G, J, bodies
+
+
+@pytest.mark.parametrize("upper", [False, True])
+def test_dense_parts_equal_the_sparse_products_bitwise(upper):
+    """The compiled gathers give what scipy does: the blocks' rows of Jr = J G (the same sums), their
+    entries of A (given whole or by its upper triangle), W's parts C C^T = Jb A_b^-1 Jb^T, and the
+    velocity correction A^-1 Jr^T lam equal to scipy's ``Jr.T @ lam`` and a Cholesky solve, bit for bit."""
+    rng = np.random.default_rng(7)
+    A, stored, G, J, bodies = _random_frame(rng, upper)
+    solver = SuperLU()
+    solver.factorize(A)
+    op = Operator(solver, stored, G, upper=upper)
+    labels = delassus.unknown_bodies(bodies, G)
+    blocks = DenseBlocks(op, labels, used_unknowns(G, 16), largest=6)  # bodies 0 and 2 small, 1 not
+    parts, touched = blocks.parts(J, G)
+    Jr = (J @ G).tocsr()
+    T = np.unique(Jr.indices[Jr.data != 0])
+    assert np.array_equal(touched, np.unique(labels[T][labels[T] != 1]))
+    assert blocks.rest == bool(np.any(labels[T] == 1)) and blocks.touched == np.count_nonzero(labels[T] != 1)
+    assert blocks.rest and touched.size == 2  # this J reaches all three bodies
+    lam = rng.normal(size=4)
+    y = blocks.apply(lam, np.zeros(16))
+    r = Jr.T @ lam
+    for (rows, C), b in zip(parts, touched):
+        idx, L = blocks.factors[b]
+        assert np.array_equal(idx, np.flatnonzero(labels == b))
+        assert np.array_equal(L, np.linalg.cholesky(A[idx][:, idx].toarray()))
+        Jb = Jr[:, idx].toarray()
+        assert np.array_equal(rows, np.flatnonzero(np.abs(Jb).sum(axis=1)))
+        Ct = scipy.linalg.solve_triangular(L, Jb[rows].T, lower=True)
+        assert np.array_equal(C, Ct.T)
+        assert np.array_equal(y[idx], scipy.linalg.cho_solve((L, True), r[idx]))
+        ref = Jb @ np.linalg.solve(A[idx][:, idx].toarray(), Jb.T)
+        assert np.abs(C @ C.T - ref[np.ix_(rows, rows)]).max() <= 1e-12 * np.abs(ref).max()
+
+
+def test_unknown_bodies_of_a_mapping():
+    """The body of each unknown through G (-1 for an empty column), None when a column spans two bodies."""
+    G = sp.csr_matrix(np.array([[1.0, 0, 2, 0], [0, 0, 3, 0], [0, 4, 0, 0]]))
+    assert np.array_equal(delassus.unknown_bodies(np.array([0, 0, 1]), G), [0, 1, 0, -1])
+    assert delassus.unknown_bodies(np.array([0, 1, 1]), G) is None
+    assert np.array_equal(delassus.unknown_bodies(np.array([3, 3, 5]), G.tocsc()), [3, 5, 3, -1])

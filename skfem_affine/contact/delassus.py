@@ -28,23 +28,54 @@ BLOCK_DIRECT_MIN = 2000
 
 
 def jacobian(contacts, n_vertices, free):
-    """J (3k x n_free): row 3i + r is frame row r of contact i on w_a v_a - sum_k w_k v_k (w_a the
-    contact's ``own`` weight, 1 for a vertex; fixed DOFs dropped)."""
+    """J (3k x n_free, CSR, sorted indices): row 3i + r is frame row r of contact i on w_a v_a - sum_k w_k v_k
+    (w_a the contact's ``own`` weight, 1 for a vertex; fixed DOFs and zero entries dropped)."""
     k = contacts.size
-    frames = contacts.frames()                                        # (k, 3, 3)
-    verts = np.column_stack([contacts.vertex, contacts.others])       # (k, 4)
+    verts = np.column_stack([contacts.vertex, contacts.others]).astype(np.int64)   # (k, 4)
     own = np.ones(k) if contacts.own is None else contacts.own
-    coef = np.column_stack([own, -contacts.weights])                  # (k, 4)
-    vals = coef[:, None, :, None] * frames[:, :, None, :]             # (k, 3 rows, 4 verts, 3 comps)
-    rows = np.broadcast_to((3 * np.arange(k)[:, None] + np.arange(3))[:, :, None, None], vals.shape)
-    cols = np.broadcast_to((3 * verts[:, :, None] + np.arange(3))[:, None, :, :], vals.shape)
+    coef = np.column_stack([own, -contacts.weights]).astype(float)                 # (k, 4)
     dof_map = np.full(3 * n_vertices, -1, dtype=np.int64)
     dof_map[free] = np.arange(free.size)
-    c = dof_map[cols.ravel()]
-    keep = (c >= 0) & (vals.ravel() != 0)
-    J = sp.csr_matrix((vals.ravel()[keep], (rows.ravel()[keep], c[keep])), shape=(3 * k, free.size))
-    J.sum_duplicates()
+    indptr, indices, data = _jacobian_rows(np.ascontiguousarray(contacts.frames(), dtype=float), verts, coef, dof_map)
+    J = sp.csr_matrix((data, indices, indptr), shape=(3 * k, free.size))
+    J.has_sorted_indices = True
     return J
+
+
+@njit(cache=True)
+def _jacobian_rows(frames, verts, coef, dof_map):
+    """The CSR arrays of :func:`jacobian`: entry (3i + r, DOF d of vertex verts[i, v]) is coef[i, v] frames[i, r, d],
+    each row's columns increasing, a column met twice summed."""
+    k, nv = verts.shape
+    indptr = np.zeros(3 * k + 1, dtype=np.int64)
+    indices = np.empty(9 * k * nv, dtype=np.int64)
+    data = np.empty(9 * k * nv)
+    cols, vals = np.empty(3 * nv, dtype=np.int64), np.empty(3 * nv)
+    n = 0
+    for i in range(k):
+        for r in range(3):
+            m = 0
+            for v in range(nv):
+                for d in range(3):
+                    val = coef[i, v] * frames[i, r, d]
+                    at = 3 * verts[i, v] + d
+                    c = dof_map[at + dof_map.size if at < 0 else at]
+                    if c < 0 or val == 0.0:
+                        continue
+                    q = m
+                    while q > 0 and cols[q - 1] > c:
+                        q -= 1
+                    if q > 0 and cols[q - 1] == c:
+                        vals[q - 1] += val
+                        continue
+                    for t in range(m, q, -1):
+                        cols[t], vals[t] = cols[t - 1], vals[t - 1]
+                    cols[q], vals[q] = c, val
+                    m += 1
+            indices[n:n + m], data[n:n + m] = cols[:m], vals[:m]
+            n += m
+            indptr[3 * i + r + 1] = n
+    return indptr, indices[:n], data[:n]
 
 
 def vertex_unknowns(vertices, n_vertices, free):
@@ -70,11 +101,24 @@ def unknown_bodies(bodies, G):
     blocks are then unknown, and the system is taken whole."""
     if G is None:
         return bodies
-    G = sp.csr_matrix(G)
-    of_entry = np.repeat(bodies, np.diff(G.indptr))
-    out = np.full(G.shape[1], -1, dtype=np.int64)
-    out[G.indices] = of_entry
-    return out if np.array_equal(out[G.indices], of_entry) else None
+    G = G if sp.issparse(G) and G.format == "csr" else sp.csr_matrix(G)
+    out, mixed = _column_bodies(G.indptr, G.indices, np.asarray(bodies, dtype=np.int64), G.shape[1])
+    return None if mixed else out
+
+
+@njit(cache=True)
+def _column_bodies(indptr, indices, bodies, ncols):
+    """(the body of each column of G from its rows' ``bodies``, -1 for an empty column; whether a column
+    spans two bodies)."""
+    out = np.full(ncols, -1, dtype=np.int64)
+    for i in range(indptr.size - 1):
+        for p in range(indptr[i], indptr[i + 1]):
+            c = indices[p]
+            if out[c] < 0:
+                out[c] = bodies[i]
+            elif out[c] != bodies[i]:
+                return out, True
+    return out, False
 
 
 def _checked_bodies(bodies, operator):
@@ -91,8 +135,12 @@ def _add_symmetric(W, rows, Wb):
     """W[rows_i, rows_j] += (Wb_ij + Wb_ji) / 2: a body's part of W, made exactly symmetric."""
     m = rows.size
     for i in range(m):
-        for j in range(m):
-            W[rows[i], rows[j]] += 0.5 * (Wb[i, j] + Wb[j, i])
+        r = rows[i]
+        for j in range(i):
+            v = 0.5 * (Wb[i, j] + Wb[j, i])
+            W[r, rows[j]] += v
+            W[rows[j], r] += v
+        W[r, r] += 0.5 * (Wb[i, i] + Wb[i, i])
 
 
 def _solve(solver, R, iterative=False):
@@ -139,9 +187,10 @@ class Resolvent:
 
     def __init__(self, operator, block=64, cache=None, touched=True, schur=None, bodies=None, dense=0):
         self.operator, self.solver, self.G = operator, operator.solver, operator.G
+        self._Gcsr = None if self.G is None else self.G.tocsr()
         self.block, self.touched, self.schur = int(block), bool(touched), schur
         self.iterative = operator.iterative
-        labels = None if bodies is None else unknown_bodies(_checked_bodies(bodies, operator), self.G)
+        labels = None if bodies is None else unknown_bodies(_checked_bodies(bodies, operator), self._Gcsr)
         known = labels[labels >= 0] if labels is not None else np.zeros(0, dtype=np.int64)
         self.labels = labels if known.size and known.min() < known.max() else None
         self.parts = None if self.labels is None else int(self.labels.max()) + 1  # None: one block
@@ -161,8 +210,9 @@ class Resolvent:
         self.dense_unknowns = 0  # unknowns of the blocks whose part of W came from their dense factors
         # a frame factorised with the touched unknowns last has their complement already: no dense blocks
         self.dense = None if not (dense and self.touched and operator.schur is None) else DenseBlocks(
-            operator, self.labels, used_unknowns(self.G, operator.shape[0]), dense)
-        self._dense_blocks, self._small = [], None  # the last W's blocks from dense factors, their unknowns
+            operator, self.labels, used_unknowns(self._Gcsr, operator.shape[0]), dense)
+        self._J = self._Jr = None  # the last J and Jr = J G (:attr:`Jr`)
+        self._dense_blocks, self._small = [], None  # the last W's blocks from dense factors; the small blocks' unknowns
 
     def _from_frame(self, label, T):
         """Z = (A^-1)_TT on the unknowns T (sorted) of one block from the Schur complement S the frame's
@@ -286,26 +336,33 @@ class Resolvent:
         self.columns_solved = width
         return X
 
+    @property
+    def Jr(self):
+        """Jr = J G (CSR) of the last :meth:`delassus`, J in full space; made on first use (a frame whose
+        contacts touch small blocks only never needs it)."""
+        if self._Jr is None:
+            J = self._J
+            self._Jr = sp.csr_matrix(J @ self.G) if self.G is not None else sp.csr_matrix(J)
+        return self._Jr
+
     def delassus(self, J):
         """W = J A^-1 J^T (dense, symmetric), A^-1 ~ G A_r^-1 G^T in a reduced frame."""
-        Jr = sp.csr_matrix(J @ self.G) if self.G is not None else sp.csr_matrix(J)
-        self.Jr, self.columns_solved, self.schur_unknowns, self.dense_unknowns = Jr, 0, 0, 0
-        k = Jr.shape[0]
+        J = J if sp.issparse(J) and J.format == "csr" else sp.csr_matrix(J)
+        self._J, self._Jr, self.columns_solved, self.schur_unknowns, self.dense_unknowns = J, None, 0, 0, 0
+        k = J.shape[0]
         W = np.zeros((k, k))
         self._dense_blocks, self._small = [], None
         parts, plans, s, rest = [], [], 0, True
         if self.dense is not None:  # the small blocks' parts from their dense factors, the others as below
-            T = np.unique(Jr.indices[Jr.data != 0])
-            small = T[self.dense.columns(T)]
-            if small.size:
-                dense, self._dense_blocks = self.dense.parts(Jr, small)
+            dense, labels = self.dense.parts(J, self._Gcsr)
+            if labels.size:
+                self._dense_blocks = labels
+                self._small, self.dense_unknowns, rest = self.dense.in_small(), self.dense.touched, self.dense.rest
                 parts += [(rows, C, C.T, False) for rows, C in dense]  # W_b = C C^T
-                self._small, self.dense_unknowns, rest = small, small.size, small.size < T.size
-                if rest:
-                    Jr = Jr.copy()
-                    on_small = np.zeros(Jr.shape[1], dtype=bool)
-                    on_small[small] = True
-                    Jr.data[on_small[Jr.indices]] = 0.0
+        Jr = self.Jr if rest else None
+        if rest and self._small is not None:
+            Jr = Jr.copy()
+            Jr.data[self._small[Jr.indices]] = 0.0
         blocks, T = self._blocks(Jr) if rest else ([], None)
         for label, Tb, rows, Jt in blocks:
             e = s + Tb.size
@@ -319,6 +376,8 @@ class Resolvent:
             X = self._packed(plans, T)
             parts += [(rows, Jt, X[s:e, :Jt.shape[1] if unit else rows.size], unit)
                       for s, e, rows, Jt, unit in plans]
+        if not parts:
+            return W
         with serial_blas():  # small products: spinning BLAS threads would cost more than they do
             for rows, Jt, X, unit in parts:
                 if sp.issparse(Jt) and 10 * Jt.nnz >= Jt.shape[0] * Jt.shape[1]:  # e.g. an affine body's 12 unknowns
@@ -329,12 +388,14 @@ class Resolvent:
     def apply(self, lam):
         """dv = A^-1 J^T lambda on the free DOFs (through G when reduced): one solve, the small blocks'
         part from their dense factors (no solve when the contacts touch only those)."""
-        r = self.Jr.T @ lam
         if self._small is None:
-            y = _solve(self.solver, r[:, None], self.iterative)[:, 0]
+            y = _solve(self.solver, (self.Jr.T @ lam)[:, None], self.iterative)[:, 0]
         else:
-            rest = r.copy()
-            rest[self._small] = 0.0
-            y = _solve(self.solver, rest[:, None], self.iterative)[:, 0] if np.any(rest) else np.zeros_like(r)
-            self.dense.solve(r, self._dense_blocks, y)
+            y = np.zeros(self.operator.shape[0])
+            if self.dense.rest:
+                rest = self.Jr.T @ lam
+                rest[self._small] = 0.0
+                if np.any(rest):
+                    y = _solve(self.solver, rest[:, None], self.iterative)[:, 0]
+            self.dense.apply(lam, y)
         return self.G @ y if self.G is not None else y

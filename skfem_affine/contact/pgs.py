@@ -453,6 +453,16 @@ def projected_gauss_seidel_lowrank(indptr, indices, data, ncols, u0, lam, iterat
     return w
 
 
+@njit(cache=True)
+def _lumped_diagonal(indptr, indices, data, inv_mass):
+    """The diagonal of J M^-1 J^T (J as CSR, M lumped: ``inv_mass`` per column), each row summed in order."""
+    out = np.zeros(indptr.size - 1)
+    for i in range(out.size):
+        for p in range(indptr[i], indptr[i + 1]):
+            out[i] += data[p] * data[p] * inv_mass[indices[p]]
+    return out
+
+
 # PGS(solver="block"): contacts whose rows of W are coupled by more than COUPLING (the largest
 # |W_ij| / sqrt(W_ii W_jj) over their two 3 x 3 blocks) are solved together, in groups of at most
 # GROUP contacts, each visit by up to INNER sweeps on the group's own block, costing at most WORK
@@ -473,23 +483,37 @@ def _find(parent, i):
 
 
 @njit(cache=True)
-def _groups(W, coupling, largest):
-    """(ptr, members) of :func:`contact_groups` (arguments checked there)."""
+def _joined(pairs, order, k, largest):
+    """The union-find forest of k contacts joining ``pairs`` in ``order`` while their groups keep at most
+    ``largest`` contacts, each group's root its first contact."""
+    parent = np.arange(k)
+    size = np.ones(k, dtype=np.int64)
+    for p in order:
+        a, b = _find(parent, pairs[p, 0]), _find(parent, pairs[p, 1])
+        if a != b and size[a] + size[b] <= largest:
+            if a > b:
+                a, b = b, a
+            parent[b] = a
+            size[a] += size[b]
+    return parent
+
+
+@njit(cache=True)
+def _coupled_pairs(W, coupling):
+    """The pairs of contacts (i < j, in that order) coupled above ``coupling`` and their couplings."""
     k = W.shape[0] // 3
     inv = np.zeros(3 * k)
     for i in range(3 * k):
         if W[i, i] > 0.0:
             inv[i] = 1.0 / np.sqrt(W[i, i])
-    # the coupled pairs (i < j), stored as found
     pairs, values = np.empty((16, 2), dtype=np.int64), np.empty(16)
     n = 0
     row = np.empty(3 * k)
     for i in range(k):
-        row[:] = 0.0
-        for a in range(3):  # the largest coupling of contact i's rows to each row after i's
-            s = inv[3 * i + a]
-            for q in range(3 * i + 3, 3 * k):
-                row[q] = max(row[q], abs(W[3 * i + a, q]) * s * inv[q])
+        s0, s1, s2 = inv[3 * i], inv[3 * i + 1], inv[3 * i + 2]
+        w0, w1, w2 = W[3 * i], W[3 * i + 1], W[3 * i + 2]
+        for q in range(3 * i + 3, 3 * k):  # the largest coupling of contact i's rows to each row after i's
+            row[q] = max(max(abs(w0[q]) * s0 * inv[q], abs(w1[q]) * s1 * inv[q]), abs(w2[q]) * s2 * inv[q])
         for j in range(i + 1, k):
             c = max(row[3 * j], row[3 * j + 1], row[3 * j + 2])
             if c > coupling:
@@ -499,20 +523,32 @@ def _groups(W, coupling, largest):
                     pairs, values = grown, more
                 pairs[n, 0], pairs[n, 1], values[n] = i, j, c
                 n += 1
-    # the strongest pairs first, joined while their groups stay within ``largest`` contacts
-    parent = np.arange(k)
-    size = np.ones(k, dtype=np.int64)
-    for p in np.argsort(-values[:n]):
-        a, b = _find(parent, pairs[p, 0]), _find(parent, pairs[p, 1])
-        if a != b and size[a] + size[b] <= largest:
-            if a > b:
-                a, b = b, a
-            parent[b] = a  # the root is the group's first contact
-            size[a] += size[b]
+    return pairs[:n], values[:n]
+
+
+@njit(cache=True)
+def _largest_set(parent):
+    """The size of the largest set of the union-find forest ``parent``."""
+    size = np.zeros(parent.size, dtype=np.int64)
+    for i in range(parent.size):
+        size[_find(parent, i)] += 1
+    return size.max() if parent.size else 0
+
+
+@njit(cache=True)
+def _strongest_first(values):
+    """The order of ``values``, largest first (a tie is ordered as this sort leaves it)."""
+    return np.argsort(-values)
+
+
+@njit(cache=True)
+def _members(parent):
+    """(ptr, members) of the groups of the forest ``parent``: by first contact, each in order."""
+    k = parent.size
     root = np.empty(k, dtype=np.int64)
     for i in range(k):
         root[i] = _find(parent, i)
-    members = np.argsort(root * k + np.arange(k))  # by first contact, then in order
+    members = np.argsort(root * k + np.arange(k))
     ptr = np.zeros(k + 1, dtype=np.int64)
     g = 0
     for q in range(k):
@@ -521,6 +557,21 @@ def _groups(W, coupling, largest):
             ptr[g] = q
     ptr[g + 1] = k
     return ptr[:g + 2], members
+
+
+def _groups(W, coupling, largest):
+    """(ptr, members) of :func:`contact_groups` (arguments checked there)."""
+    k = W.shape[0] // 3
+    pairs, values = _coupled_pairs(W, coupling)
+    # the strongest pairs first, joined while their groups stay within ``largest`` contacts; when no
+    # connected set of coupled contacts is larger, every pair joins whatever the order: no sort
+    parent = _joined(pairs, np.arange(values.size), k, k)
+    if _largest_set(parent) > largest:
+        order = np.argsort(-values)
+        if np.any(values[order[1:]] == values[order[:-1]]):  # ties: the order a compiled sort gives them
+            order = _strongest_first(values)
+        parent = _joined(pairs, order, k, largest)
+    return _members(parent)
 
 
 def contact_groups(W, coupling=COUPLING, largest=GROUP):
@@ -809,7 +860,7 @@ class Contact:
         lam = self.lam0.copy()
         Jn = self.Jn
         un = Jn @ v_free + self.bias[0::3]
-        wnn = np.asarray(Jn.multiply(Jn) @ self.inv_mass).ravel()
+        wnn = _lumped_diagonal(Jn.indptr, Jn.indices, Jn.data, self.inv_mass)
         new = (self.lam0[0::3] == 0) & (wnn > 0)
         lam[0::3][new] = np.maximum(0.0, -un[new]) / wnn[new]
         return lam

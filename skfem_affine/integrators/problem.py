@@ -227,6 +227,12 @@ class Operator:
         return self._matrix
 
     @property
+    def stored(self):
+        """(the matrix as given, whether it is the upper triangle only): for a reader of its entries that
+        need not build the whole matrix."""
+        return self._matrix, self._upper
+
+    @property
     def shape(self):
         return self._matrix.shape
 
