@@ -159,7 +159,7 @@ def test_detection_finds_the_reference_contacts(name):
             if f in INTS:
                 np.testing.assert_array_equal(got[f], ref[prefix + f], err_msg=f"{name} frame {k} {f}")
             else:
-                np.testing.assert_allclose(got[f], ref[prefix + f], rtol=1e-10, atol=1e-13,
+                np.testing.assert_allclose(got[f], ref[prefix + f], rtol=1e-9, atol=1e-11,
                                            err_msg=f"{name} frame {k} {f}")
 
 

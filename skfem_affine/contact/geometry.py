@@ -17,6 +17,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
+from skfem_affine.contact import narrow
 from skfem_affine.contact.edges import EdgePairs
 from skfem_affine.reducers.affine.mapping import group_sum
 
@@ -45,38 +46,10 @@ def boundary_surface(system):
 def closest_points_on_triangles(p, a, b, c):
     """Closest points of points p (k, 3) on triangles (a, b, c) (k, 3 each), as barycentric weights (k, 3).
 
-    The Voronoi-region test of Ericson (Real-Time Collision Detection, 5.1.5), vectorised:
-    interior, then edges, then vertices (later regions override earlier ones).
+    The Voronoi-region test of Ericson (Real-Time Collision Detection, 5.1.5)
+    (:func:`~skfem_affine.contact.narrow.triangle_weights`).
     """
-    ab, ac, ap, bp, cp = b - a, c - a, p - a, p - b, p - c
-
-    def dot(u, v):
-        return np.einsum("ij,ij->i", u, v)
-
-    d1, d2, d3, d4, d5, d6 = dot(ab, ap), dot(ac, ap), dot(ab, bp), dot(ac, bp), dot(ab, cp), dot(ac, cp)
-    va, vb, vc = d3 * d6 - d5 * d4, d5 * d2 - d1 * d6, d1 * d4 - d3 * d2
-
-    def safe(num, den):
-        return num / np.where(np.abs(den) > 1e-300, den, 1e-300)
-
-    s = va + vb + vc
-    v, w = safe(vb, s), safe(vc, s)
-    W = np.column_stack([1.0 - v - w, v, w])
-
-    def put(mask, cols):
-        W[mask] = np.column_stack(cols)[mask]
-
-    wbc = safe(d4 - d3, (d4 - d3) + (d5 - d6))
-    put((va <= 0) & (d4 - d3 >= 0) & (d5 - d6 >= 0), [0 * wbc, 1 - wbc, wbc])
-    wac = safe(d2, d2 - d6)
-    put((vb <= 0) & (d2 >= 0) & (d6 <= 0), [1 - wac, 0 * wac, wac])
-    one, zero = np.ones_like(d1), np.zeros_like(d1)
-    put((d6 >= 0) & (d5 <= d6), [zero, zero, one])
-    vab = safe(d1, d1 - d3)
-    put((vc <= 0) & (d1 >= 0) & (d3 <= 0), [1 - vab, vab, zero])
-    put((d3 >= 0) & (d4 <= d3), [zero, one, zero])
-    put((d1 <= 0) & (d2 <= 0), [one, zero, zero])
-    return W
+    return narrow.weights_of(*(np.ascontiguousarray(q, dtype=float) for q in (p, a, b, c)))
 
 
 def tangent_basis(n):
@@ -101,24 +74,12 @@ def closest_surface_points(points, rows, tri, corners, tiny):
 
     Returns ``(points_found, triangle, weights (k, 3), signed distance (k,), normal (k, 3))``.
     """
-    a, b, c = corners[tri, 0], corners[tri, 1], corners[tri, 2]
-    p = points[rows]
-    W = closest_points_on_triangles(p, a, b, c)
-    diff = p - (W[:, :1] * a + W[:, 1:2] * b + W[:, 2:] * c)
-    gap = np.linalg.norm(diff, axis=1)
-    fn = np.cross(b - a, c - a)
-    fn /= np.linalg.norm(fn, axis=1, keepdims=True)
-    order = np.lexsort((gap, rows))
-    first = order[np.r_[True, rows[order][1:] != rows[order][:-1]]]          # the closest pair per point
-    gmin = np.zeros(len(points))
-    gmin[rows[first]] = gap[first]
-    tie = gap <= gmin[rows] * (1.0 + 1e-9) + tiny
-    pseudo = group_sum(rows[tie], fn[tie], len(points))
-    r, g = rows[first], gap[first]
-    side = np.where(np.einsum("ij,ij->i", diff[first], pseudo[r]) < 0, -1.0, 1.0)
-    pn = pseudo[r] / np.maximum(np.linalg.norm(pseudo[r], axis=1, keepdims=True), 1e-300)
-    normal = np.where((g > tiny)[:, None], side[:, None] * diff[first] / np.maximum(g, 1e-300)[:, None], pn)
-    return r, tri[first], W[first], side * g, normal
+    rows, tri = np.asarray(rows, dtype=np.int64), np.asarray(tri, dtype=np.int64)
+    order = np.argsort(rows, kind="stable")
+    starts = np.searchsorted(rows[order], np.arange(len(points) + 1))
+    found, pair, W, d, normal = narrow.surface_points(np.ascontiguousarray(points, dtype=float), starts, order, tri,
+                                                      np.ascontiguousarray(corners, dtype=float), float(tiny))
+    return found, tri[pair], W, d, normal
 
 
 @dataclass
@@ -347,7 +308,8 @@ class Detector:
 
     def _vertex_pairs(self, x, R):
         """Every pair (vertex row of :attr:`body_vertices`, triangle) of different bodies whose
-        distance to the centroid may be within ``R`` (B, B) (a superset: a KD-tree per body)."""
+        distance to the centroid may be within ``R`` (B, B) (a superset: a KD-tree per body), grouped
+        by (triangle's body, row): ``(rows, triangles, group starts)`` (:func:`narrow.group_by_row`)."""
         xs, owner = x[self.body_vertices], self.body_of_vertex[self.body_vertices]
         rows, tris = [], []
         for b, (t0, t1) in enumerate(zip(self.tri_start, np.append(self.tri_start[1:], len(self.tris)))):
@@ -362,8 +324,8 @@ class Detector:
             rows.append(cand[m["i"]])
             tris.append(t0 + m["j"])
         if not rows:
-            return np.zeros(0, dtype=int), np.zeros(0, dtype=int)
-        return np.concatenate(rows), np.concatenate(tris)
+            return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64), np.zeros(1, dtype=np.int64)
+        return narrow.group_by_row(np.concatenate(rows), np.concatenate(tris), self.tri_body, len(xs))
 
     def _edge_pairs(self, frames, skin):
         """Candidate edge pairs for the edges' ``frames`` (one per velocity field) with their
@@ -401,37 +363,24 @@ class Detector:
 
         Broad phase: the triangles of each other body b whose centroids lie within the reach
         (:meth:`_reach`) of the vertex, the :data:`NEAREST_TRIANGLES` nearest of them (equal
-        distances by triangle index), from ``pairs`` (vertex rows, triangles: any superset of
+        distances by triangle index), from ``pairs`` (:meth:`_vertex_pairs` of any superset of
         them, else a search from scratch; ``reach``: :meth:`_reach` at x if known). Narrow phase:
-        :func:`closest_surface_points`; a pair is a contact when its gap may close at the
-        relative normal approach speed (the largest over the fields).
+        the closest of them (:func:`closest_surface_points`, compiled:
+        :func:`narrow.body_contacts`); a pair is a contact when its gap may close at the relative
+        normal approach speed (the largest over the fields). The contacts come by other body, then
+        by vertex.
         """
         sv, out = self.body_vertices, []
         R, centroid = self._reach(x, speeds, dt) if reach is None else reach
-        i, t = self._vertex_pairs(x, R) if pairs is None else pairs
-        xs, owner = x[sv], self.body_of_vertex[sv]
-        b = self.tri_body[t]
-        dist = np.sqrt(((xs[i] - centroid[t]) ** 2).sum(axis=1))
-        ok = dist <= R[owner[i], b]
-        i, t, b, dist = i[ok], t[ok], b[ok], dist[ok]
+        rows, cand, starts = self._vertex_pairs(x, R) if pairs is None else pairs
+        i, body, tri, W, d, normal = narrow.body_contacts(
+            x, sv, self.body_of_vertex[sv], self.tris, self.tri_body, centroid, R, starts, rows, cand, fields[0],
+            fields[-1], len(fields), self.margin, float(dt), 1e-9 * self.mean_edge, NEAREST_TRIANGLES)
         if not i.size:
             return out
-        group = b * len(sv) + i                                   # one point per (other body, vertex)
-        order = np.lexsort((t, dist, group))
-        i, t, group = i[order], t[order], group[order]
-        new = np.r_[True, group[1:] != group[:-1]]
-        rows = np.cumsum(new) - 1
-        starts = np.flatnonzero(new)
-        near = np.arange(len(group)) - starts[rows] < NEAREST_TRIANGLES
-        found, tri, W, d, normal = closest_surface_points(xs[i[starts]], rows[near], t[near], x[self.tris],
-                                                          1e-9 * self.mean_edge)
-        pairs, body = sv[i[starts[found]]], group[starts[found]] // len(sv)
-        approach = np.maximum.reduce([np.maximum(0.0, -np.einsum("ij,ij->i", u[pairs] - np.einsum(
-            "kj,kjc->kc", W, u[self.tris[tri]]), normal)) for u in fields])
-        hit = d < self.margin + 2.0 * dt * approach
-        for bb in np.unique(body[hit]):
-            part = np.flatnonzero(hit & (body == bb))
-            vtx = pairs[part]
-            out.append(ContactSet(vtx, self.tris[tri[part]], W[part], normal[part], d[part],
-                                  vtx * self.n_kinds + len(self.colliders) + bb))
+        vtx = sv[i]
+        cut = np.flatnonzero(np.r_[True, body[1:] != body[:-1], True])   # the contacts are by body, then vertex
+        for lo, hi in zip(cut[:-1], cut[1:]):
+            out.append(ContactSet(vtx[lo:hi], self.tris[tri[lo:hi]], W[lo:hi], normal[lo:hi], d[lo:hi],
+                                  vtx[lo:hi] * self.n_kinds + len(self.colliders) + body[lo]))
         return out

@@ -1,0 +1,236 @@
+"""Compiled narrow phase of contact detection: closest points on triangles and, per vertex and other
+body, the nearest of its candidate triangles (:mod:`skfem_affine.contact.geometry`).
+
+The arithmetic is that of the vectorised numpy formulation it replaces, operation for operation
+(the same sums in the same order), so that the contacts found are the same to the last bit where
+numpy's reductions sum in order: a loop per candidate pair is inherent here, and numpy spent most
+of its time in temporary arrays and sorts of all the pairs.
+"""
+import numpy as np
+from numba import njit
+
+from skfem_affine import _compile_notice  # noqa: F401 (one stderr line when the cached kernels compile)
+
+
+@njit(cache=True, error_model="numpy")
+def _safe(num, den):
+    """num / den, with a denominator of magnitude <= 1e-300 (or NaN) taken as 1e-300."""
+    return num / (den if abs(den) > 1e-300 else 1e-300)
+
+
+@njit(cache=True, error_model="numpy")
+def _dot(u0, u1, u2, v0, v1, v2):
+    """u . v, summed in the order of numpy's ``einsum("ij,ij->i")`` on rows of three (first and last
+    product, then the middle one)."""
+    return (u0 * v0 + u2 * v2) + u1 * v1
+
+
+@njit(cache=True, error_model="numpy")
+def triangle_weights(p, a, b, c):
+    """Barycentric weights (w0, w1, w2) of the closest point of p (3,) on the triangle (a, b, c):
+    the Voronoi-region test of Ericson (Real-Time Collision Detection, 5.1.5). A corner's region
+    comes before an edge's and an edge's before the interior; a degenerate triangle (a segment, a
+    point) gets finite weights of one of its closest points."""
+    ab0, ab1, ab2 = b[0] - a[0], b[1] - a[1], b[2] - a[2]
+    ac0, ac1, ac2 = c[0] - a[0], c[1] - a[1], c[2] - a[2]
+    d1 = _dot(ab0, ab1, ab2, p[0] - a[0], p[1] - a[1], p[2] - a[2])
+    d2 = _dot(ac0, ac1, ac2, p[0] - a[0], p[1] - a[1], p[2] - a[2])
+    d3 = _dot(ab0, ab1, ab2, p[0] - b[0], p[1] - b[1], p[2] - b[2])
+    d4 = _dot(ac0, ac1, ac2, p[0] - b[0], p[1] - b[1], p[2] - b[2])
+    d5 = _dot(ab0, ab1, ab2, p[0] - c[0], p[1] - c[1], p[2] - c[2])
+    d6 = _dot(ac0, ac1, ac2, p[0] - c[0], p[1] - c[1], p[2] - c[2])
+    va, vb, vc = d3 * d6 - d5 * d4, d5 * d2 - d1 * d6, d1 * d4 - d3 * d2
+    if d1 <= 0 and d2 <= 0:                           # corner a
+        return 1.0, 0.0, 0.0
+    if d3 >= 0 and d4 <= d3:                          # corner b
+        return 0.0, 1.0, 0.0
+    if vc <= 0 and d1 >= 0 and d3 <= 0:               # edge ab
+        v = _safe(d1, d1 - d3)
+        return 1 - v, v, 0.0
+    if d6 >= 0 and d5 <= d6:                          # corner c
+        return 0.0, 0.0, 1.0
+    if vb <= 0 and d2 >= 0 and d6 <= 0:               # edge ac
+        w = _safe(d2, d2 - d6)
+        return 1 - w, 0 * w, w
+    if va <= 0 and d4 - d3 >= 0 and d5 - d6 >= 0:     # edge bc
+        w = _safe(d4 - d3, (d4 - d3) + (d5 - d6))
+        return 0 * w, 1 - w, w
+    s = va + vb + vc
+    v, w = _safe(vb, s), _safe(vc, s)
+    return 1.0 - v - w, v, w
+
+
+@njit(cache=True, error_model="numpy")
+def weights_of(p, a, b, c):
+    """:func:`triangle_weights` of points p on triangles (a, b, c) (k, 3 each): (k, 3)."""
+    W = np.empty((p.shape[0], 3))
+    for k in range(p.shape[0]):
+        W[k, 0], W[k, 1], W[k, 2] = triangle_weights(p[k], a[k], b[k], c[k])
+    return W
+
+
+@njit(cache=True, error_model="numpy")
+def _nearest_face(p, C, m, tiny, W, diff, gap, fn, out_n):
+    """The closest of the m triangles C[:m] (M, 3, 3) to p (3,): returns (its index, signed distance)
+    and writes the unit normal into out_n (3,); W, diff (M, 3), gap (M,), fn (M, 3): scratch.
+
+    The sign is that of the pseudo-normal (the sum of the unit face normals of the triangles as
+    close as the closest, summed in order); the normal is the unit direction from the closest
+    point to p, or the pseudo-normal's when the gap is below ``tiny``. The first of equally close
+    triangles is the closest."""
+    first = 0
+    for j in range(m):
+        a, b, c = C[j, 0], C[j, 1], C[j, 2]
+        w0, w1, w2 = triangle_weights(p, a, b, c)
+        W[j, 0], W[j, 1], W[j, 2] = w0, w1, w2
+        for r in range(3):
+            diff[j, r] = p[r] - (w0 * a[r] + w1 * b[r] + w2 * c[r])
+        gap[j] = np.sqrt(diff[j, 0] * diff[j, 0] + diff[j, 1] * diff[j, 1] + diff[j, 2] * diff[j, 2])
+        e0, e1, e2 = b[0] - a[0], b[1] - a[1], b[2] - a[2]
+        f0, f1, f2 = c[0] - a[0], c[1] - a[1], c[2] - a[2]
+        n0, n1, n2 = e1 * f2 - e2 * f1, e2 * f0 - e0 * f2, e0 * f1 - e1 * f0
+        nn = np.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
+        fn[j, 0], fn[j, 1], fn[j, 2] = n0 / nn, n1 / nn, n2 / nn
+        if gap[j] < gap[first]:
+            first = j
+    g = gap[first]
+    bound = g * (1.0 + 1e-9) + tiny
+    s0 = s1 = s2 = 0.0
+    for j in range(m):
+        if gap[j] <= bound:
+            s0, s1, s2 = s0 + fn[j, 0], s1 + fn[j, 1], s2 + fn[j, 2]
+    side = -1.0 if _dot(diff[first, 0], diff[first, 1], diff[first, 2], s0, s1, s2) < 0 else 1.0
+    if g > tiny:
+        scale = max(g, 1e-300)
+        for r in range(3):
+            out_n[r] = side * diff[first, r] / scale
+    else:
+        scale = max(np.sqrt(s0 * s0 + s1 * s1 + s2 * s2), 1e-300)
+        out_n[0], out_n[1], out_n[2] = s0 / scale, s1 / scale, s2 / scale
+    return first, side * g
+
+
+@njit(cache=True, error_model="numpy")
+def surface_points(points, starts, order, tri, corners, tiny):
+    """The nearest triangle of each point with candidates: the candidate pairs ``order`` (k,) grouped
+    by point, point p's from ``starts[p]`` to ``starts[p + 1]`` (in their original order), their
+    triangles ``tri`` (k,) of ``corners`` (T, 3, 3). Returns (points found, their pair, weights (., 3),
+    signed distances, normals (., 3))."""
+    n = starts.size - 1
+    M = 1
+    for q in range(n):
+        M = max(M, starts[q + 1] - starts[q])
+    C, W, diff, fn = np.empty((M, 3, 3)), np.empty((M, 3)), np.empty((M, 3)), np.empty((M, 3))
+    gap = np.empty(M)
+    found, pair = np.empty(n, np.int64), np.empty(n, np.int64)
+    Wout, d, normal = np.empty((n, 3)), np.empty(n), np.empty((n, 3))
+    k = 0
+    for q in range(n):
+        m = starts[q + 1] - starts[q]
+        if m == 0:
+            continue
+        for j in range(m):
+            C[j] = corners[tri[order[starts[q] + j]]]
+        first, d[k] = _nearest_face(points[q], C, m, tiny, W, diff, gap, fn, normal[k])
+        Wout[k] = W[first]
+        found[k], pair[k] = q, order[starts[q] + first]
+        k += 1
+    return found[:k], pair[:k], Wout[:k], d[:k], normal[:k]
+
+
+@njit(cache=True)
+def group_by_row(rows, tris, tri_body, n_rows):
+    """Candidate pairs (rows, tris) whose triangles' bodies ``tri_body[tris]`` never decrease, grouped
+    by row within each body (a stable counting sort): returns the sorted rows and tris and the
+    start of each group of one (body, row) (with the end as last entry)."""
+    k = rows.size
+    out_r, out_t = np.empty(k, np.int64), np.empty(k, np.int64)
+    count = np.zeros(n_rows + 1, np.int64)
+    starts = np.empty(k + 1, np.int64)
+    g = 0
+    lo = 0
+    while lo < k:
+        hi = lo
+        body = tri_body[tris[lo]]
+        while hi < k and tri_body[tris[hi]] == body:
+            hi += 1
+        count[:] = 0
+        for j in range(lo, hi):
+            count[rows[j] + 1] += 1
+        for r in range(n_rows):
+            if count[r + 1] > 0:
+                starts[g] = lo + count[r]
+                g += 1
+            count[r + 1] += count[r]
+        for j in range(lo, hi):
+            pos = lo + count[rows[j]]
+            out_r[pos], out_t[pos] = rows[j], tris[j]
+            count[rows[j]] += 1
+        lo = hi
+    starts[g] = k
+    return out_r, out_t, starts[:g + 1]
+
+
+@njit(cache=True, error_model="numpy")
+def body_contacts(x, sv, owner, tris, tri_body, centroid, R, starts, rows, cand, u0, u1, n_fields, margin, dt,
+                  tiny, nearest):
+    """The contacts of vertices against the triangles of other bodies, from candidate pairs grouped
+    by (other body, vertex row) (:func:`group_by_row`: ``starts``, ``rows`` of ``sv``, triangles
+    ``cand``).
+
+    Per group, the candidates whose centroid (``centroid`` (T, 3)) lies within the reach ``R[owner
+    of the vertex, body]`` (B, B), the ``nearest`` nearest of them (equal distances by triangle
+    index), give the closest point (:func:`_nearest_face`); it is a contact when its signed gap is
+    below ``margin + 2 h`` times the normal approach speed of the vertex relative to the closest
+    point, the larger over the velocity fields u0 (and u1 when ``n_fields`` is 2), each (n, 3).
+    Returns (vertex rows, their other body, triangles, weights (k, 3), signed gaps, normals (k, 3))
+    of the contacts, ordered by (body, row)."""
+    G = starts.size - 1
+    C, W, diff, fn = np.empty((nearest, 3, 3)), np.empty((nearest, 3)), np.empty((nearest, 3)), np.empty((nearest, 3))
+    gap = np.empty(nearest)
+    best_d, best_t = np.empty(nearest), np.empty(nearest, np.int64)
+    o_row, o_body, o_tri = np.empty(G, np.int64), np.empty(G, np.int64), np.empty(G, np.int64)
+    o_W, o_d, o_n = np.empty((G, 3)), np.empty(G), np.empty((G, 3))
+    k = 0
+    for g in range(G):
+        i = rows[starts[g]]
+        p = x[sv[i]]
+        body = tri_body[cand[starts[g]]]
+        reach = R[owner[i], body]
+        m = 0
+        for j in range(starts[g], starts[g + 1]):
+            t = cand[j]
+            e0, e1, e2 = p[0] - centroid[t, 0], p[1] - centroid[t, 1], p[2] - centroid[t, 2]
+            dist = np.sqrt(e0 * e0 + e1 * e1 + e2 * e2)
+            if not dist <= reach:
+                continue
+            if m == nearest and not (dist < best_d[m - 1] or (dist == best_d[m - 1] and t < best_t[m - 1])):
+                continue
+            pos = m if m < nearest else nearest - 1                # insert in (distance, triangle) order
+            while pos > 0 and (dist < best_d[pos - 1] or (dist == best_d[pos - 1] and t < best_t[pos - 1])):
+                if pos < nearest:
+                    best_d[pos], best_t[pos] = best_d[pos - 1], best_t[pos - 1]
+                pos -= 1
+            best_d[pos], best_t[pos] = dist, t
+            m = min(m + 1, nearest)
+        if m == 0:
+            continue
+        for j in range(m):
+            for c in range(3):
+                C[j, c] = x[tris[best_t[j], c]]
+        first, d = _nearest_face(p, C, m, tiny, W, diff, gap, fn, o_n[k])
+        t = best_t[first]
+        w0, w1, w2 = W[first, 0], W[first, 1], W[first, 2]
+        approach = 0.0
+        for f in range(n_fields):
+            u = u0 if f == 0 else u1
+            a, b, c = u[tris[t, 0]], u[tris[t, 1]], u[tris[t, 2]]
+            v = u[sv[i]]
+            s = _dot(v[0] - (w0 * a[0] + w1 * b[0] + w2 * c[0]), v[1] - (w0 * a[1] + w1 * b[1] + w2 * c[1]),
+                     v[2] - (w0 * a[2] + w1 * b[2] + w2 * c[2]), o_n[k, 0], o_n[k, 1], o_n[k, 2])
+            approach = max(approach, max(0.0, -s))
+        if d < margin + 2.0 * dt * approach:
+            o_row[k], o_body[k], o_tri[k], o_d[k] = i, body, t, d
+            o_W[k, 0], o_W[k, 1], o_W[k, 2] = w0, w1, w2
+            k += 1
+    return o_row[:k], o_body[:k], o_tri[:k], o_W[:k], o_d[:k], o_n[:k]
