@@ -15,7 +15,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.sparse as sp
-from scipy.spatial import cKDTree
 
 from skfem_affine.contact import narrow
 from skfem_affine.contact.edges import EdgePairs
@@ -177,6 +176,7 @@ class Detector:
         if not np.isfinite(self.skin) or self.skin < 0.0:
             raise ValueError(f"skin must be a finite distance >= 0, got {skin!r}")
         self._list = None   # the candidate list (vertex pairs) and where the vertices were at its build
+        self._buffers = [np.zeros(0, dtype=np.int64)] * 3  # the memory of its vertex pairs
         # frames ahead of :attr:`ContactSet.near`, a predicted superset of the touched vertices for the Schur
         # complement's analysis to serve later frames (None: not predicted; on the landing octopus it
         # cost more than it saved: docs/contact.md)
@@ -231,7 +231,7 @@ class Detector:
             reach = self._reach(x, speeds, dt)
             edges = [] if self.edge_pairs is None else [self.edge_pairs.frame(x, u, dt, self.margin, s[2])
                                                          for u, s in zip(fields, speeds)]
-            vertex_pairs, edge_pairs = self._candidates(x, reach[0], edges)
+            vertex_pairs, edge_pairs = self._candidates(x, reach, edges)
             vertex_sets = self._body_contacts(x, fields, dt, speeds, vertex_pairs, reach)
             held = np.zeros(len(x), dtype=bool)
             for cs in vertex_sets:
@@ -306,26 +306,20 @@ class Detector:
         np.fill_diagonal(R, -np.inf)
         return R, centroid
 
-    def _vertex_pairs(self, x, R):
+    def _vertex_pairs(self, x, R, centroid, buffers=None):
         """Every pair (vertex row of :attr:`body_vertices`, triangle) of different bodies whose
-        distance to the centroid may be within ``R`` (B, B) (a superset: a KD-tree per body), grouped
-        by (triangle's body, row): ``(rows, triangles, group starts)`` (:func:`narrow.group_by_row`)."""
-        xs, owner = x[self.body_vertices], self.body_of_vertex[self.body_vertices]
-        rows, tris = [], []
-        for b, (t0, t1) in enumerate(zip(self.tri_start, np.append(self.tri_start[1:], len(self.tris)))):
-            corners = x[self.tris[t0:t1]]
-            r = R[owner, b] * (1.0 + 1e-9) + 1e-9 * self.mean_edge
-            lo, hi = corners.min(axis=(0, 1)), corners.max(axis=(0, 1))
-            cand = np.flatnonzero(np.all((xs >= lo - r[:, None]) & (xs <= hi + r[:, None]), axis=1))
-            if not cand.size:
-                continue
-            m = cKDTree(xs[cand]).sparse_distance_matrix(cKDTree(corners.mean(axis=1)), r[cand].max(),
-                                                          output_type="ndarray")
-            rows.append(cand[m["i"]])
-            tris.append(t0 + m["j"])
-        if not rows:
-            return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64), np.zeros(1, dtype=np.int64)
-        return narrow.group_by_row(np.concatenate(rows), np.concatenate(tris), self.tri_body, len(xs))
+        distance to the triangle's ``centroid`` (T, 3) may be within ``R`` (B, B), grouped by
+        (triangle's body, row): ``(rows, triangles, group starts)`` (:func:`narrow.vertex_pairs`),
+        written into the three int64 ``buffers`` (a list, updated when they grow) if given: a list
+        rebuilt every frame then reuses its memory instead of touching fresh pages."""
+        empty = np.zeros(0, dtype=np.int64)
+        rows, tris, starts, k, g = narrow.vertex_pairs(
+            x[self.body_vertices], self.body_of_vertex[self.body_vertices], centroid,
+            np.append(self.tri_start, len(self.tris)), R * (1.0 + 1e-9) + 1e-9 * self.mean_edge,
+            *(buffers if buffers is not None else (empty, empty, empty)))
+        if buffers is not None:
+            buffers[:] = rows, tris, starts
+        return rows[:k], tris[:k], starts[:g]
 
     def _edge_pairs(self, frames, skin):
         """Candidate edge pairs for the edges' ``frames`` (one per velocity field) with their
@@ -334,20 +328,21 @@ class Detector:
             return None
         return self.edge_pairs.pairs(frames[0], np.maximum.reduce([g["grow"] for g in frames]) + skin)
 
-    def _candidates(self, x, R, frames):
-        """The vertex-triangle pairs (vertex rows, triangles) and edge pairs (or None) to search at
-        x for the vertices' reach ``R`` and the edges' ``frames``: from scratch, or (with a skin)
+    def _candidates(self, x, reach, frames):
+        """The vertex-triangle pairs (:meth:`_vertex_pairs`) and edge pairs (or None) to search at
+        x for the vertices' ``reach`` (:meth:`_reach`) and the edges' ``frames``: from scratch, or (with a skin)
         from the candidate list while it covers them: no vertex has moved since its build by more
         than half of what the reach has left of the skin, and no edge has turned sharp."""
+        R, centroid = reach
         if self.skin <= 0.0:
-            return self._vertex_pairs(x, R), self._edge_pairs(frames, 0.0)
+            return self._vertex_pairs(x, R, centroid), self._edge_pairs(frames, 0.0)
         xs, lst = x[self.body_vertices], self._list
         if lst is not None:
             moved = 2.0 * float(np.sqrt(((xs - lst["x"]) ** 2).sum(axis=1).max(initial=0.0)))
             if (np.all(R + moved <= lst["R"]) and all(np.all(g["grow"] + moved <= lst["grow"]) for g in frames)
                     and not (frames and np.any(frames[0]["sharp"] & ~lst["sharp"]))):
                 return lst["vertex"], lst["edge"]
-        lst = {"x": xs.copy(), "R": R + self.skin, "vertex": self._vertex_pairs(x, R + self.skin),
+        lst = {"x": xs.copy(), "R": R + self.skin, "vertex": self._vertex_pairs(x, R + self.skin, centroid, self._buffers),
                "edge": self._edge_pairs(frames, self.skin)}
         if frames:
             lst["grow"] = np.maximum.reduce([g["grow"] for g in frames]) + self.skin
@@ -372,7 +367,7 @@ class Detector:
         """
         sv, out = self.body_vertices, []
         R, centroid = self._reach(x, speeds, dt) if reach is None else reach
-        rows, cand, starts = self._vertex_pairs(x, R) if pairs is None else pairs
+        rows, cand, starts = self._vertex_pairs(x, R, centroid) if pairs is None else pairs
         i, body, tri, W, d, normal = narrow.body_contacts(
             x, sv, self.body_of_vertex[sv], self.tris, self.tri_body, centroid, R, starts, rows, cand, fields[0],
             fields[-1], len(fields), self.margin, float(dt), 1e-9 * self.mean_edge, NEAREST_TRIANGLES)
