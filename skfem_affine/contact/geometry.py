@@ -229,8 +229,9 @@ class Detector:
                 fields = [v]  # a uniform acceleration (gravity alone) leaves relative approach speeds as they are
             speeds = [self._speeds(self.body_of_vertex[sv], u[sv]) for u in fields]
             reach = self._reach(x, speeds, dt)
-            edges = [] if self.edge_pairs is None else [self.edge_pairs.frame(x, u, dt, self.margin, s[2])
-                                                         for u, s in zip(fields, speeds)]
+            shape = None if self.edge_pairs is None else self.edge_pairs.shape(x)
+            edges = [] if shape is None else [self.edge_pairs.frame(x, u, dt, self.margin, s[2], shape)
+                                              for u, s in zip(fields, speeds)]
             vertex_pairs, edge_pairs = self._candidates(x, reach, edges)
             vertex_sets = self._body_contacts(x, fields, dt, speeds, vertex_pairs, reach)
             held = np.zeros(len(x), dtype=bool)

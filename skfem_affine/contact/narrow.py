@@ -299,3 +299,69 @@ def body_contacts(x, sv, owner, tris, tri_body, centroid, R, starts, rows, cand,
             o_W[k, 0], o_W[k, 1], o_W[k, 2] = w0, w1, w2
             k += 1
     return o_row[:k], o_body[:k], o_tri[:k], o_W[:k], o_d[:k], o_n[:k]
+
+
+@njit(cache=True, error_model="numpy")
+def _clip01(a):
+    return min(max(a, 0.0), 1.0)
+
+
+@njit(cache=True, error_model="numpy")
+def edge_contacts(ea, eb, edges, body, e0, e1, n0, n1, sharp, half, mid, reach, v, held, use_held, dt, margin,
+                  cone_tolerance, crossed_tolerance):
+    """The speculative contacts of the candidate pairs of surface edges (ea, eb) (k,) with the
+    vertex velocities v (n, 3) (:meth:`~skfem_affine.contact.edges.EdgePairs.find`, whose rules
+    and arithmetic this follows; ``reach`` (B, B) the broad phase's reach of a pair of bodies less
+    the longest edge, ``held`` (n,) the vertices resting on another body when ``use_held``).
+    Returns the mask (k,) of contacts and, for every pair, s, t, the normal (k, 3) and the gap."""
+    k = ea.size
+    hit = np.zeros(k, np.bool_)
+    S, T, N, D = np.zeros(k), np.zeros(k), np.zeros((k, 3)), np.zeros(k)
+    inside = 1e-6
+    for j in range(k):
+        a, b = ea[j], eb[j]
+        m0, m1, m2 = mid[a, 0] - mid[b, 0], mid[a, 1] - mid[b, 1], mid[a, 2] - mid[b, 2]
+        if not (np.sqrt(m0 * m0 + m1 * m1 + m2 * m2) <= reach[body[a], body[b]] + half[a] + half[b]):
+            continue
+        if not (sharp[a] and sharp[b]):
+            continue
+        # closest points a0 + s (a1 - a0), b0 + t (b1 - b0) of the two segments
+        u0, u1, u2 = e1[a, 0] - e0[a, 0], e1[a, 1] - e0[a, 1], e1[a, 2] - e0[a, 2]
+        w0, w1, w2 = e1[b, 0] - e0[b, 0], e1[b, 1] - e0[b, 1], e1[b, 2] - e0[b, 2]
+        r0, r1, r2 = e0[a, 0] - e0[b, 0], e0[a, 1] - e0[b, 1], e0[a, 2] - e0[b, 2]
+        uu, ww, uw = _dot(u0, u1, u2, u0, u1, u2), _dot(w0, w1, w2, w0, w1, w2), _dot(u0, u1, u2, w0, w1, w2)
+        ur, wr = _dot(u0, u1, u2, r0, r1, r2), _dot(w0, w1, w2, r0, r1, r2)
+        den = uu * ww - uw * uw
+        parallel = den <= 1e-12 * uu * ww
+        s = _clip01((uw * wr - ww * ur) / (1.0 if parallel else den))
+        t = _clip01((uw * s + wr) / max(ww, 1e-300))
+        s = _clip01((uw * t - ur) / max(uu, 1e-300))
+        # the normal across both edges (defined when they touch), out of B (edge b) towards A
+        c0, c1, c2 = u1 * w2 - u2 * w1, u2 * w0 - u0 * w2, u0 * w1 - u1 * w0
+        cn = max(np.sqrt(c0 * c0 + c1 * c1 + c2 * c2), 1e-300)
+        c0, c1, c2 = c0 / cn, c1 / cn, c2 / cn
+        o0 = (n0[b, 0] + n1[b, 0]) - (n0[a, 0] + n1[a, 0])
+        o1 = (n0[b, 1] + n1[b, 1]) - (n0[a, 1] + n1[a, 1])
+        o2 = (n0[b, 2] + n1[b, 2]) - (n0[a, 2] + n1[a, 2])
+        flip = -1.0 if _dot(c0, c1, c2, o0, o1, o2) < 0 else 1.0
+        c0, c1, c2 = c0 * flip, c1 * flip, c2 * flip
+        d = _dot(c0, c1, c2, (e0[a, 0] + s * u0) - (e0[b, 0] + t * w0), (e0[a, 1] + s * u1) - (e0[b, 1] + t * w1),
+                 (e0[a, 2] + s * u2) - (e0[b, 2] + t * w2))
+        # n within B's edge's normal cone and -n within A's; a crossed pair (d < 0) more strictly
+        cone = min(_dot(c0, c1, c2, n0[b, 0], n0[b, 1], n0[b, 2]), _dot(c0, c1, c2, n1[b, 0], n1[b, 1], n1[b, 2]),
+                   -_dot(c0, c1, c2, n0[a, 0], n0[a, 1], n0[a, 2]), -_dot(c0, c1, c2, n1[a, 0], n1[a, 1], n1[a, 2]))
+        if (parallel or not (s > inside and s < 1 - inside and t > inside and t < 1 - inside and d > -margin)
+                or not cone > (-crossed_tolerance if d < 0 else -cone_tolerance)):
+            continue
+        a0, a1, b0, b1 = edges[a, 0], edges[a, 1], edges[b, 0], edges[b, 1]
+        rel = _dot(((1 - s) * v[a0, 0] + s * v[a1, 0]) - ((1 - t) * v[b0, 0] + t * v[b1, 0]),
+                   ((1 - s) * v[a0, 1] + s * v[a1, 1]) - ((1 - t) * v[b0, 1] + t * v[b1, 1]),
+                   ((1 - s) * v[a0, 2] + s * v[a1, 2]) - ((1 - t) * v[b0, 2] + t * v[b1, 2]), c0, c1, c2)
+        grow = 2.0 * dt * max(0.0, -rel)
+        if use_held and ((held[a0] and held[a1]) or (held[b0] and held[b1])) and grow < margin:
+            continue
+        if d < margin + grow:
+            hit[j] = True
+            S[j], T[j], D[j] = s, t, d
+            N[j, 0], N[j, 1], N[j, 2] = c0, c1, c2
+    return hit, S, T, N, D
