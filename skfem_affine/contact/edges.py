@@ -81,14 +81,8 @@ class EdgePairs:
     def shape(self, x):
         """The edges at x (n, 3): a dict of their face normals ``n0``, ``n1``, ``sharp`` (E,) mask,
         ``outward`` directions, end points ``e0``, ``e1``, midpoints ``mid`` and half lengths ``half``."""
-        edges = self.edges
-        p = x[self.tris]
-        fn = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
-        fn /= np.maximum(np.linalg.norm(fn, axis=1, keepdims=True), 1e-300)
-        n0, n1 = fn[self.faces[:, 0]], fn[self.faces[:, 1]]
-        e0, e1 = x[edges[:, 0]], x[edges[:, 1]]
-        return {"n0": n0, "n1": n1, "sharp": np.einsum("ij,ij->i", n0, n1) < self.cos_sharp, "outward": n0 + n1,
-                "e0": e0, "e1": e1, "mid": 0.5 * (e0 + e1), "half": 0.5 * np.linalg.norm(e1 - e0, axis=1)}
+        g = narrow.edge_shape(x, self.tris, self.edges, self.faces, self.cos_sharp)
+        return dict(zip(("n0", "n1", "sharp", "outward", "e0", "e1", "mid", "half"), g))
 
     def frame(self, x, v, dt, margin, speed_bound, shape=None):
         """The edges at x (n, 3) with velocities v (n, 3): :meth:`shape` (or ``shape``, that of x if

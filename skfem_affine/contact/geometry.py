@@ -297,9 +297,7 @@ class Detector:
         ``margin + 2 h`` times a bound on their relative speed (the largest over the velocity
         fields ``speeds``) plus b's largest centroid-to-corner distance; -inf on the diagonal.
         Also the triangles' centroids (T, 3) at x."""
-        corners = x[self.tris]
-        centroid = corners.mean(axis=1)
-        reach = np.maximum.reduceat(((corners - centroid[:, None]) ** 2).sum(axis=2).max(axis=1), self.tri_start)
+        centroid, reach = narrow.triangle_centroids(x, self.tris, self.tri_start)
         # |v_i - v_j| <= |v_i - vbar_a| + |vbar_a - vbar_b| + max_j |v_j - vbar_b| for i in a, j in b
         bound = np.maximum.reduce([ms[:, None] + np.linalg.norm(mv[:, None] - mv[None], axis=2) + ms[None]
                                    for mv, _, ms in speeds])

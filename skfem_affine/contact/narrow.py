@@ -365,3 +365,53 @@ def edge_contacts(ea, eb, edges, body, e0, e1, n0, n1, sharp, half, mid, reach, 
             S[j], T[j], D[j] = s, t, d
             N[j, 0], N[j, 1], N[j, 2] = c0, c1, c2
     return hit, S, T, N, D
+
+
+@njit(cache=True, error_model="numpy")
+def triangle_centroids(x, tris, tri_start):
+    """Centroids (T, 3) of the triangles ``tris`` (T, 3) at x (n, 3) and, per body (its triangles
+    from ``tri_start[b]`` on), the largest squared distance from a centroid to its corners (B,)."""
+    T, B = tris.shape[0], tri_start.size
+    centroid, reach = np.empty((T, 3)), np.full(B, -np.inf)
+    b = 0
+    for t in range(T):
+        while b + 1 < B and t >= tri_start[b + 1]:
+            b += 1
+        i, j, k = tris[t, 0], tris[t, 1], tris[t, 2]
+        for c in range(3):
+            centroid[t, c] = (x[i, c] + x[j, c] + x[k, c]) / 3.0
+        r = 0.0
+        for q in (i, j, k):
+            e0, e1, e2 = x[q, 0] - centroid[t, 0], x[q, 1] - centroid[t, 1], x[q, 2] - centroid[t, 2]
+            r = max(r, e0 * e0 + e1 * e1 + e2 * e2)
+        reach[b] = max(reach[b], r)
+    return centroid, reach
+
+
+@njit(cache=True, error_model="numpy")
+def edge_shape(x, tris, edges, faces, cos_sharp):
+    """The surface edges (E, 2) at x (n, 3) with their two faces (E, 2) of the triangles ``tris``:
+    unit face normals n0, n1 (E, 3), sharp (E,) (n0 . n1 < ``cos_sharp``), outward n0 + n1, end
+    points e0, e1, midpoints and half lengths (E,)."""
+    T, E = tris.shape[0], edges.shape[0]
+    fn = np.empty((T, 3))
+    for t in range(T):
+        a, b, c = x[tris[t, 0]], x[tris[t, 1]], x[tris[t, 2]]
+        u0, u1, u2 = b[0] - a[0], b[1] - a[1], b[2] - a[2]
+        w0, w1, w2 = c[0] - a[0], c[1] - a[1], c[2] - a[2]
+        n0, n1, n2 = u1 * w2 - u2 * w1, u2 * w0 - u0 * w2, u0 * w1 - u1 * w0
+        nn = max(np.sqrt(n0 * n0 + n1 * n1 + n2 * n2), 1e-300)
+        fn[t, 0], fn[t, 1], fn[t, 2] = n0 / nn, n1 / nn, n2 / nn
+    N0, N1, out, e0, e1, mid = np.empty((E, 3)), np.empty((E, 3)), np.empty((E, 3)), np.empty((E, 3)), \
+        np.empty((E, 3)), np.empty((E, 3))
+    sharp, half = np.empty(E, np.bool_), np.empty(E)
+    for e in range(E):
+        N0[e], N1[e] = fn[faces[e, 0]], fn[faces[e, 1]]
+        sharp[e] = _dot(N0[e, 0], N0[e, 1], N0[e, 2], N1[e, 0], N1[e, 1], N1[e, 2]) < cos_sharp
+        e0[e], e1[e] = x[edges[e, 0]], x[edges[e, 1]]
+        for c in range(3):
+            out[e, c] = N0[e, c] + N1[e, c]
+            mid[e, c] = 0.5 * (e0[e, c] + e1[e, c])
+        d0, d1, d2 = e1[e, 0] - e0[e, 0], e1[e, 1] - e0[e, 1], e1[e, 2] - e0[e, 2]
+        half[e] = 0.5 * np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+    return N0, N1, sharp, out, e0, e1, mid, half
