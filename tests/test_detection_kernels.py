@@ -257,6 +257,38 @@ def test_closest_surface_points_take_the_pseudo_normal_beside_an_edge():
     np.testing.assert_allclose(again[3], d, atol=1e-15)
 
 
+def test_vertex_pairs_are_every_pair_within_reach_grouped_by_body_and_vertex():
+    """The grid search returns exactly the (vertex, triangle) pairs of different bodies within the
+    reach of the pair of bodies (against all distances), grouped by (triangle's body, vertex), on
+    bodies of very different sizes and reaches (one reach far below its body's size: the grid's cap
+    on cells), with vertices on cell boundaries, and into buffers that grow."""
+    from skfem_affine.contact import narrow
+    rng = np.random.default_rng(5)
+    sizes = [40, 300, 5, 120]
+    centroid = np.concatenate([rng.uniform(-1, 1, (k, 3)) * s for k, s in zip(sizes, (1.0, 0.3, 5.0, 1e-3))])
+    centroid[:3] = np.round(centroid[:3], 1)
+    tri_start = np.append(0, np.cumsum(sizes))
+    xs = rng.uniform(-1.2, 1.2, (500, 3))
+    xs[:20] = np.round(xs[:20], 1)
+    owner = rng.integers(0, 5, 500)                   # body 4 has no triangles
+    B = 5
+    r = rng.uniform(0.05, 0.4, (B, B))
+    r[1, 3], r[2, 0] = 1e-4, 2.0
+    np.fill_diagonal(r, -np.inf)
+    tb = np.repeat(np.arange(4), sizes)
+    dist = np.linalg.norm(xs[:, None] - centroid[None], axis=2)
+    want = (dist <= r[owner[:, None], tb[None]]) & (owner[:, None] != tb[None])
+    empty = np.zeros(0, dtype=np.int64)
+    rows, tris, starts, k, g = narrow.vertex_pairs(xs, owner, centroid, tri_start, r, empty, empty, empty)
+    rows, tris, starts = rows[:k], tris[:k], starts[:g]
+    got = np.zeros_like(want)
+    got[rows, tris] = True
+    assert np.array_equal(got, want) and k == want.sum()
+    key = tb[tris] * len(xs) + rows
+    assert np.all(np.diff(key) >= 0)                 # by (body, vertex)
+    assert np.array_equal(starts, np.append(np.flatnonzero(np.r_[True, key[1:] != key[:-1]]), k))
+
+
 if __name__ == "__main__":  # writes the reference from the detection of this checkout
     arrays = {}
     for name, (sim, settings, frames) in cases().items():
