@@ -29,7 +29,6 @@ close ``margin`` within two steps) one of whose edges rests on the other body at
 stacks then get no edge contacts where their vertex contacts suffice.
 """
 import numpy as np
-from scipy.spatial import cKDTree
 
 from skfem_affine.contact import narrow
 
@@ -103,35 +102,16 @@ class EdgePairs:
 
     def pairs(self, g, grow):
         """Every pair (edge a, edge b) (k,) each of sharp surface edges of bodies a < b whose
-        midpoints lie within ``grow`` (B, B) of each other, edges as in :meth:`frame`'s ``g``."""
-        body, starts, nb, mid = self.edge_body, self.starts, self.n_bodies, g["mid"]
-        none = np.zeros(0, dtype=int), np.zeros(0, dtype=int)
-        lo, hi = np.minimum.reduceat(mid, starts), np.maximum.reduceat(mid, starts)
-        # pairs of bodies whose grown boxes overlap, then the sharp edges of each inside the other's
-        gg = grow[:, :, None]
-        touch = np.all((lo[:, None] <= hi[None] + gg) & (hi[:, None] >= lo[None] - gg), axis=2)
-        np.fill_diagonal(touch, False)
-        if not touch.any():
-            return none
-        # per body: its sharp edges inside the grown box of a body it may touch, in one KD-tree
-        trees = {}
-        for b in np.flatnonzero(touch.any(axis=1)):
-            r = slice(starts[b], starts[b + 1] if b + 1 < nb else len(body))
-            o = np.flatnonzero(touch[b])
-            m = mid[r]
-            gb = grow[b, o][:, None]
-            inside = np.any(np.all((m[:, None] >= lo[o] - gb) & (m[:, None] <= hi[o] + gb), axis=2), axis=1)
-            idx = r.start + np.flatnonzero(g["sharp"][r] & inside)
-            if idx.size:
-                trees[b] = (idx, cKDTree(mid[idx]))
-        found = []
-        for b1, b2 in zip(*np.nonzero(np.triu(touch, 1))):
-            if b1 in trees and b2 in trees:
-                (i1, t1), (i2, t2) = trees[b1], trees[b2]
-                m = t1.sparse_distance_matrix(t2, grow[b1, b2], output_type="ndarray")
-                if len(m):
-                    found.append(np.column_stack([i1[m["i"]], i2[m["j"]]]))
-        return tuple(np.concatenate(found).T) if found else none
+        midpoints lie within ``grow`` (B, B) of each other, edges as in :meth:`frame`'s ``g``
+        (the compiled grid search of :func:`narrow.vertex_pairs`, midpoints against midpoints)."""
+        sharp = np.flatnonzero(g["sharp"])
+        body, nb = self.edge_body[sharp], self.n_bodies
+        reach = np.where(np.triu(np.ones((nb, nb), dtype=bool), 1), grow * (1.0 + 1e-9), -np.inf)
+        empty = np.zeros(0, dtype=np.int64)
+        mid = np.ascontiguousarray(g["mid"][sharp])
+        a, b, _, k, _ = narrow.vertex_pairs(mid, body, mid, np.searchsorted(body, np.arange(nb + 1)), reach,
+                                            empty, empty, empty)
+        return sharp[a[:k]], sharp[b[:k]]
 
     def find(self, x, v, dt, margin, speed_bound, held=None, pairs=None, g=None):
         """Edge-edge contacts at x (n, 3) with velocities v (n, 3).
