@@ -262,7 +262,7 @@ def test_vertex_pairs_are_every_pair_within_reach_grouped_by_body_and_vertex():
     reach of the pair of bodies (against all distances), grouped by (triangle's body, vertex), on
     bodies of very different sizes and reaches (one reach far below its body's size: the grid's cap
     on cells), with vertices on cell boundaries, and into buffers that grow."""
-    from skfem_affine.contact import narrow
+    from skfem_affine.contact import grid
     rng = np.random.default_rng(5)
     sizes = [40, 300, 5, 120]
     centroid = np.concatenate([rng.uniform(-1, 1, (k, 3)) * s for k, s in zip(sizes, (1.0, 0.3, 5.0, 1e-3))])
@@ -279,7 +279,7 @@ def test_vertex_pairs_are_every_pair_within_reach_grouped_by_body_and_vertex():
     dist = np.linalg.norm(xs[:, None] - centroid[None], axis=2)
     want = (dist <= r[owner[:, None], tb[None]]) & (owner[:, None] != tb[None])
     empty = np.zeros(0, dtype=np.int64)
-    rows, tris, starts, k, g = narrow.vertex_pairs(xs, owner, centroid, tri_start, r, empty, empty, empty)
+    rows, tris, starts, k, g = grid.vertex_pairs(xs, owner, centroid, tri_start, r, empty, empty, empty)
     rows, tris, starts = rows[:k], tris[:k], starts[:g]
     got = np.zeros_like(want)
     got[rows, tris] = True

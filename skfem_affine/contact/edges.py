@@ -30,7 +30,7 @@ stacks then get no edge contacts where their vertex contacts suffice.
 """
 import numpy as np
 
-from skfem_affine.contact import narrow
+from skfem_affine.contact import grid, narrow
 
 # An edge is sharp when the normals of its two faces differ by more than this angle (radians).
 SHARP_ANGLE = np.deg2rad(20.0)
@@ -103,13 +103,13 @@ class EdgePairs:
     def pairs(self, g, grow):
         """Every pair (edge a, edge b) (k,) each of sharp surface edges of bodies a < b whose
         midpoints lie within ``grow`` (B, B) of each other, edges as in :meth:`frame`'s ``g``
-        (the compiled grid search of :func:`narrow.vertex_pairs`, midpoints against midpoints)."""
+        (the compiled grid search of :func:`grid.vertex_pairs`, midpoints against midpoints)."""
         sharp = np.flatnonzero(g["sharp"])
         body, nb = self.edge_body[sharp], self.n_bodies
         reach = np.where(np.triu(np.ones((nb, nb), dtype=bool), 1), grow * (1.0 + 1e-9), -np.inf)
         empty = np.zeros(0, dtype=np.int64)
         mid = np.ascontiguousarray(g["mid"][sharp])
-        a, b, _, k, _ = narrow.vertex_pairs(mid, body, mid, np.searchsorted(body, np.arange(nb + 1)), reach,
+        a, b, _, k, _ = grid.vertex_pairs(mid, body, mid, np.searchsorted(body, np.arange(nb + 1)), reach,
                                             empty, empty, empty)
         return sharp[a[:k]], sharp[b[:k]]
 

@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse as sp
 
-from skfem_affine.contact import narrow
+from skfem_affine.contact import grid, narrow
 from skfem_affine.contact.edges import EdgePairs
 from skfem_affine.reducers.affine.mapping import group_sum
 
@@ -308,11 +308,11 @@ class Detector:
     def _vertex_pairs(self, x, R, centroid, buffers=None):
         """Every pair (vertex row of :attr:`body_vertices`, triangle) of different bodies whose
         distance to the triangle's ``centroid`` (T, 3) may be within ``R`` (B, B), grouped by
-        (triangle's body, row): ``(rows, triangles, group starts)`` (:func:`narrow.vertex_pairs`),
+        (triangle's body, row): ``(rows, triangles, group starts)`` (:func:`grid.vertex_pairs`),
         written into the three int64 ``buffers`` (a list, updated when they grow) if given: a list
         rebuilt every frame then reuses its memory instead of touching fresh pages."""
         empty = np.zeros(0, dtype=np.int64)
-        rows, tris, starts, k, g = narrow.vertex_pairs(
+        rows, tris, starts, k, g = grid.vertex_pairs(
             x[self.body_vertices], self.body_of_vertex[self.body_vertices], centroid,
             np.append(self.tri_start, len(self.tris)), R * (1.0 + 1e-9) + 1e-9 * self.mean_edge,
             *(buffers if buffers is not None else (empty, empty, empty)))
