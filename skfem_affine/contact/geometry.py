@@ -18,7 +18,6 @@ import scipy.sparse as sp
 
 from skfem_affine.contact import grid, narrow
 from skfem_affine.contact.edges import EdgePairs
-from skfem_affine.reducers.affine.mapping import group_sum
 
 # Broad phase: candidate triangles per vertex (nearest centroids within reach).
 NEAREST_TRIANGLES = 8
@@ -125,10 +124,12 @@ def concat(sets):
 
 
 
-def _uniform(dv, scale):
-    """Whether the velocity changes ``dv`` (k, 3) are one vector up to the rounding of velocities of
-    magnitude ``scale`` (``v + h a - v`` for a uniform ``a`` differs from ``h a`` by a few ulps)."""
-    return bool(np.all(np.ptp(dv, axis=0) <= 16.0 * np.finfo(float).eps * scale)) if len(dv) else True
+def _uniform(w, v, rows):
+    """Whether the velocity changes w - v (n, 3 each) of the vertices ``rows`` are one vector up to
+    the rounding of velocities of their magnitude (``v + h a - v`` for a uniform ``a`` differs from
+    ``h a`` by a few ulps)."""
+    spread, scale = grid.change_spread(w, v, rows)
+    return bool(np.all(spread <= 16.0 * np.finfo(float).eps * scale))
 
 
 class Detector:
@@ -225,9 +226,9 @@ class Detector:
                                        d[hit], vtx * self.n_kinds + ci))
         if self.body_pairs:
             sv = self.body_vertices
-            if w is not None and _uniform(w[sv] - v[sv], np.abs(w[sv]).max(initial=0.0)):
+            if w is not None and _uniform(w, v, sv):
                 fields = [v]  # a uniform acceleration (gravity alone) leaves relative approach speeds as they are
-            speeds = [self._speeds(self.body_of_vertex[sv], u[sv]) for u in fields]
+            speeds = [self._speeds(u) for u in fields]
             reach = self._reach(x, speeds, dt)
             shape = None if self.edge_pairs is None else self.edge_pairs.shape(x)
             edges = [] if shape is None else [self.edge_pairs.frame(x, u, dt, self.margin, s[2], shape)
@@ -258,20 +259,16 @@ class Detector:
             depth = max(depth, float(-d.min(initial=0.0)))
         if bodies and self.body_pairs:
             zero = np.zeros_like(x)
-            speeds = [self._speeds(self.body_of_vertex[self.body_vertices], zero[self.body_vertices])]
+            speeds = [self._speeds(zero)]
             for cs in self._body_contacts(x, [zero], 0.0, speeds):
                 depth = max(depth, float(-cs.distance.min(initial=0.0)))
         return depth
 
-    def _speeds(self, owner, vs):
-        """Mean velocity (B, 3) of each body's vertices ``vs`` (owners ``owner``), each vertex's speed
-        relative to its body's mean, and its body's largest such speed (B,)."""
-        nb = int(self.body_of_vertex.max()) + 1
-        mean_v = group_sum(owner, vs, nb) / np.maximum(np.bincount(owner, minlength=nb), 1)[:, None]
-        spread = np.linalg.norm(vs - mean_v[owner], axis=1)
-        max_spread = np.zeros(nb)
-        np.maximum.at(max_spread, owner, spread)
-        return mean_v, spread, max_spread
+    def _speeds(self, u):
+        """Mean velocity (B, 3) of each body's vertices :attr:`body_vertices` in u (n, 3), each
+        vertex's speed relative to its body's mean, and its body's largest such speed (B,)."""
+        sv = self.body_vertices
+        return grid.body_speeds(u, sv, self.body_of_vertex[sv], len(self.tri_start))
 
     def _edge_contacts(self, x, fields, dt, held, max_spreads, frames, pairs):
         """Speculative edge-edge contacts between sharp surface edges of different bodies
@@ -335,13 +332,13 @@ class Detector:
         R, centroid = reach
         if self.skin <= 0.0:
             return self._vertex_pairs(x, R, centroid), self._edge_pairs(frames, 0.0)
-        xs, lst = x[self.body_vertices], self._list
+        lst = self._list
         if lst is not None:
-            moved = 2.0 * float(np.sqrt(((xs - lst["x"]) ** 2).sum(axis=1).max(initial=0.0)))
+            moved = 2.0 * grid.largest_move(x, self.body_vertices, lst["x"])
             if (np.all(R + moved <= lst["R"]) and all(np.all(g["grow"] + moved <= lst["grow"]) for g in frames)
                     and not (frames and np.any(frames[0]["sharp"] & ~lst["sharp"]))):
                 return lst["vertex"], lst["edge"]
-        lst = {"x": xs.copy(), "R": R + self.skin, "vertex": self._vertex_pairs(x, R + self.skin, centroid, self._buffers),
+        lst = {"x": x[self.body_vertices], "R": R + self.skin, "vertex": self._vertex_pairs(x, R + self.skin, centroid, self._buffers),
                "edge": self._edge_pairs(frames, self.skin)}
         if frames:
             lst["grow"] = np.maximum.reduce([g["grow"] for g in frames]) + self.skin

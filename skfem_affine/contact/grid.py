@@ -103,3 +103,47 @@ def vertex_pairs(xs, owner, centroid, tri_start, r, rows, tris, starts):
     starts = _grow(starts, g + 1)
     starts[g] = k
     return rows, tris, starts, k, g + 1
+
+
+@njit(cache=True, error_model="numpy")
+def body_speeds(u, rows, owner, n_bodies):
+    """Mean velocity (B, 3) of each body's vertices ``rows`` (their bodies ``owner``) in u (n, 3),
+    each vertex's speed relative to its body's mean, and each body's largest such speed (B,)."""
+    mean, count = np.zeros((n_bodies, 3)), np.zeros(n_bodies, np.int64)
+    for k in range(rows.size):
+        for c in range(3):
+            mean[owner[k], c] += u[rows[k], c]
+        count[owner[k]] += 1
+    for b in range(n_bodies):
+        for c in range(3):
+            mean[b, c] /= max(count[b], 1)
+    spread, largest = np.empty(rows.size), np.zeros(n_bodies)
+    for k in range(rows.size):
+        b = owner[k]
+        d0, d1, d2 = u[rows[k], 0] - mean[b, 0], u[rows[k], 1] - mean[b, 1], u[rows[k], 2] - mean[b, 2]
+        spread[k] = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+        largest[b] = max(largest[b], spread[k])
+    return mean, spread, largest
+
+
+@njit(cache=True, error_model="numpy")
+def largest_move(x, rows, x0):
+    """The largest distance of a vertex ``rows`` at x (n, 3) from its place x0 (len(rows), 3)."""
+    move = 0.0
+    for k in range(rows.size):
+        d0, d1, d2 = x[rows[k], 0] - x0[k, 0], x[rows[k], 1] - x0[k, 1], x[rows[k], 2] - x0[k, 2]
+        move = max(move, d0 * d0 + d1 * d1 + d2 * d2)
+    return np.sqrt(move)
+
+
+@njit(cache=True, error_model="numpy")
+def change_spread(w, v, rows):
+    """The range (3,) over the vertices ``rows`` of each component of w - v (n, 3 each), and the
+    largest magnitude of a component of w there."""
+    lo, hi, scale = np.full(3, np.inf), np.full(3, -np.inf), 0.0
+    for k in range(rows.size):
+        for c in range(3):
+            d = w[rows[k], c] - v[rows[k], c]
+            lo[c], hi[c] = min(lo[c], d), max(hi[c], d)
+            scale = max(scale, abs(w[rows[k], c]))
+    return (hi - lo if rows.size else np.zeros(3)), scale
