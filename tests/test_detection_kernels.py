@@ -289,6 +289,16 @@ def test_vertex_pairs_are_every_pair_within_reach_grouped_by_body_and_vertex():
     assert np.array_equal(starts, np.append(np.flatnonzero(np.r_[True, key[1:] != key[:-1]]), k))
 
 
+def test_closest_point_inputs_are_checked():
+    corners = np.zeros((2, 3, 3))
+    with pytest.raises(ValueError, match="rows"):
+        geometry.closest_surface_points(np.zeros((1, 3)), np.array([1]), np.array([0]), corners, 0.0)
+    with pytest.raises(ValueError, match="tri"):
+        geometry.closest_surface_points(np.zeros((1, 3)), np.array([0]), np.array([2]), corners, 0.0)
+    with pytest.raises(ValueError, match="shape"):
+        geometry.closest_points_on_triangles(np.zeros((2, 3)), np.zeros((2, 3)), np.zeros((1, 3)), np.zeros((2, 3)))
+
+
 if __name__ == "__main__":  # writes the reference from the detection of this checkout
     arrays = {}
     for name, (sim, settings, frames) in cases().items():

@@ -47,7 +47,10 @@ def closest_points_on_triangles(p, a, b, c):
     The Voronoi-region test of Ericson (Real-Time Collision Detection, 5.1.5)
     (:func:`~skfem_affine.contact.narrow.triangle_weights`).
     """
-    return narrow.weights_of(*(np.ascontiguousarray(q, dtype=float) for q in (p, a, b, c)))
+    p, a, b, c = (np.ascontiguousarray(q, dtype=float) for q in (p, a, b, c))
+    if p.ndim != 2 or p.shape[1] != 3 or any(q.shape != p.shape for q in (a, b, c)):
+        raise ValueError(f"p, a, b, c must each have shape (k, 3), got {[q.shape for q in (p, a, b, c)]}")
+    return narrow.weights_of(p, a, b, c)
 
 
 def tangent_basis(n):
@@ -73,6 +76,10 @@ def closest_surface_points(points, rows, tri, corners, tiny):
     Returns ``(points_found, triangle, weights (k, 3), signed distance (k,), normal (k, 3))``.
     """
     rows, tri = np.asarray(rows, dtype=np.int64), np.asarray(tri, dtype=np.int64)
+    for name, index, size in (("rows", rows, len(points)), ("tri", tri, len(corners))):
+        if index.shape != (len(rows),) or (index.size and not 0 <= index.min() <= index.max() < size):
+            raise ValueError(f"{name} must be {len(rows)} indices in [0, {size}), got shape {index.shape}"
+                             f"{f' and values {index.min()}..{index.max()}' if index.size else ''}")
     order = np.argsort(rows, kind="stable")
     starts = np.searchsorted(rows[order], np.arange(len(points) + 1))
     found, pair, W, d, normal = narrow.surface_points(np.ascontiguousarray(points, dtype=float), starts, order, tri,
