@@ -299,6 +299,18 @@ def test_closest_point_inputs_are_checked():
         geometry.closest_points_on_triangles(np.zeros((2, 3)), np.zeros((2, 3)), np.zeros((1, 3)), np.zeros((2, 3)))
 
 
+def test_non_finite_positions_are_refused_before_the_grid():
+    sim, _, frames = cases()["falling"]
+    det = Detector(sim.system, [], sim.contact.detector.margin)   # no collider to check the points first
+    x, v, dt, _ = frames[0]
+    x = x.copy()
+    x[5] = np.nan
+    with pytest.raises(ValueError, match="non-finite"):
+        det.find(x, v, dt)
+    with pytest.raises(ValueError, match="non-finite"):
+        det.max_penetration(x)
+
+
 if __name__ == "__main__":  # writes the reference from the detection of this checkout
     arrays = {}
     for name, (sim, settings, frames) in cases().items():

@@ -301,6 +301,9 @@ class Detector:
         ``margin + 2 h`` times a bound on their relative speed (the largest over the velocity
         fields ``speeds``) plus b's largest centroid-to-corner distance; -inf on the diagonal.
         Also the triangles' centroids (T, 3) at x."""
+        if not np.all(np.isfinite(x[self.body_vertices])):
+            raise ValueError(f"positions x contain non-finite (NaN/inf) coordinates at "
+                             f"{int((~np.isfinite(x[self.body_vertices])).any(axis=1).sum())} vertices")
         centroid, reach = narrow.triangle_centroids(x, self.tris, self.tri_start)
         # |v_i - v_j| <= |v_i - vbar_a| + |vbar_a - vbar_b| + max_j |v_j - vbar_b| for i in a, j in b
         bound = np.maximum.reduce([ms[:, None] + np.linalg.norm(mv[:, None] - mv[None], axis=2) + ms[None]

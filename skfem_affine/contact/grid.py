@@ -52,7 +52,7 @@ def vertex_pairs(xs, owner, centroid, tri_start, r, rows, tris, starts):
         for t in range(t0, t1):
             q = 0
             for c in range(3):
-                q = q * dims[c] + min(int((centroid[t, c] - lo[c]) / cell), dims[c] - 1)
+                q = q * dims[c] + min(max(int((centroid[t, c] - lo[c]) / cell), 0), dims[c] - 1)
             where[t - t0] = q
             first[q + 1] += 1
         for q in range(n_cells):
