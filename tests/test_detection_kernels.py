@@ -1,4 +1,5 @@
-"""Contact detection's compiled narrow phase finds the contacts the vectorised numpy detection found.
+"""Contact detection's compiled kernels (broad phase grid, narrow phase) find the contacts the
+vectorised numpy detection found.
 
 ``tests/data/detection_reference.npz`` holds, for the small scenes below (a resting pile, a box falling
 onto another, two bars whose edges cross, boxes in a bowl and on a sphere, surface triangles squashed

@@ -348,7 +348,8 @@ class Detector:
             if (np.all(R + moved <= lst["R"]) and all(np.all(g["grow"] + moved <= lst["grow"]) for g in frames)
                     and not (frames and np.any(frames[0]["sharp"] & ~lst["sharp"]))):
                 return lst["vertex"], lst["edge"]
-        lst = {"x": x[self.body_vertices], "R": R + self.skin, "vertex": self._vertex_pairs(x, R + self.skin, centroid, self._buffers),
+        lst = {"x": x[self.body_vertices], "R": R + self.skin,
+               "vertex": self._vertex_pairs(x, R + self.skin, centroid, self._buffers),
                "edge": self._edge_pairs(frames, self.skin)}
         if frames:
             lst["grow"] = np.maximum.reduce([g["grow"] for g in frames]) + self.skin

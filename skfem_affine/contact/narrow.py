@@ -1,10 +1,10 @@
-"""Compiled narrow phase of contact detection: closest points on triangles and, per vertex and other
-body, the nearest of its candidate triangles (:mod:`skfem_affine.contact.geometry`).
+"""Compiled narrow phase of contact detection (:mod:`skfem_affine.contact.geometry`): closest points on
+triangles, per vertex and other body the nearest of its candidate triangles, the edge-edge tests
+(:mod:`skfem_affine.contact.edges`), and the triangles' centroids and the edges' normals they use.
 
-The arithmetic is that of the vectorised numpy formulation it replaces, operation for operation
-(the same sums in the same order), so that the contacts found are the same to the last bit where
-numpy's reductions sum in order: a loop per candidate pair is inherent here, and numpy spent most
-of its time in temporary arrays and sorts of all the pairs.
+A loop per candidate pair is inherent here. The arithmetic is that of the vectorised numpy
+formulation, operation for operation (the same sums in the same order, numpy's three-term dot
+products included: :func:`_dot`), so that the contacts found are the same to the last bit.
 """
 import numpy as np
 from numba import njit
@@ -142,8 +142,8 @@ def surface_points(points, starts, order, tri, corners, tiny):
 def body_contacts(x, sv, owner, tris, tri_body, centroid, R, starts, rows, cand, u0, u1, n_fields, margin, dt,
                   tiny, nearest):
     """The contacts of vertices against the triangles of other bodies, from candidate pairs grouped
-    by (other body, vertex row) (:func:`~skfem_affine.contact.grid.vertex_pairs`: ``starts``, ``rows`` of ``sv``, triangles
-    ``cand``).
+    by (other body, vertex row) (:func:`~skfem_affine.contact.grid.vertex_pairs`: ``starts``,
+    ``rows`` of ``sv``, triangles ``cand``).
 
     Per group, the candidates whose centroid (``centroid`` (T, 3)) lies within the reach ``R[owner
     of the vertex, body]`` (B, B), the ``nearest`` nearest of them (equal distances by triangle
