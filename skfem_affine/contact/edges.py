@@ -103,7 +103,7 @@ class EdgePairs:
     def pairs(self, g, grow):
         """Every pair (edge a, edge b) (k,) each of sharp surface edges of bodies a < b whose
         midpoints lie within ``grow`` (B, B) of each other, edges as in :meth:`frame`'s ``g``
-        (the compiled grid search of :func:`grid.vertex_pairs`, midpoints against midpoints)."""
+        (the compiled grid search of :func:`~skfem_affine.contact.grid.vertex_pairs`, midpoints against midpoints)."""
         sharp = np.flatnonzero(g["sharp"])
         body, nb = self.edge_body[sharp], self.n_bodies
         reach = np.where(np.triu(np.ones((nb, nb), dtype=bool), 1), grow * (1.0 + 1e-9), -np.inf)

@@ -315,7 +315,7 @@ class Detector:
     def _vertex_pairs(self, x, R, centroid, buffers=None):
         """Every pair (vertex row of :attr:`body_vertices`, triangle) of different bodies whose
         distance to the triangle's ``centroid`` (T, 3) may be within ``R`` (B, B), grouped by
-        (triangle's body, row): ``(rows, triangles, group starts)`` (:func:`grid.vertex_pairs`),
+        (triangle's body, row): ``(rows, triangles, group starts)`` (:func:`~skfem_affine.contact.grid.vertex_pairs`),
         written into the three int64 ``buffers`` (a list, updated when they grow) if given: a list
         rebuilt every frame then reuses its memory instead of touching fresh pages."""
         empty = np.zeros(0, dtype=np.int64)
@@ -368,7 +368,7 @@ class Detector:
         distances by triangle index), from ``pairs`` (:meth:`_vertex_pairs` of any superset of
         them, else a search from scratch; ``reach``: :meth:`_reach` at x if known). Narrow phase:
         the closest of them (:func:`closest_surface_points`, compiled:
-        :func:`narrow.body_contacts`); a pair is a contact when its gap may close at the relative
+        :func:`~skfem_affine.contact.narrow.body_contacts`); a pair is a contact when its gap may close at the relative
         normal approach speed (the largest over the fields). The contacts come by other body, then
         by vertex.
         """

@@ -4,7 +4,7 @@ triangles, per vertex and other body the nearest of its candidate triangles, the
 
 A loop per candidate pair is inherent here. The arithmetic is that of the vectorised numpy
 formulation, operation for operation (the same sums in the same order, numpy's three-term dot
-products included: :func:`_dot`), so that the contacts found are the same to the last bit.
+products included: ``_dot``), so that the contacts found are the same to the last bit.
 """
 import numpy as np
 from numba import njit
@@ -147,7 +147,7 @@ def body_contacts(x, sv, owner, tris, tri_body, centroid, R, starts, rows, cand,
 
     Per group, the candidates whose centroid (``centroid`` (T, 3)) lies within the reach ``R[owner
     of the vertex, body]`` (B, B), the ``nearest`` nearest of them (equal distances by triangle
-    index), give the closest point (:func:`_nearest_face`); it is a contact when its signed gap is
+    index), give the closest point (``_nearest_face``); it is a contact when its signed gap is
     below ``margin + 2 h`` times the normal approach speed of the vertex relative to the closest
     point, the larger over the velocity fields u0 (and u1 when ``n_fields`` is 2), each (n, 3).
     Returns (vertex rows, their other body, triangles, weights (k, 3), signed gaps, normals (k, 3))
