@@ -29,7 +29,8 @@ close ``margin`` within two steps) one of whose edges rests on the other body at
 stacks then get no edge contacts where their vertex contacts suffice.
 """
 import numpy as np
-from scipy.spatial import cKDTree
+
+from skfem_affine.contact import grid, narrow
 
 # An edge is sharp when the normals of its two faces differ by more than this angle (radians).
 SHARP_ANGLE = np.deg2rad(20.0)
@@ -57,21 +58,6 @@ def surface_edges(tris):
     return edges, np.column_stack([first, second])
 
 
-def segment_closest_points(a0, a1, b0, b1):
-    """Parameters s, t (k,) of the closest points of segments a0-a1 and b0-b1 (k, 3 each), and
-    whether the segments are parallel (k,) (their closest points are then not unique)."""
-    u, w, r = a1 - a0, b1 - b0, a0 - b0
-    uu, ww, uw = (np.einsum("ij,ij->i", p, q) for p, q in ((u, u), (w, w), (u, w)))
-    ur, wr = np.einsum("ij,ij->i", u, r), np.einsum("ij,ij->i", w, r)
-    den = uu * ww - uw * uw
-    parallel = den <= 1e-12 * uu * ww
-    safe = np.where(parallel, 1.0, den)
-    s = np.clip((uw * wr - ww * ur) / safe, 0.0, 1.0)
-    t = np.clip((uw * s + wr) / np.maximum(ww, 1e-300), 0.0, 1.0)
-    s = np.clip((uw * t - ur) / np.maximum(uu, 1e-300), 0.0, 1.0)
-    return s, t, parallel
-
-
 class EdgePairs:
     """Surface edges of every body and their speculative edge-edge contacts with other bodies.
 
@@ -91,61 +77,41 @@ class EdgePairs:
         self.starts = np.searchsorted(self.edge_body, np.arange(self.n_bodies))
         self.cos_sharp = np.cos(SHARP_ANGLE)
 
-    def frame(self, x, v, dt, margin, speed_bound):
-        """The edges at x (n, 3) with velocities v (n, 3): a dict of their face normals ``n0``,
-        ``n1``, ``sharp`` (E,) mask, ``outward`` directions, end points ``e0``, ``e1``, midpoints
-        ``mid``, half lengths ``half`` and the broad phase's ``grow`` (B, B): ``margin + 2 h``
-        times a bound on the relative speed of each pair of bodies plus the longest edge.
+    def shape(self, x):
+        """The edges at x (n, 3): a dict of their face normals ``n0``, ``n1``, ``sharp`` (E,) mask,
+        ``outward`` directions, end points ``e0``, ``e1``, midpoints ``mid`` and half lengths ``half``."""
+        g = narrow.edge_shape(x, self.tris, self.edges, self.faces, self.cos_sharp)
+        return dict(zip(("n0", "n1", "sharp", "outward", "e0", "e1", "mid", "half"), g))
+
+    def frame(self, x, v, dt, margin, speed_bound, shape=None):
+        """The edges at x (n, 3) with velocities v (n, 3): :meth:`shape` (or ``shape``, that of x if
+        known) and the broad phase's ``grow`` (B, B): ``margin + 2 h`` times a bound on the relative
+        speed of each pair of bodies plus the longest edge.
 
         ``speed_bound`` (n_bodies,) bounds each body's vertex speeds relative to its mean, and
         the means are taken from v."""
+        g = dict(self.shape(x) if shape is None else shape)
         edges, body = self.edges, self.edge_body
-        p = x[self.tris]
-        fn = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
-        fn /= np.maximum(np.linalg.norm(fn, axis=1, keepdims=True), 1e-300)
-        n0, n1 = fn[self.faces[:, 0]], fn[self.faces[:, 1]]
-        e0, e1 = x[edges[:, 0]], x[edges[:, 1]]
-        half = 0.5 * np.linalg.norm(e1 - e0, axis=1)
         count = np.maximum(np.diff(np.append(self.starts, len(body))), 1)[:, None]
         vm = 0.5 * (v[edges[:, 0]] + v[edges[:, 1]])
         mean_v = np.add.reduceat(vm, self.starts) / count
         # reach of each pair of bodies: margin + 2 h |relative speed| bound
         rel = np.linalg.norm(mean_v[:, None] - mean_v[None], axis=2) + speed_bound[:, None] + speed_bound[None]
-        return {"n0": n0, "n1": n1, "sharp": np.einsum("ij,ij->i", n0, n1) < self.cos_sharp, "outward": n0 + n1,
-                "e0": e0, "e1": e1, "mid": 0.5 * (e0 + e1), "half": half,
-                "grow": margin + 2.0 * dt * rel + 2.0 * half.max()}
+        g["grow"] = margin + 2.0 * dt * rel + 2.0 * g["half"].max()
+        return g
 
     def pairs(self, g, grow):
         """Every pair (edge a, edge b) (k,) each of sharp surface edges of bodies a < b whose
-        midpoints lie within ``grow`` (B, B) of each other, edges as in :meth:`frame`'s ``g``."""
-        body, starts, nb, mid = self.edge_body, self.starts, self.n_bodies, g["mid"]
-        none = np.zeros(0, dtype=int), np.zeros(0, dtype=int)
-        lo, hi = np.minimum.reduceat(mid, starts), np.maximum.reduceat(mid, starts)
-        # pairs of bodies whose grown boxes overlap, then the sharp edges of each inside the other's
-        gg = grow[:, :, None]
-        touch = np.all((lo[:, None] <= hi[None] + gg) & (hi[:, None] >= lo[None] - gg), axis=2)
-        np.fill_diagonal(touch, False)
-        if not touch.any():
-            return none
-        # per body: its sharp edges inside the grown box of a body it may touch, in one KD-tree
-        trees = {}
-        for b in np.flatnonzero(touch.any(axis=1)):
-            r = slice(starts[b], starts[b + 1] if b + 1 < nb else len(body))
-            o = np.flatnonzero(touch[b])
-            m = mid[r]
-            gb = grow[b, o][:, None]
-            inside = np.any(np.all((m[:, None] >= lo[o] - gb) & (m[:, None] <= hi[o] + gb), axis=2), axis=1)
-            idx = r.start + np.flatnonzero(g["sharp"][r] & inside)
-            if idx.size:
-                trees[b] = (idx, cKDTree(mid[idx]))
-        found = []
-        for b1, b2 in zip(*np.nonzero(np.triu(touch, 1))):
-            if b1 in trees and b2 in trees:
-                (i1, t1), (i2, t2) = trees[b1], trees[b2]
-                m = t1.sparse_distance_matrix(t2, grow[b1, b2], output_type="ndarray")
-                if len(m):
-                    found.append(np.column_stack([i1[m["i"]], i2[m["j"]]]))
-        return tuple(np.concatenate(found).T) if found else none
+        midpoints lie within ``grow`` (B, B) of each other, edges as in :meth:`frame`'s ``g``
+        (the compiled grid search of :func:`~skfem_affine.contact.grid.vertex_pairs`, midpoints against midpoints)."""
+        sharp = np.flatnonzero(g["sharp"])
+        body, nb = self.edge_body[sharp], self.n_bodies
+        reach = np.where(np.triu(np.ones((nb, nb), dtype=bool), 1), grow * (1.0 + 1e-9), -np.inf)
+        empty = np.zeros(0, dtype=np.int64)
+        mid = np.ascontiguousarray(g["mid"][sharp])
+        a, b, _, k, _ = grid.vertex_pairs(mid, body, mid, np.searchsorted(body, np.arange(nb + 1)), reach,
+                                            empty, empty, empty)
+        return sharp[a[:k]], sharp[b[:k]]
 
     def find(self, x, v, dt, margin, speed_bound, held=None, pairs=None, g=None):
         """Edge-edge contacts at x (n, 3) with velocities v (n, 3).
@@ -167,42 +133,11 @@ class EdgePairs:
         if not g["sharp"].any():
             return None
         ea, eb = self.pairs(g, g["grow"]) if pairs is None else pairs
-        edges, body, half, mid, grow = self.edges, self.edge_body, g["half"], g["mid"], g["grow"]
-        reach = grow - 2.0 * half.max()
-        near = (np.linalg.norm(mid[ea] - mid[eb], axis=1) <= reach[body[ea], body[eb]] + half[ea] + half[eb])
-        near &= g["sharp"][ea] & g["sharp"][eb]
-        ea, eb = ea[near], eb[near]
-        if not ea.size:
-            return None
-        n0, n1, outward, e0, e1 = g["n0"], g["n1"], g["outward"], g["e0"], g["e1"]
-        # edges sharing a vertex cannot belong to different bodies; no check needed
-        a0, a1, b0, b1 = e0[ea], e1[ea], e0[eb], e1[eb]
-        s, t, parallel = segment_closest_points(a0, a1, b0, b1)
-        pa = a0 + s[:, None] * (a1 - a0)
-        pb = b0 + t[:, None] * (b1 - b0)
-        # the normal of two crossing edges is across both, e_a x e_b (well defined when they touch,
-        # d = 0, where p_a - p_b is not), turned to point out of B, towards A
-        n = np.cross(a1 - a0, b1 - b0)
-        n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
-        n *= np.where(np.einsum("ij,ij->i", n, outward[eb] - outward[ea]) < 0, -1.0, 1.0)[:, None]
-        d = np.einsum("ij,ij->i", n, pa - pb)  # signed: negative once the edges have crossed
-        inside = 1e-6
-        # n within B's edge's normal cone (between its two face normals) and -n within A's: the
-        # edges face each other, so that d < 0 means really crossed (CONE_TOLERANCE: a face
-        # normal may lie across n, as for two bars crossing face to face)
-        cone = np.minimum.reduce([np.einsum("ij,ij->i", n, f[e]) * sign for f, e, sign in
-                                  ((n0, eb, 1.0), (n1, eb, 1.0), (n0, ea, -1.0), (n1, ea, -1.0))])
-        # a crossed pair (d < 0) must have each closest point inside the other edge's wedge (both
-        # faces' planes): n inside both cones up to CROSSED_TOLERANCE only
-        ok = (~parallel & (s > inside) & (s < 1 - inside) & (t > inside) & (t < 1 - inside) & (d > -margin)
-              & (cone > np.where(d < 0, -CROSSED_TOLERANCE, -CONE_TOLERANCE)))
-        va = (1 - s)[:, None] * v[edges[ea, 0]] + s[:, None] * v[edges[ea, 1]]
-        vb = (1 - t)[:, None] * v[edges[eb, 0]] + t[:, None] * v[edges[eb, 1]]
-        approach = np.maximum(0.0, -np.einsum("ij,ij->i", va - vb, n))
-        reach = 2.0 * dt * approach
-        if held is not None:  # a slow pair with an edge resting on the other body at both ends
-            ok &= ~((held[edges[ea]].all(axis=1) | held[edges[eb]].all(axis=1)) & (reach < margin))
-        hit = np.flatnonzero(ok & (d < margin + reach))
+        hit, s, t, n, d = narrow.edge_contacts(
+            ea, eb, self.edges, self.edge_body, g["e0"], g["e1"], g["n0"], g["n1"], g["sharp"], g["half"], g["mid"],
+            g["grow"] - 2.0 * g["half"].max(), v, np.zeros(1, dtype=bool) if held is None else held, held is not None,
+            float(dt), float(margin), CONE_TOLERANCE, CROSSED_TOLERANCE)
+        hit = np.flatnonzero(hit)
         if not hit.size:
             return None
         return ea[hit], eb[hit], s[hit], t[hit], n[hit], d[hit]

@@ -15,10 +15,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.sparse as sp
-from scipy.spatial import cKDTree
 
+from skfem_affine.contact import grid, narrow
 from skfem_affine.contact.edges import EdgePairs
-from skfem_affine.reducers.affine.mapping import group_sum
 
 # Broad phase: candidate triangles per vertex (nearest centroids within reach).
 NEAREST_TRIANGLES = 8
@@ -45,38 +44,13 @@ def boundary_surface(system):
 def closest_points_on_triangles(p, a, b, c):
     """Closest points of points p (k, 3) on triangles (a, b, c) (k, 3 each), as barycentric weights (k, 3).
 
-    The Voronoi-region test of Ericson (Real-Time Collision Detection, 5.1.5), vectorised:
-    interior, then edges, then vertices (later regions override earlier ones).
+    The Voronoi-region test of Ericson (Real-Time Collision Detection, 5.1.5)
+    (:func:`~skfem_affine.contact.narrow.triangle_weights`).
     """
-    ab, ac, ap, bp, cp = b - a, c - a, p - a, p - b, p - c
-
-    def dot(u, v):
-        return np.einsum("ij,ij->i", u, v)
-
-    d1, d2, d3, d4, d5, d6 = dot(ab, ap), dot(ac, ap), dot(ab, bp), dot(ac, bp), dot(ab, cp), dot(ac, cp)
-    va, vb, vc = d3 * d6 - d5 * d4, d5 * d2 - d1 * d6, d1 * d4 - d3 * d2
-
-    def safe(num, den):
-        return num / np.where(np.abs(den) > 1e-300, den, 1e-300)
-
-    s = va + vb + vc
-    v, w = safe(vb, s), safe(vc, s)
-    W = np.column_stack([1.0 - v - w, v, w])
-
-    def put(mask, cols):
-        W[mask] = np.column_stack(cols)[mask]
-
-    wbc = safe(d4 - d3, (d4 - d3) + (d5 - d6))
-    put((va <= 0) & (d4 - d3 >= 0) & (d5 - d6 >= 0), [0 * wbc, 1 - wbc, wbc])
-    wac = safe(d2, d2 - d6)
-    put((vb <= 0) & (d2 >= 0) & (d6 <= 0), [1 - wac, 0 * wac, wac])
-    one, zero = np.ones_like(d1), np.zeros_like(d1)
-    put((d6 >= 0) & (d5 <= d6), [zero, zero, one])
-    vab = safe(d1, d1 - d3)
-    put((vc <= 0) & (d1 >= 0) & (d3 <= 0), [1 - vab, vab, zero])
-    put((d3 >= 0) & (d4 <= d3), [zero, one, zero])
-    put((d1 <= 0) & (d2 <= 0), [one, zero, zero])
-    return W
+    p, a, b, c = (np.ascontiguousarray(q, dtype=float) for q in (p, a, b, c))
+    if p.ndim != 2 or p.shape[1] != 3 or any(q.shape != p.shape for q in (a, b, c)):
+        raise ValueError(f"p, a, b, c must each have shape (k, 3), got {[q.shape for q in (p, a, b, c)]}")
+    return narrow.weights_of(p, a, b, c)
 
 
 def tangent_basis(n):
@@ -101,24 +75,16 @@ def closest_surface_points(points, rows, tri, corners, tiny):
 
     Returns ``(points_found, triangle, weights (k, 3), signed distance (k,), normal (k, 3))``.
     """
-    a, b, c = corners[tri, 0], corners[tri, 1], corners[tri, 2]
-    p = points[rows]
-    W = closest_points_on_triangles(p, a, b, c)
-    diff = p - (W[:, :1] * a + W[:, 1:2] * b + W[:, 2:] * c)
-    gap = np.linalg.norm(diff, axis=1)
-    fn = np.cross(b - a, c - a)
-    fn /= np.linalg.norm(fn, axis=1, keepdims=True)
-    order = np.lexsort((gap, rows))
-    first = order[np.r_[True, rows[order][1:] != rows[order][:-1]]]          # the closest pair per point
-    gmin = np.zeros(len(points))
-    gmin[rows[first]] = gap[first]
-    tie = gap <= gmin[rows] * (1.0 + 1e-9) + tiny
-    pseudo = group_sum(rows[tie], fn[tie], len(points))
-    r, g = rows[first], gap[first]
-    side = np.where(np.einsum("ij,ij->i", diff[first], pseudo[r]) < 0, -1.0, 1.0)
-    pn = pseudo[r] / np.maximum(np.linalg.norm(pseudo[r], axis=1, keepdims=True), 1e-300)
-    normal = np.where((g > tiny)[:, None], side[:, None] * diff[first] / np.maximum(g, 1e-300)[:, None], pn)
-    return r, tri[first], W[first], side * g, normal
+    rows, tri = np.asarray(rows, dtype=np.int64), np.asarray(tri, dtype=np.int64)
+    for name, index, size in (("rows", rows, len(points)), ("tri", tri, len(corners))):
+        if index.shape != (len(rows),) or (index.size and not 0 <= index.min() <= index.max() < size):
+            raise ValueError(f"{name} must be {len(rows)} indices in [0, {size}), got shape {index.shape}"
+                             f"{f' and values {index.min()}..{index.max()}' if index.size else ''}")
+    order = np.argsort(rows, kind="stable")
+    starts = np.searchsorted(rows[order], np.arange(len(points) + 1))
+    found, pair, W, d, normal = narrow.surface_points(np.ascontiguousarray(points, dtype=float), starts, order, tri,
+                                                      np.ascontiguousarray(corners, dtype=float), float(tiny))
+    return found, tri[pair], W, d, normal
 
 
 @dataclass
@@ -165,10 +131,12 @@ def concat(sets):
 
 
 
-def _uniform(dv, scale):
-    """Whether the velocity changes ``dv`` (k, 3) are one vector up to the rounding of velocities of
-    magnitude ``scale`` (``v + h a - v`` for a uniform ``a`` differs from ``h a`` by a few ulps)."""
-    return bool(np.all(np.ptp(dv, axis=0) <= 16.0 * np.finfo(float).eps * scale)) if len(dv) else True
+def _uniform(w, v, rows):
+    """Whether the velocity changes w - v (n, 3 each) of the vertices ``rows`` are one vector up to
+    the rounding of velocities of their magnitude (``v + h a - v`` for a uniform ``a`` differs from
+    ``h a`` by a few ulps)."""
+    spread, scale = grid.change_spread(w, v, rows)
+    return bool(np.all(spread <= 16.0 * np.finfo(float).eps * scale))
 
 
 class Detector:
@@ -216,6 +184,7 @@ class Detector:
         if not np.isfinite(self.skin) or self.skin < 0.0:
             raise ValueError(f"skin must be a finite distance >= 0, got {skin!r}")
         self._list = None   # the candidate list (vertex pairs) and where the vertices were at its build
+        self._buffers = [np.zeros(0, dtype=np.int64)] * 3  # the memory of its vertex pairs
         # frames ahead of :attr:`ContactSet.near`, a predicted superset of the touched vertices for the Schur
         # complement's analysis to serve later frames (None: not predicted; on the landing octopus it
         # cost more than it saved: docs/contact.md)
@@ -264,13 +233,14 @@ class Detector:
                                        d[hit], vtx * self.n_kinds + ci))
         if self.body_pairs:
             sv = self.body_vertices
-            if w is not None and _uniform(w[sv] - v[sv], np.abs(w[sv]).max(initial=0.0)):
+            if w is not None and _uniform(w, v, sv):
                 fields = [v]  # a uniform acceleration (gravity alone) leaves relative approach speeds as they are
-            speeds = [self._speeds(self.body_of_vertex[sv], u[sv]) for u in fields]
+            speeds = [self._speeds(u) for u in fields]
             reach = self._reach(x, speeds, dt)
-            edges = [] if self.edge_pairs is None else [self.edge_pairs.frame(x, u, dt, self.margin, s[2])
-                                                         for u, s in zip(fields, speeds)]
-            vertex_pairs, edge_pairs = self._candidates(x, reach[0], edges)
+            shape = None if self.edge_pairs is None else self.edge_pairs.shape(x)
+            edges = [] if shape is None else [self.edge_pairs.frame(x, u, dt, self.margin, s[2], shape)
+                                              for u, s in zip(fields, speeds)]
+            vertex_pairs, edge_pairs = self._candidates(x, reach, edges)
             vertex_sets = self._body_contacts(x, fields, dt, speeds, vertex_pairs, reach)
             held = np.zeros(len(x), dtype=bool)
             for cs in vertex_sets:
@@ -296,20 +266,16 @@ class Detector:
             depth = max(depth, float(-d.min(initial=0.0)))
         if bodies and self.body_pairs:
             zero = np.zeros_like(x)
-            speeds = [self._speeds(self.body_of_vertex[self.body_vertices], zero[self.body_vertices])]
+            speeds = [self._speeds(zero)]
             for cs in self._body_contacts(x, [zero], 0.0, speeds):
                 depth = max(depth, float(-cs.distance.min(initial=0.0)))
         return depth
 
-    def _speeds(self, owner, vs):
-        """Mean velocity (B, 3) of each body's vertices ``vs`` (owners ``owner``), each vertex's speed
-        relative to its body's mean, and its body's largest such speed (B,)."""
-        nb = int(self.body_of_vertex.max()) + 1
-        mean_v = group_sum(owner, vs, nb) / np.maximum(np.bincount(owner, minlength=nb), 1)[:, None]
-        spread = np.linalg.norm(vs - mean_v[owner], axis=1)
-        max_spread = np.zeros(nb)
-        np.maximum.at(max_spread, owner, spread)
-        return mean_v, spread, max_spread
+    def _speeds(self, u):
+        """Mean velocity (B, 3) of each body's vertices :attr:`body_vertices` in u (n, 3), each
+        vertex's speed relative to its body's mean, and its body's largest such speed (B,)."""
+        sv = self.body_vertices
+        return grid.body_speeds(u, sv, self.body_of_vertex[sv], len(self.tri_start))
 
     def _edge_contacts(self, x, fields, dt, held, max_spreads, frames, pairs):
         """Speculative edge-edge contacts between sharp surface edges of different bodies
@@ -335,9 +301,10 @@ class Detector:
         ``margin + 2 h`` times a bound on their relative speed (the largest over the velocity
         fields ``speeds``) plus b's largest centroid-to-corner distance; -inf on the diagonal.
         Also the triangles' centroids (T, 3) at x."""
-        corners = x[self.tris]
-        centroid = corners.mean(axis=1)
-        reach = np.maximum.reduceat(((corners - centroid[:, None]) ** 2).sum(axis=2).max(axis=1), self.tri_start)
+        if not np.all(np.isfinite(x[self.body_vertices])):
+            raise ValueError(f"positions x contain non-finite (NaN/inf) coordinates at "
+                             f"{int((~np.isfinite(x[self.body_vertices])).any(axis=1).sum())} vertices")
+        centroid, reach = narrow.triangle_centroids(x, self.tris, self.tri_start)
         # |v_i - v_j| <= |v_i - vbar_a| + |vbar_a - vbar_b| + max_j |v_j - vbar_b| for i in a, j in b
         bound = np.maximum.reduce([ms[:, None] + np.linalg.norm(mv[:, None] - mv[None], axis=2) + ms[None]
                                    for mv, _, ms in speeds])
@@ -345,25 +312,20 @@ class Detector:
         np.fill_diagonal(R, -np.inf)
         return R, centroid
 
-    def _vertex_pairs(self, x, R):
+    def _vertex_pairs(self, x, R, centroid, buffers=None):
         """Every pair (vertex row of :attr:`body_vertices`, triangle) of different bodies whose
-        distance to the centroid may be within ``R`` (B, B) (a superset: a KD-tree per body)."""
-        xs, owner = x[self.body_vertices], self.body_of_vertex[self.body_vertices]
-        rows, tris = [], []
-        for b, (t0, t1) in enumerate(zip(self.tri_start, np.append(self.tri_start[1:], len(self.tris)))):
-            corners = x[self.tris[t0:t1]]
-            r = R[owner, b] * (1.0 + 1e-9) + 1e-9 * self.mean_edge
-            lo, hi = corners.min(axis=(0, 1)), corners.max(axis=(0, 1))
-            cand = np.flatnonzero(np.all((xs >= lo - r[:, None]) & (xs <= hi + r[:, None]), axis=1))
-            if not cand.size:
-                continue
-            m = cKDTree(xs[cand]).sparse_distance_matrix(cKDTree(corners.mean(axis=1)), r[cand].max(),
-                                                          output_type="ndarray")
-            rows.append(cand[m["i"]])
-            tris.append(t0 + m["j"])
-        if not rows:
-            return np.zeros(0, dtype=int), np.zeros(0, dtype=int)
-        return np.concatenate(rows), np.concatenate(tris)
+        distance to the triangle's ``centroid`` (T, 3) may be within ``R`` (B, B), grouped by
+        (triangle's body, row): ``(rows, triangles, group starts)`` (:func:`~skfem_affine.contact.grid.vertex_pairs`),
+        written into the three int64 ``buffers`` (a list, updated when they grow) if given: a list
+        rebuilt every frame then reuses its memory instead of touching fresh pages."""
+        empty = np.zeros(0, dtype=np.int64)
+        rows, tris, starts, k, g = grid.vertex_pairs(
+            x[self.body_vertices], self.body_of_vertex[self.body_vertices], centroid,
+            np.append(self.tri_start, len(self.tris)), R * (1.0 + 1e-9) + 1e-9 * self.mean_edge,
+            *(buffers if buffers is not None else (empty, empty, empty)))
+        if buffers is not None:
+            buffers[:] = rows, tris, starts
+        return rows[:k], tris[:k], starts[:g]
 
     def _edge_pairs(self, frames, skin):
         """Candidate edge pairs for the edges' ``frames`` (one per velocity field) with their
@@ -372,20 +334,22 @@ class Detector:
             return None
         return self.edge_pairs.pairs(frames[0], np.maximum.reduce([g["grow"] for g in frames]) + skin)
 
-    def _candidates(self, x, R, frames):
-        """The vertex-triangle pairs (vertex rows, triangles) and edge pairs (or None) to search at
-        x for the vertices' reach ``R`` and the edges' ``frames``: from scratch, or (with a skin)
+    def _candidates(self, x, reach, frames):
+        """The vertex-triangle pairs (:meth:`_vertex_pairs`) and edge pairs (or None) to search at
+        x for the vertices' ``reach`` (:meth:`_reach`) and the edges' ``frames``: from scratch, or (with a skin)
         from the candidate list while it covers them: no vertex has moved since its build by more
         than half of what the reach has left of the skin, and no edge has turned sharp."""
+        R, centroid = reach
         if self.skin <= 0.0:
-            return self._vertex_pairs(x, R), self._edge_pairs(frames, 0.0)
-        xs, lst = x[self.body_vertices], self._list
+            return self._vertex_pairs(x, R, centroid), self._edge_pairs(frames, 0.0)
+        lst = self._list
         if lst is not None:
-            moved = 2.0 * float(np.sqrt(((xs - lst["x"]) ** 2).sum(axis=1).max(initial=0.0)))
+            moved = 2.0 * grid.largest_move(x, self.body_vertices, lst["x"])
             if (np.all(R + moved <= lst["R"]) and all(np.all(g["grow"] + moved <= lst["grow"]) for g in frames)
                     and not (frames and np.any(frames[0]["sharp"] & ~lst["sharp"]))):
                 return lst["vertex"], lst["edge"]
-        lst = {"x": xs.copy(), "R": R + self.skin, "vertex": self._vertex_pairs(x, R + self.skin),
+        lst = {"x": x[self.body_vertices], "R": R + self.skin,
+               "vertex": self._vertex_pairs(x, R + self.skin, centroid, self._buffers),
                "edge": self._edge_pairs(frames, self.skin)}
         if frames:
             lst["grow"] = np.maximum.reduce([g["grow"] for g in frames]) + self.skin
@@ -401,37 +365,24 @@ class Detector:
 
         Broad phase: the triangles of each other body b whose centroids lie within the reach
         (:meth:`_reach`) of the vertex, the :data:`NEAREST_TRIANGLES` nearest of them (equal
-        distances by triangle index), from ``pairs`` (vertex rows, triangles: any superset of
+        distances by triangle index), from ``pairs`` (:meth:`_vertex_pairs` of any superset of
         them, else a search from scratch; ``reach``: :meth:`_reach` at x if known). Narrow phase:
-        :func:`closest_surface_points`; a pair is a contact when its gap may close at the
-        relative normal approach speed (the largest over the fields).
+        the closest of them (:func:`closest_surface_points`, compiled:
+        :func:`~skfem_affine.contact.narrow.body_contacts`); a pair is a contact when its gap may close at the relative
+        normal approach speed (the largest over the fields). The contacts come by other body, then
+        by vertex.
         """
         sv, out = self.body_vertices, []
         R, centroid = self._reach(x, speeds, dt) if reach is None else reach
-        i, t = self._vertex_pairs(x, R) if pairs is None else pairs
-        xs, owner = x[sv], self.body_of_vertex[sv]
-        b = self.tri_body[t]
-        dist = np.sqrt(((xs[i] - centroid[t]) ** 2).sum(axis=1))
-        ok = dist <= R[owner[i], b]
-        i, t, b, dist = i[ok], t[ok], b[ok], dist[ok]
+        rows, cand, starts = self._vertex_pairs(x, R, centroid) if pairs is None else pairs
+        i, body, tri, W, d, normal = narrow.body_contacts(
+            x, sv, self.body_of_vertex[sv], self.tris, self.tri_body, centroid, R, starts, rows, cand, fields[0],
+            fields[-1], len(fields), self.margin, float(dt), 1e-9 * self.mean_edge, NEAREST_TRIANGLES)
         if not i.size:
             return out
-        group = b * len(sv) + i                                   # one point per (other body, vertex)
-        order = np.lexsort((t, dist, group))
-        i, t, group = i[order], t[order], group[order]
-        new = np.r_[True, group[1:] != group[:-1]]
-        rows = np.cumsum(new) - 1
-        starts = np.flatnonzero(new)
-        near = np.arange(len(group)) - starts[rows] < NEAREST_TRIANGLES
-        found, tri, W, d, normal = closest_surface_points(xs[i[starts]], rows[near], t[near], x[self.tris],
-                                                          1e-9 * self.mean_edge)
-        pairs, body = sv[i[starts[found]]], group[starts[found]] // len(sv)
-        approach = np.maximum.reduce([np.maximum(0.0, -np.einsum("ij,ij->i", u[pairs] - np.einsum(
-            "kj,kjc->kc", W, u[self.tris[tri]]), normal)) for u in fields])
-        hit = d < self.margin + 2.0 * dt * approach
-        for bb in np.unique(body[hit]):
-            part = np.flatnonzero(hit & (body == bb))
-            vtx = pairs[part]
-            out.append(ContactSet(vtx, self.tris[tri[part]], W[part], normal[part], d[part],
-                                  vtx * self.n_kinds + len(self.colliders) + bb))
+        vtx = sv[i]
+        cut = np.flatnonzero(np.r_[True, body[1:] != body[:-1], True])   # the contacts are by body, then vertex
+        for lo, hi in zip(cut[:-1], cut[1:]):
+            out.append(ContactSet(vtx[lo:hi], self.tris[tri[lo:hi]], W[lo:hi], normal[lo:hi], d[lo:hi],
+                                  vtx[lo:hi] * self.n_kinds + len(self.colliders) + body[lo]))
         return out
