@@ -219,6 +219,12 @@ class Pardiso:
             self._pattern = None
             raise SolverError(f"Pardiso factorization failed ({err}); is the system positive definite?") from err
 
+    @property
+    def factor_nonzeros(self):
+        """The nonzeros of the current pattern's Cholesky factor (its fill: how good its ordering is),
+        or None before a factorisation."""
+        return None if self._pattern is None else self._lib.factor_nonzeros()
+
     def analysed_for(self, A, upper=False):
         """Whether A's pattern is the one analysed last (or the one a loaded checkpoint will analyse
         next): :meth:`factorize` would then skip the analysis."""
@@ -390,6 +396,10 @@ class _PardisoLibrary:
         self._ps.set_iparm(5, 0)
         self._ps.set_iparm(2, {"md": 0, "metis": 2}[kind])
 
+    def factor_nonzeros(self):
+        """The nonzeros of the Cholesky factor of the last analysis (``iparm(18)``)."""
+        return int(self._ps.iparm[17])
+
     def perm(self):
         """The permutation array handed to Pardiso (the given order, when one was)."""
         return self._ps.perm
@@ -420,6 +430,8 @@ class _PardisoLibrary:
         import ctypes
         ps = self._ps
         perm = ps.perm if perm is None else perm
+        if phase in (11, 12, 13):
+            ps.set_iparm(18, -1)  # report the factor's nonzeros (iparm(18) holds the last count, which disables it)
         data, indptr, indices, n = arrays
         x = np.zeros_like(b)
         error = ctypes.c_int32(0)
