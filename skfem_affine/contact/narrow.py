@@ -76,7 +76,7 @@ def triangle_weights(p, a, b, c):
 @njit(cache=True, error_model="numpy")
 def _face(a, b, c):
     """The cross product (ab x ac) of the triangle (a, b, c), its norm, and whether the triangle has
-    no area (:data:`DEGENERATE`; NaN corners too)."""
+    no area (``DEGENERATE``; NaN corners too)."""
     e0, e1, e2 = b[0] - a[0], b[1] - a[1], b[2] - a[2]
     f0, f1, f2 = c[0] - a[0], c[1] - a[1], c[2] - a[2]
     n0, n1, n2 = e1 * f2 - e2 * f1, e2 * f0 - e0 * f2, e0 * f1 - e1 * f0
