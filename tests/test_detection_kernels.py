@@ -7,7 +7,9 @@ to a segment and a point), the detector's inputs of a few frames and the contact
 returned for them (written by ``python tests/test_detection_kernels.py``, from that version). Every
 contact must come back the same: the same vertices, triangles, keys and order, the gaps, weights and
 normals to round-off. The closest point of a point on a triangle is also checked against a numpy
-transcription of Ericson's Voronoi-region test (Real-Time Collision Detection, 5.1.5), kept here.
+transcription of Ericson's Voronoi-region test (Real-Time Collision Detection, 5.1.5), kept here
+(a triangle without area: its longest edge). A box whose top has a crushed triangle checks the sign
+of a vertex penetrating next to it.
 """
 import functools
 import os
