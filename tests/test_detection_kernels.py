@@ -7,7 +7,9 @@ to a segment and a point), the detector's inputs of a few frames and the contact
 returned for them (written by ``python tests/test_detection_kernels.py``, from that version). Every
 contact must come back the same: the same vertices, triangles, keys and order, the gaps, weights and
 normals to round-off. The closest point of a point on a triangle is also checked against a numpy
-transcription of Ericson's Voronoi-region test (Real-Time Collision Detection, 5.1.5), kept here.
+transcription of Ericson's Voronoi-region test (Real-Time Collision Detection, 5.1.5), kept here
+(a triangle without area: its longest edge). A box whose top has a crushed triangle checks the sign
+of a vertex penetrating next to it.
 """
 import functools
 import os
@@ -188,7 +190,9 @@ def test_reference_cases_exercise_every_path():
 
 def _weights_reference(p, a, b, c):
     """Barycentric weights (k, 3) of the closest points of p on triangles (a, b, c): Ericson's Voronoi
-    regions, vectorised (interior, then edges, then vertices; later regions override earlier ones)."""
+    regions, vectorised (interior, then edges, then vertices; later regions override earlier ones),
+    and for a triangle without area (``|ab x ac| <= 1e-12`` times its longest edge squared) the
+    projection on its longest edge, clamped."""
     ab, ac, ap, bp, cp = b - a, c - a, p - a, p - b, p - c
 
     def dot(u, v):
@@ -217,6 +221,20 @@ def _weights_reference(p, a, b, c):
     put((vc <= 0) & (d1 >= 0) & (d3 <= 0), [1 - vab, vab, zero])
     put((d3 >= 0) & (d4 <= d3), [zero, one, zero])
     put((d1 <= 0) & (d2 <= 0), [one, zero, zero])
+    # a triangle without area: the closest point on its longest edge (the first of ab, bc, ca)
+    n = np.cross(ab, ac)
+    length = np.column_stack([((q1 - q0) ** 2).sum(axis=1) for q0, q1 in ((a, b), (b, c), (c, a))])
+    flat = ~(np.sqrt((n ** 2).sum(axis=1)) > 1e-12 * length.max(axis=1))
+    edge = np.where((length[:, 0] >= length[:, 1]) & (length[:, 0] >= length[:, 2]), 0,
+                    np.where(length[:, 1] >= length[:, 2], 1, 2))
+    start, end = np.stack([a, b, c], axis=1), np.stack([b, c, a], axis=1)
+    s, e = start[np.arange(len(p)), edge], end[np.arange(len(p)), edge]
+    L = length[np.arange(len(p)), edge]
+    t = np.clip(dot(e - s, p - s) / np.where(L > 0, L, 1.0), 0.0, 1.0) * (L > 0)
+    seg = np.zeros_like(W)
+    seg[np.arange(len(p)), edge] = 1.0 - t
+    seg[np.arange(len(p)), (edge + 1) % 3] = t
+    W[flat] = seg[flat]
     return W
 
 
@@ -233,6 +251,7 @@ def test_closest_point_weights_match_the_voronoi_regions():
     p[400:500] = 0.5 * (a[400:500] + b[400:500])  # on an edge
     W = geometry.closest_points_on_triangles(p, a, b, c)
     np.testing.assert_array_equal(W, _weights_reference(p, a, b, c))
+    assert np.all(np.isfinite(W))
 
 
 def test_closest_surface_points_take_the_pseudo_normal_beside_an_edge():
@@ -310,6 +329,78 @@ def test_non_finite_positions_are_refused_before_the_grid():
         det.find(x, v, dt)
     with pytest.raises(ValueError, match="non-finite"):
         det.max_penetration(x)
+
+
+def _crushed_top():
+    """A box (2 cells a side, top face z = 0.5) with the top triangle whose corners are (0, -0.5),
+    (0.5, 0) and the top's centre crushed to zero area (the centre moved onto the middle of the
+    other two: the top stays flat), and a small box over it whose bottom is 0.01 deep in the top,
+    one bottom corner right above the crushed triangle."""
+    sim = sa.Simulation([sa.ElasticBody(box_mesh(1.0, 2, (0.0, 0.0, 0.0)), MAT),
+                         sa.ElasticBody(box_mesh(0.2, 1, (0.3, -0.2, 0.59)), MAT)], dt=0.01, gravity=(0, 0, 0))
+    x = sim.system.p0.copy()
+    centre = np.flatnonzero(np.all(np.isclose(x, [0.0, 0.0, 0.5]), axis=1))
+    x[centre] = [0.25, -0.25, 0.5]
+    return sim, x
+
+
+def test_a_vertex_beside_a_squashed_triangle_is_found_inside():
+    """A vertex 0.01 deep in a body, its closest points on a zero-area triangle of the body's surface
+    and on the two faces beside it: a contact with gap -0.01 and the normal out of the body (+z);
+    every gap and normal finite."""
+    sim, x = _crushed_top()
+    tris, owner = geometry.boundary_surface(sim.system)
+    area = np.linalg.norm(np.cross(x[tris[:, 1]] - x[tris[:, 0]], x[tris[:, 2]] - x[tris[:, 0]]), axis=1)
+    assert np.count_nonzero(area == 0.0) == 1                     # the crushed triangle, nothing else
+    det = Detector(sim.system, [], 0.005, edge_contact=False)
+    cs = det.find(x, np.zeros_like(x), 0.01)
+    assert np.all(np.isfinite(cs.distance)) and np.all(np.isfinite(cs.normal)) and np.all(np.isfinite(cs.weights))
+    corner = np.flatnonzero(np.all(np.isclose(x, [0.2, -0.3, 0.49]), axis=1))[0]
+    j = np.flatnonzero(cs.vertex == corner)
+    assert j.size == 1
+    np.testing.assert_allclose(cs.distance[j], -0.01, atol=1e-12)
+    np.testing.assert_allclose(cs.normal[j], [[0.0, 0.0, 1.0]], atol=1e-12)
+    # the contact point is on the surface, right under the vertex
+    np.testing.assert_allclose(np.einsum("kj,kjd->kd", cs.weights[j], x[cs.others[j]]), [[0.2, -0.3, 0.5]],
+                               atol=1e-12)
+    # every bottom corner of the small box is 0.01 deep, with the normal out of the big box
+    small = cs.vertex >= sim.system.vertex_offsets[1]
+    assert np.count_nonzero(small) == 4
+    np.testing.assert_allclose(cs.distance[small], -0.01, atol=1e-12)
+    np.testing.assert_allclose(cs.normal[small], np.tile([0.0, 0.0, 1.0], (4, 1)), atol=1e-12)
+    assert det.max_penetration(x) == pytest.approx(0.01, abs=1e-12)
+
+
+def test_closest_point_on_a_degenerate_triangle_is_on_its_longest_edge():
+    """A triangle of no area (collinear corners, two corners equal, a point): the closest point of a
+    point is its projection on the longest edge, clamped to it."""
+    a = np.array([[0.0, 0, 0], [0.0, 0, 0], [0.0, 0, 0], [1.0, 2, 3]])
+    b = np.array([[1.0, 0, 0], [0.0, 0, 0], [2.0, 0, 0], [1.0, 2, 3]])
+    c = np.array([[0.5, 0, 0], [2.0, 0, 0], [1.0, 0, 0], [1.0, 2, 3]])
+    p = np.array([[0.8, 1.0, 0], [1.5, 0, 1.0], [-1.0, 0, 1.0], [0.0, 0, 0]])
+    W = geometry.closest_points_on_triangles(p, a, b, c)
+    q = np.einsum("kj,kjd->kd", W, np.stack([a, b, c], axis=1))
+    np.testing.assert_allclose(q, [[0.8, 0, 0], [1.5, 0, 0], [0.0, 0, 0], [1.0, 2, 3]], atol=1e-15)
+    np.testing.assert_allclose(W.sum(axis=1), 1.0)
+
+
+def test_surface_points_of_only_degenerate_candidates_are_finite():
+    """Every candidate triangle of a point without area: the sign from the mean outward normal of
+    the candidates with an area (here the face beside them), else outside; never NaN."""
+    seg = [[0.0, 0, 0], [1.0, 0, 0], [1.0, 0, 0]]                  # a segment on the x axis
+    face = [[0.0, 0, 0], [1.0, -1, 0], [1.0, 1, 0]]                 # a face (normal +z) under it, farther
+    corners = np.array([seg, face], dtype=float)
+    corners[1, :, 2] -= 0.1
+    points = np.array([[0.5, 0.0, -0.02], [0.5, 0.0, 0.02]])
+    found, t, W, d, n = geometry.closest_surface_points(points, [0, 0, 1, 1], [0, 1, 0, 1], corners, 1e-12)
+    np.testing.assert_array_equal(t, [0, 0])
+    np.testing.assert_allclose(d, [-0.02, 0.02], atol=1e-15)
+    np.testing.assert_allclose(n, [[0, 0, 1.0], [0, 0, 1.0]], atol=1e-15)
+    # no candidate with an area: outside, along the direction from the closest point, or +z on it
+    points = np.array([[0.5, 0.0, -0.02], [0.5, 0.0, 0.0]])
+    found, t, W, d, n = geometry.closest_surface_points(points, [0, 1], [0, 0], corners[:1], 1e-12)
+    np.testing.assert_allclose(d, [0.02, 0.0], atol=1e-15)
+    np.testing.assert_allclose(n, [[0, 0, -1.0], [0, 0, 1.0]], atol=1e-15)
 
 
 if __name__ == "__main__":  # writes the reference from the detection of this checkout

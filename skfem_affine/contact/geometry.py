@@ -45,7 +45,9 @@ def closest_points_on_triangles(p, a, b, c):
     """Closest points of points p (k, 3) on triangles (a, b, c) (k, 3 each), as barycentric weights (k, 3).
 
     The Voronoi-region test of Ericson (Real-Time Collision Detection, 5.1.5)
-    (:func:`~skfem_affine.contact.narrow.triangle_weights`).
+    (:func:`~skfem_affine.contact.narrow.triangle_weights`); on a triangle without area (collinear
+    or equal corners), the closest point on its longest edge
+    (:func:`~skfem_affine.contact.narrow.closest_weights`).
     """
     p, a, b, c = (np.ascontiguousarray(q, dtype=float) for q in (p, a, b, c))
     if p.ndim != 2 or p.shape[1] != 3 or any(q.shape != p.shape for q in (a, b, c)):
@@ -71,7 +73,10 @@ def closest_surface_points(points, rows, tri, corners, tiny):
     the pseudo-normal (the sum of the face normals of all equally close triangles, which
     share the closest edge or vertex), so that a point beside an edge or a corner is not
     taken for one inside. The normal points from the surface to the point (the face
-    pseudo-normal when the gap is below ``tiny``).
+    pseudo-normal when the gap is below ``tiny``). A triangle without area (squashed to a
+    segment or a point) adds nothing to the pseudo-normal; when no equally close triangle has
+    an area, the sign comes from the normals of the point's candidate triangles that have one,
+    else the point is outside (:mod:`~skfem_affine.contact.narrow`). No gap or normal is NaN.
 
     Returns ``(points_found, triangle, weights (k, 3), signed distance (k,), normal (k, 3))``.
     """

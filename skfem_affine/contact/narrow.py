@@ -5,11 +5,24 @@ triangles, per vertex and other body the nearest of its candidate triangles, the
 A loop per candidate pair is inherent here. The arithmetic is that of the vectorised numpy
 formulation, operation for operation (the same sums in the same order, numpy's three-term dot
 products included: ``_dot``), so that the contacts found are the same to the last bit.
+
+A triangle without area (``|ab x ac| <= DEGENERATE`` times its longest edge squared: a crushed or
+squashed boundary triangle, its corners collinear or equal) is a segment: the closest point on it is
+the one on its longest edge, and it has no face normal, so it adds nothing to the pseudo-normal
+that decides inside from outside. When none of the triangles as close as the closest has an area,
+the sign is that of the direction from the closest point to the point against the sum of the unit
+normals of the candidate triangles that have one (the body's outward normal near it); with no such
+candidate either, the point is outside, its normal the direction from the closest point (the z axis
+when the point is on it). No gap or normal is NaN.
 """
 import numpy as np
 from numba import njit
 
 from skfem_affine import _compile_notice  # noqa: F401 (one stderr line when the cached kernels compile)
+
+# A triangle has no area when the norm of its corners' cross product is at most this times its
+# longest edge squared (the sine of its largest angle, about): it is taken as a segment.
+DEGENERATE = 1e-12
 
 
 @njit(cache=True, error_model="numpy")
@@ -30,7 +43,7 @@ def triangle_weights(p, a, b, c):
     """Barycentric weights (w0, w1, w2) of the closest point of p (3,) on the triangle (a, b, c):
     the Voronoi-region test of Ericson (Real-Time Collision Detection, 5.1.5). A corner's region
     comes before an edge's and an edge's before the interior; a degenerate triangle (a segment, a
-    point) gets finite weights of one of its closest points."""
+    point) gets finite weights, not always of a closest point: :func:`closest_weights`."""
     ab0, ab1, ab2 = b[0] - a[0], b[1] - a[1], b[2] - a[2]
     ac0, ac1, ac2 = c[0] - a[0], c[1] - a[1], c[2] - a[2]
     d1 = _dot(ab0, ab1, ab2, p[0] - a[0], p[1] - a[1], p[2] - a[2])
@@ -61,49 +74,105 @@ def triangle_weights(p, a, b, c):
 
 
 @njit(cache=True, error_model="numpy")
+def _face(a, b, c):
+    """The cross product (ab x ac) of the triangle (a, b, c), its norm, and whether the triangle has
+    no area (``DEGENERATE``; NaN corners too)."""
+    e0, e1, e2 = b[0] - a[0], b[1] - a[1], b[2] - a[2]
+    f0, f1, f2 = c[0] - a[0], c[1] - a[1], c[2] - a[2]
+    n0, n1, n2 = e1 * f2 - e2 * f1, e2 * f0 - e0 * f2, e0 * f1 - e1 * f0
+    nn = np.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
+    g0, g1, g2 = c[0] - b[0], c[1] - b[1], c[2] - b[2]
+    longest = max(e0 * e0 + e1 * e1 + e2 * e2, f0 * f0 + f1 * f1 + f2 * f2, g0 * g0 + g1 * g1 + g2 * g2)
+    return n0, n1, n2, nn, not nn > DEGENERATE * longest
+
+
+@njit(cache=True, error_model="numpy")
+def segment_weights(p, a, b, c):
+    """Barycentric weights of the closest point of p (3,) on the longest edge of the triangle
+    (a, b, c) (ab, bc, ca: the first of equally long ones), clamped to the edge: the closest point
+    on a triangle whose corners are collinear; a corner when they coincide."""
+    ab = (b[0] - a[0]) ** 2 + (b[1] - a[1]) ** 2 + (b[2] - a[2]) ** 2
+    bc = (c[0] - b[0]) ** 2 + (c[1] - b[1]) ** 2 + (c[2] - b[2]) ** 2
+    ca = (a[0] - c[0]) ** 2 + (a[1] - c[1]) ** 2 + (a[2] - c[2]) ** 2
+    if ab >= bc and ab >= ca:
+        s, e, length = a, b, ab
+    elif bc >= ca:
+        s, e, length = b, c, bc
+    else:
+        s, e, length = c, a, ca
+    t = 0.0
+    if length > 0:
+        t = _dot(e[0] - s[0], e[1] - s[1], e[2] - s[2], p[0] - s[0], p[1] - s[1], p[2] - s[2]) / length
+        t = min(max(t, 0.0), 1.0)
+    if ab >= bc and ab >= ca:
+        return 1.0 - t, t, 0.0
+    if bc >= ca:
+        return 0.0, 1.0 - t, t
+    return t, 0.0, 1.0 - t
+
+
+@njit(cache=True, error_model="numpy")
+def closest_weights(p, a, b, c):
+    """Barycentric weights of the closest point of p (3,) on the triangle (a, b, c):
+    :func:`triangle_weights`, or :func:`segment_weights` for a triangle without area."""
+    if _face(a, b, c)[4]:
+        return segment_weights(p, a, b, c)
+    return triangle_weights(p, a, b, c)
+
+
+@njit(cache=True, error_model="numpy")
 def weights_of(p, a, b, c):
-    """:func:`triangle_weights` of points p on triangles (a, b, c) (k, 3 each): (k, 3)."""
+    """:func:`closest_weights` of points p on triangles (a, b, c) (k, 3 each): (k, 3)."""
     W = np.empty((p.shape[0], 3))
     for k in range(p.shape[0]):
-        W[k, 0], W[k, 1], W[k, 2] = triangle_weights(p[k], a[k], b[k], c[k])
+        W[k, 0], W[k, 1], W[k, 2] = closest_weights(p[k], a[k], b[k], c[k])
     return W
 
 
 @njit(cache=True, error_model="numpy")
-def _nearest_face(p, C, m, tiny, W, diff, gap, fn, out_n):
+def _nearest_face(p, C, m, tiny, W, diff, gap, fn, flat, out_n):
     """The closest of the m triangles C[:m] (M, 3, 3) to p (3,): returns (its index, signed distance)
-    and writes the unit normal into out_n (3,); W, diff (M, 3), gap (M,), fn (M, 3): scratch.
+    and writes the unit normal into out_n (3,); W, diff (M, 3), gap (M,), fn (M, 3), flat (M,):
+    scratch.
 
-    The sign is that of the pseudo-normal (the sum of the unit face normals of the triangles as
-    close as the closest, summed in order); the normal is the unit direction from the closest
-    point to p, or the pseudo-normal's when the gap is below ``tiny``. The first of equally close
-    triangles is the closest."""
+    The sign is that of the pseudo-normal (the sum of the unit face normals of the triangles with
+    an area as close as the closest, summed in order; if none has one, of every candidate with an
+    area); the normal is the unit direction from the closest point to p, or the pseudo-normal's
+    when the gap is below ``tiny`` (the z axis if no candidate has an area). The first of equally
+    close triangles is the closest."""
     first = 0
     for j in range(m):
         a, b, c = C[j, 0], C[j, 1], C[j, 2]
-        w0, w1, w2 = triangle_weights(p, a, b, c)
+        n0, n1, n2, nn, flat[j] = _face(a, b, c)
+        w0, w1, w2 = segment_weights(p, a, b, c) if flat[j] else triangle_weights(p, a, b, c)
         W[j, 0], W[j, 1], W[j, 2] = w0, w1, w2
         for r in range(3):
             diff[j, r] = p[r] - (w0 * a[r] + w1 * b[r] + w2 * c[r])
         gap[j] = np.sqrt(diff[j, 0] * diff[j, 0] + diff[j, 1] * diff[j, 1] + diff[j, 2] * diff[j, 2])
-        e0, e1, e2 = b[0] - a[0], b[1] - a[1], b[2] - a[2]
-        f0, f1, f2 = c[0] - a[0], c[1] - a[1], c[2] - a[2]
-        n0, n1, n2 = e1 * f2 - e2 * f1, e2 * f0 - e0 * f2, e0 * f1 - e1 * f0
-        nn = np.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
-        fn[j, 0], fn[j, 1], fn[j, 2] = n0 / nn, n1 / nn, n2 / nn
+        if not flat[j]:
+            fn[j, 0], fn[j, 1], fn[j, 2] = n0 / nn, n1 / nn, n2 / nn
         if gap[j] < gap[first]:
             first = j
     g = gap[first]
     bound = g * (1.0 + 1e-9) + tiny
     s0 = s1 = s2 = 0.0
+    faces = 0
     for j in range(m):
-        if gap[j] <= bound:
+        if gap[j] <= bound and not flat[j]:
             s0, s1, s2 = s0 + fn[j, 0], s1 + fn[j, 1], s2 + fn[j, 2]
+            faces += 1
+    if faces == 0:      # no face with an area as close: the outward normal of the candidates that have one
+        for j in range(m):
+            if not flat[j]:
+                s0, s1, s2 = s0 + fn[j, 0], s1 + fn[j, 1], s2 + fn[j, 2]
+                faces += 1
     side = -1.0 if _dot(diff[first, 0], diff[first, 1], diff[first, 2], s0, s1, s2) < 0 else 1.0
     if g > tiny:
         scale = max(g, 1e-300)
         for r in range(3):
             out_n[r] = side * diff[first, r] / scale
+    elif faces == 0:
+        out_n[0], out_n[1], out_n[2] = 0.0, 0.0, 1.0
     else:
         scale = max(np.sqrt(s0 * s0 + s1 * s1 + s2 * s2), 1e-300)
         out_n[0], out_n[1], out_n[2] = s0 / scale, s1 / scale, s2 / scale
@@ -121,7 +190,7 @@ def surface_points(points, starts, order, tri, corners, tiny):
     for q in range(n):
         M = max(M, starts[q + 1] - starts[q])
     C, W, diff, fn = np.empty((M, 3, 3)), np.empty((M, 3)), np.empty((M, 3)), np.empty((M, 3))
-    gap = np.empty(M)
+    gap, flat = np.empty(M), np.empty(M, np.bool_)
     found, pair = np.empty(n, np.int64), np.empty(n, np.int64)
     Wout, d, normal = np.empty((n, 3)), np.empty(n), np.empty((n, 3))
     k = 0
@@ -131,7 +200,7 @@ def surface_points(points, starts, order, tri, corners, tiny):
             continue
         for j in range(m):
             C[j] = corners[tri[order[starts[q] + j]]]
-        first, d[k] = _nearest_face(points[q], C, m, tiny, W, diff, gap, fn, normal[k])
+        first, d[k] = _nearest_face(points[q], C, m, tiny, W, diff, gap, fn, flat, normal[k])
         Wout[k] = W[first]
         found[k], pair[k] = q, order[starts[q] + first]
         k += 1
@@ -154,7 +223,7 @@ def body_contacts(x, sv, owner, tris, tri_body, centroid, R, starts, rows, cand,
     of the contacts, ordered by (body, row)."""
     G = starts.size - 1
     C, W, diff, fn = np.empty((nearest, 3, 3)), np.empty((nearest, 3)), np.empty((nearest, 3)), np.empty((nearest, 3))
-    gap = np.empty(nearest)
+    gap, flat = np.empty(nearest), np.empty(nearest, np.bool_)
     best_d, best_t = np.empty(nearest), np.empty(nearest, np.int64)
     o_row, o_body, o_tri = np.empty(G, np.int64), np.empty(G, np.int64), np.empty(G, np.int64)
     o_W, o_d, o_n = np.empty((G, 3)), np.empty(G), np.empty((G, 3))
@@ -185,7 +254,7 @@ def body_contacts(x, sv, owner, tris, tri_body, centroid, R, starts, rows, cand,
         for j in range(m):
             for c in range(3):
                 C[j, c] = x[tris[best_t[j], c]]
-        first, d = _nearest_face(p, C, m, tiny, W, diff, gap, fn, o_n[k])
+        first, d = _nearest_face(p, C, m, tiny, W, diff, gap, fn, flat, o_n[k])
         t = best_t[first]
         w0, w1, w2 = W[first, 0], W[first, 1], W[first, 2]
         approach = 0.0
