@@ -67,7 +67,7 @@ def test_a_moving_reduced_body_takes_w_from_its_block(reducer):
 def test_bodies_in_contact_take_w_from_their_blocks_in_the_run():
     """Two affine boxes, one landing on the other: the frame's contact takes W from the boxes' blocks
     (``delassus_dense``, no columns), each check equal to the plain path, and the run's positions equal
-    those of the same run solving unit columns to round-off."""
+    those of the same run solving unit columns to the PGS tolerance."""
     sims = {d: _stack(sa.Affinification(tau_a=1.0, tau_e=2.0)) for d in (DENSE_MAX, 0)}
     bodies = sims[DENSE_MAX].contact.bodies
     checked = frames_with_contact(sims[DENSE_MAX], 12, lambda op, J: _same_as_plain(op, J, bodies), want=2)
@@ -85,7 +85,10 @@ def test_bodies_in_contact_take_w_from_their_blocks_in_the_run():
     touching = [r for r in dense if r["n_contacts"]]
     assert touching and all(r["delassus_dense"] > 0 and r["delassus_columns"] == 0 for r in touching)
     assert any(r["delassus_columns"] > 0 for r in columns)
-    assert np.abs(sims[DENSE_MAX].state.x - sims[0].state.x).max() < 1e-10
+    # W differs by round-off, so a PGS stop or a block passed over may fall differently: the positions
+    # agree to the PGS tolerance (of the contacts' velocities) over a step
+    bound = sims[0].contact.settings.tolerance * max(r["contact_scale"] for r in touching) * sims[0].model.dt
+    assert np.abs(sims[DENSE_MAX].state.x - sims[0].state.x).max() < bound
 
 
 @pytest.mark.parametrize("reducer, largest", [("full", 60), ("affine", 40)])

@@ -466,11 +466,13 @@ def _lumped_diagonal(indptr, indices, data, inv_mass):
 # PGS(solver="block"): contacts whose rows of W are coupled by more than COUPLING (the largest
 # |W_ij| / sqrt(W_ii W_jj) over their two 3 x 3 blocks) are solved together, in groups of at most
 # GROUP contacts, each visit by up to INNER sweeps on the group's own block, costing at most WORK
-# times the group's plain Gauss-Seidel steps.
+# times the group's plain Gauss-Seidel steps, until the group's residual is at most VISIT times the
+# tolerance's.
 COUPLING = 0.5
 GROUP = 64
 INNER = 1000
 WORK = 4
+VISIT = 0.5
 
 
 @njit(cache=True)
@@ -618,6 +620,18 @@ def _block_visit(W, u, lam, mu, rows, Wl, inner, goal):
 
 
 @njit(cache=True)
+def _group_worst(W, u, lam, mu, rows):
+    """The largest (complementarity, cone) residual over the contacts of one group (its rows ``rows``)."""
+    worst = 0.0
+    for q in range(0, rows.size, 3):
+        r = rows[q]
+        if W[r, r] > 0.0:
+            a, b = _contact_error(W, u, lam, mu, r)
+            worst = max(worst, a, b)
+    return worst
+
+
+@njit(cache=True)
 def _block_gauss_seidel(W, u0, lam, mu, iterations, tolerance, max_iterations, loose, floor, ptr, members, inner, work):
     """The sweeps of :func:`block_gauss_seidel` over the groups (ptr, members) of :func:`contact_groups`."""
     u = _velocities(W, u0, lam)
@@ -648,10 +662,12 @@ def _block_gauss_seidel(W, u0, lam, mu, iterations, tolerance, max_iterations, l
             if c == 1:
                 _contact_step(W, u, lam, mu, 3 * members[ptr[g]], 1.0)
                 continue
+            group = rows[3 * ptr[g]:3 * ptr[g + 1]]
+            if _group_worst(W, u, lam, mu, group) <= goal:  # already solved to the tolerance: no visit
+                continue
             Wl = blocks[start[g]:start[g + 1]].reshape(3 * c, 3 * c)
             # its inner sweeps cost at most ``work`` times its contacts' plain steps (3c x m each)
-            _block_visit(W, u, lam, mu, rows[3 * ptr[g]:3 * ptr[g + 1]], Wl, min(inner, max(1, (work * m) // (3 * c))),
-                         0.1 * goal)
+            _block_visit(W, u, lam, mu, group, Wl, min(inner, max(1, (work * m) // (3 * c))), VISIT * goal)
         worst = _worst(W, u, lam, mu)
         if worst <= goal or (sweep + 1 >= iterations and worst <= loose * scale):
             return sweep + 1
@@ -665,10 +681,11 @@ def block_gauss_seidel(W, u0, lam, mu, iterations, tolerance, max_iterations=0, 
 
     The contacts are grouped by :func:`contact_groups` (``coupling``, ``largest``). A sweep visits
     the groups in order: a contact alone takes the plain Gauss-Seidel step; a group of c contacts
-    takes up to ``inner`` sweeps on its own block of W (its velocities kept locally, so that such a
-    sweep costs (3c)^2, not a pass over W), until its residual is a tenth of the tolerance or
-    those sweeps have cost ``work`` times the group's plain steps (3c rows of W), and then passes
-    the change of its impulses to all velocities. Contacts that are almost the same constraint
+    whose residual is already within the tolerance is passed over; any other group takes up to
+    ``inner`` sweeps on its own block of W (its velocities kept locally, so that such a sweep costs
+    (3c)^2, not a pass over W), until its residual is half the tolerance (:data:`VISIT`) or those
+    sweeps have cost ``work`` times the group's plain steps (3c rows of W), and then passes the
+    change of its impulses to all velocities (3c rows of W). Contacts that are almost the same constraint
     (between two soft bodies, a vertex of each on the other's triangle at one spot) make plain
     sweeps crawl: their rows of W are nearly parallel, and each step undoes most of the other's;
     solved together they settle in one visit. Without coupled pairs this is exactly
