@@ -115,6 +115,7 @@ class ElasticSystem:
         offsets = np.cumsum([0] + [b.n_vertices for b in self.bodies])
         eoffsets = np.cumsum([0] + [b.n_elements for b in self.bodies])
         self.vertex_offsets, self.element_offsets = offsets, eoffsets
+        self.body_of_vertex = np.repeat(np.arange(len(self.bodies)), np.diff(offsets))  # (n,) the body of each vertex
         self.n, self.m = int(offsets[-1]), int(eoffsets[-1])
         self.p0 = np.concatenate([b.mesh.p.T for b in self.bodies])
         self.t = np.concatenate([b.mesh.t + o for b, o in zip(self.bodies, offsets)], axis=1)

@@ -135,7 +135,7 @@ class Monitor:
         self.check_energy = flag(check_energy, "check_energy")
         self.energy_growth = positive(energy_growth, "energy_growth")
         self.energy_warn = positive(energy_warn, "energy_warn")
-        self.body_of_vertex = np.repeat(np.arange(len(system.bodies)), np.diff(system.vertex_offsets))
+        self.body_of_vertex = system.body_of_vertex
         self.n_bodies = len(system.bodies)
         counts = np.bincount(self.body_of_vertex, minlength=self.n_bodies)
         self.counts = np.maximum(counts, 1)[:, None]

@@ -140,7 +140,7 @@ def _add_symmetric(W, rows, Wb):
             v = 0.5 * (Wb[i, j] + Wb[j, i])
             W[r, rows[j]] += v
             W[rows[j], r] += v
-        W[r, r] += 0.5 * (Wb[i, i] + Wb[i, i])
+        W[r, r] += Wb[i, i]  # (Wb_ii + Wb_ii) / 2, exactly
 
 
 def _solve(solver, R, iterative=False):

@@ -137,11 +137,6 @@ class DenseBlocks:
         self.factors = {}
         self.touched, self.rest = 0, False
 
-    def columns(self, T):
-        """Mask of the unknowns T (columns of Jr) in small blocks."""
-        lab = self.labels[T]
-        return (lab >= 0) & self.small[np.maximum(lab, 0)]
-
     def in_small(self):
         """Mask of the unknowns in small blocks."""
         return (self.labels >= 0) & self.small[np.maximum(self.labels, 0)]

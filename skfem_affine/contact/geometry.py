@@ -175,7 +175,7 @@ class Detector:
         # faster than the material's wave speed inverts elements and would carry interior vertices
         # through a collider that the surface vertices never cross
         self.collider_vertices = np.flatnonzero(~system.fixed)
-        self.body_of_vertex = np.repeat(np.arange(len(system.bodies)), np.diff(system.vertex_offsets))
+        self.body_of_vertex = system.body_of_vertex
         self.n_kinds = len(self.colliders) + len(system.bodies)
         p0 = system.p0
         edges = np.concatenate([p0[self.tris[:, i]] - p0[self.tris[:, (i + 1) % 3]] for i in range(3)])

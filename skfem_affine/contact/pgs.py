@@ -569,10 +569,7 @@ def _groups(W, coupling, largest):
     # connected set of coupled contacts is larger, every pair joins whatever the order: no sort
     parent = _joined(pairs, np.arange(values.size), k, k)
     if _largest_set(parent) > largest:
-        order = np.argsort(-values)
-        if np.any(values[order[1:]] == values[order[:-1]]):  # ties: the order a compiled sort gives them
-            order = _strongest_first(values)
-        parent = _joined(pairs, order, k, largest)
+        parent = _joined(pairs, _strongest_first(values), k, largest)
     return _members(parent)
 
 
@@ -723,7 +720,7 @@ class Contact:
         self.previous = None  # (sorted keys, world impulses)
         self.block_solvers = {}  # the Delassus operator's own factorisation (iterative frames with several bodies)
         # the body of each free DOF: the blocks of A the Delassus operator solves side by side
-        self.bodies = np.repeat(np.arange(len(sysm.bodies)), 3 * np.diff(sysm.vertex_offsets))[sysm.free]
+        self.bodies = np.repeat(sysm.body_of_vertex, 3)[sysm.free]
         self.schur = SchurInverse() if self.settings.schur else None  # keeps its analysis across frames
         self.current = None
         self.prediction = None
@@ -736,7 +733,7 @@ class Contact:
     def _rigid_setup(self, sysm):
         """Which vertices belong to bodies without fixed vertices, their body and free-DOF rows, and
         the sparsity of :meth:`_rigid_motions`' G and C (the same every frame)."""
-        body = np.repeat(np.arange(len(sysm.bodies)), np.diff(sysm.vertex_offsets))
+        body = sysm.body_of_vertex
         pinned = np.zeros(len(sysm.bodies), dtype=bool)
         np.logical_or.at(pinned, body, sysm.fixed)
         movable = np.flatnonzero(~pinned[body])

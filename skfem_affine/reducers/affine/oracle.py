@@ -309,8 +309,7 @@ def system_operator(mdiag, H, coefficients):
 def body_translations(system):
     """(n_free, k) sparse basis of the bodies' translations on the free DOFs: per body and axis a
     column of ones on its free DOFs along that axis (columns without a free DOF are left out)."""
-    body = np.repeat(np.arange(len(system.vertex_offsets) - 1), np.diff(system.vertex_offsets))
-    col = 3 * np.repeat(body, 3) + np.tile(np.arange(3), system.n)  # per DOF of the 3n
+    col = 3 * np.repeat(system.body_of_vertex, 3) + np.tile(np.arange(3), system.n)  # per DOF of the 3n
     col = col[system.free]
     used, col = np.unique(col, return_inverse=True)
     return sp.csr_matrix((np.ones(col.size), (np.arange(col.size), col)), shape=(col.size, used.size))
@@ -326,9 +325,9 @@ def explicit_impulse(problem):
     the push the oracle must see (the paper's: a dropped ball elastifies the region it hits). On a
     body at rest it is not: a vertex that touches without carrying an impulse (its neighbours carry
     the body's weight) has only gravity's step to stop, which the warm-started support already
-    balances, so the estimate is a spurious local push of the vertex's weight, predicted as a
-    deformation rate of 1e-4 to 1e-3 1/s on the paper's resting pills, above the paper's thresholds
-    (docs/contact.md, the pills at rest). The body then turns elastic, is measured on its actual
+    balances, so the estimate is a spurious local push of the vertex's weight, which the oracle predicts
+    as a deformation rate above the paper's thresholds on the paper's resting pills (measured in
+    docs/contact.md, the pills at rest). The body then turns elastic, is measured on its actual
     velocities (at rest: far below the thresholds), turns affine again, and its clusters change
     every frame.
 
@@ -350,10 +349,9 @@ def explicit_impulse(problem):
     # the bodies of the vertices an impact's normal row moves
     rows = cs.J[0::3][np.flatnonzero(cs.impact)]
     dofs = np.unique(sp.csr_matrix(rows).indices)
-    body = np.searchsorted(sysm.vertex_offsets, sysm.free[dofs] // 3, side="right") - 1
-    hit = np.zeros(len(sysm.vertex_offsets) - 1, dtype=bool)
-    hit[body] = True
-    dof_body = np.searchsorted(sysm.vertex_offsets, sysm.free // 3, side="right") - 1
+    dof_body = sysm.body_of_vertex[sysm.free // 3]
+    hit = np.zeros(len(sysm.bodies), dtype=bool)
+    hit[dof_body[dofs]] = True
     return np.where(hit[dof_body], offered, support)
 
 
