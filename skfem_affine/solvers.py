@@ -37,8 +37,7 @@ def schur_set_fits(indptr, indices, k):
     and indices, whole or its upper triangle): at most half of the unknowns, and at most half of those
     that couple to another. A set holding every coupled unknown, the others isolated (a diagonal entry
     alone, as a reduced frame's idle unknowns), corrupts memory as a set of all the unknowns does
-    (reproduced: an affine body's 12 columns in a block of its idle unknowns, segfaults in about half
-    the runs of 400 such complements)."""
+    (reproduced with an affine body's 12 columns in a block of its idle unknowns: docs/contact.md)."""
     n = indptr.size - 1
     if 2 * k > n:
         return False

@@ -24,9 +24,9 @@ from skfem_affine import _compile_notice  # noqa: F401 (one stderr line when the
 from skfem_affine.solvers import SolverError
 
 # Blocks of at most DENSE_MAX used unknowns are factorised densely: an affine body with a few dozen
-# elastic vertices at its contacts. Dense, an elastic body's block of 81 unknowns costs what its unit
-# columns do, one of 192 1.06 times, one of 375 2.8 times (docs/contact.md): larger blocks are left
-# to the frame's factorisation.
+# elastic vertices at its contacts. Above about this size a dense block costs more than its unit
+# columns solved by the frame's factorisation (measured in docs/contact.md, the resting pile), so
+# larger blocks are left to that factorisation.
 DENSE_MAX = 160
 
 _NONE = np.zeros(0, dtype=np.int64)
