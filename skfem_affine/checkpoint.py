@@ -30,10 +30,11 @@ names in ``_state_keys``, so a reducer adds saved state by listing it there.
 """
 import hashlib
 import json
-import os
 from pathlib import Path
 
 import numpy as np
+
+from skfem_affine.files import replacing
 
 FORMAT = "skfem-affine-checkpoint"
 VERSION = 2
@@ -129,14 +130,8 @@ def write(path, header, components):
     arrays, values = flatten(components)
     header = dict(header, format=FORMAT, version=VERSION, values=values)
     text = json.dumps(header, allow_nan=True)
-    tmp = path.with_name(path.name + f".tmp{os.getpid()}")
-    try:
-        with open(tmp, "wb") as f:
-            np.savez(f, __header__=np.array(text), **arrays)
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
+    with replacing(path) as tmp, open(tmp, "wb") as f:
+        np.savez(f, __header__=np.array(text), **arrays)
     return path
 
 

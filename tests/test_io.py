@@ -73,3 +73,67 @@ def test_load_mesh_on_a_file_meshio_cannot_read_is_a_value_error_naming_it(tmp_p
     assert out == "" and err == ""  # meshio's own prints are folded into the message
     with pytest.raises(FileNotFoundError, match="nope.mesh"):
         sa.io.load_mesh(tmp_path / "nope.mesh")
+
+
+def _written_frames(pvd):
+    """The VTU files a .pvd lists (it must parse as XML)."""
+    import xml.etree.ElementTree as ET
+    return [d.get("file") for d in ET.parse(pvd).getroot().iter("DataSet")]
+
+
+def test_a_vtu_write_that_fails_midway_leaves_no_partial_file_and_the_index_readable(tmp_path, monkeypatch):
+    from skfem_affine.lab import io
+    sim = sa.scenes.cantilever(resolution=1)
+    series = io.Series(tmp_path / "beam", sim)
+    series.write(sim.state)
+    write = meshio.write
+
+    def disk_full(filename, *args, **kwargs):  # a part of the file reaches the disk, then the write fails
+        with open(filename, "wb") as fh:
+            fh.write(b'<?xml version="1.0"?>\n<VTKFile type="UnstructuredGrid"')
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(meshio, "write", disk_full)
+    state = next(sim.run(1))
+    with pytest.raises(OSError, match="No space left"):
+        series.write(state)
+    assert sorted(os.listdir(tmp_path)) == ["beam.pvd", "beam_00000.vtu"]  # nothing truncated, no temporary file
+    assert _written_frames(series.pvd) == ["beam_00000.vtu"]
+    monkeypatch.setattr(meshio, "write", write)
+    series.write(state)  # the series carries on after the failure
+    assert _written_frames(series.pvd) == ["beam_00000.vtu", "beam_00001.vtu"]
+
+
+def test_an_index_write_that_fails_midway_leaves_the_previous_index_readable(tmp_path, monkeypatch):
+    from skfem_affine.lab import io
+    sim = sa.scenes.cantilever(resolution=1)
+    series = io.Series(tmp_path / "beam", sim)
+    series.write(sim.state)
+    state = next(sim.run(1))
+    series.write(state)
+    listed = _written_frames(series.pvd)
+
+    class FailsAfterTheHeader:  # the index file's second write fails (a full disk, an interrupt)
+        def __init__(self, *args, **kwargs):
+            self.file, self.writes = open(*args, **kwargs), 0
+
+        def write(self, text):
+            self.writes += 1
+            if self.writes > 1:
+                raise KeyboardInterrupt
+            return self.file.write(text)
+
+        def __enter__(self):
+            return self
+
+        def __exit__(self, *exc):
+            self.file.close()
+
+    monkeypatch.setattr(io, "open", FailsAfterTheHeader, raising=False)
+    with pytest.raises(KeyboardInterrupt):
+        series.write(next(sim.run(1)))
+    assert _written_frames(series.pvd) == listed == ["beam_00000.vtu", "beam_00001.vtu"]
+    assert not [f for f in os.listdir(tmp_path) if ".tmp" in f]
+    monkeypatch.undo()
+    series.write(sim.state)
+    assert _written_frames(series.pvd) == listed + ["beam_00002.vtu"]

@@ -8,6 +8,7 @@ import meshio
 import numpy as np
 
 from skfem_affine.checks import flag
+from skfem_affine.files import replacing
 
 
 def frame_mesh(sim, state, stresses=True):
@@ -43,7 +44,10 @@ class Series:
 
     Each state becomes ``<stem>_NNNNN.vtu`` (NNNNN = its frame) and ``<stem>.pvd``, the file
     ParaView opens, is rewritten after every state, so an interrupted run still opens. Writing
-    the same frame again replaces it. Nothing is simulated here: the series holds exactly the
+    the same frame again replaces it. Every file is written to a temporary file in the folder and
+    renamed over its name (:mod:`skfem_affine.files`): a write that fails (a full disk, Ctrl-C)
+    leaves the previous index readable, listing the frames written before, and no partial VTU;
+    the failed frame is not in the index. Nothing is simulated here: the series holds exactly the
     states written. Each VTU holds point ``velocity``, ``displacement`` and ``fixed`` and cell
     ``cluster`` (body id, -1 elastic), ``affine`` (0/1), ``material`` and ``body``, and, unless
     ``stresses=False``, the strains and stresses of :meth:`Simulation.stress` per cell and
@@ -89,13 +93,17 @@ class Series:
             raise ValueError(f"state has positions of shape {np.shape(x)}, but the series' simulation has "
                              f"{self.sim.state.x.shape}: the state is not one of this simulation's")
         name = f"{self.stem}_{state.frame:05d}.vtu"
-        meshio.write(os.path.join(self.dir, name), frame_mesh(self.sim, state, self.stresses), binary=True)
-        self.entries[state.frame] = (state.time, name)
-        with open(self.pvd, "w") as fh:
+        mesh = frame_mesh(self.sim, state, self.stresses)
+        with replacing(os.path.join(self.dir, name)) as tmp:
+            meshio.write(tmp, mesh, file_format="vtu", binary=True)
+        entries = dict(self.entries)
+        entries[state.frame] = (state.time, name)
+        with replacing(self.pvd) as tmp, open(tmp, "w") as fh:
             fh.write('<?xml version="1.0"?>\n<VTKFile type="Collection" version="0.1">\n<Collection>\n')
-            for _, (t, n) in sorted(self.entries.items()):
+            for _, (t, n) in sorted(entries.items()):
                 fh.write(f'<DataSet timestep="{t:.9g}" group="" part="0" file={quoteattr(n)}/>\n')
             fh.write("</Collection>\n</VTKFile>\n")
+        self.entries = entries  # the frames the index on disk lists
         return name
 
 
