@@ -13,6 +13,9 @@ delegates each :meth:`Simulation.step` to the integrator:
 Nothing below the simulation receives it: reducers and contact are given the model and the
 frame's :class:`~skfem_affine.integrators.problem.StepProblem`.
 """
+import contextlib
+import signal
+import threading
 import time
 from dataclasses import dataclass
 
@@ -44,6 +47,24 @@ from skfem_affine.solvers import SolverError, make_solver
 INTEGRATORS = ("linearized",) + newton.SCHEMES
 
 __all__ = ["Simulation", "SimulationDiverged", "SimulationWarning", "State", "Stats", "Rayleigh", "INTEGRATORS"]
+
+
+@contextlib.contextmanager
+def _interrupts_held():
+    """Ctrl-C (SIGINT) held back until the block ends, then handed to its handler. Signals reach
+    only the main thread; elsewhere, or under a handler set outside Python, the block runs as is."""
+    handler = signal.getsignal(signal.SIGINT)
+    if threading.current_thread() is not threading.main_thread() or handler is None:
+        yield
+        return
+    caught = []
+    signal.signal(signal.SIGINT, lambda signum, frame: caught.append(frame))
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, handler)
+        if caught and callable(handler):
+            handler(signal.SIGINT, caught[0])
 
 
 class SimulationDiverged(RuntimeError):
@@ -358,29 +379,44 @@ class Simulation:
     def step(self):
         """Advance one time step; returns the new state.
 
-        A step that raises (:class:`SimulationDiverged`, or an error in a user's force or path)
-        leaves the simulation as it was before it: the state, the statistics and the state of
-        every component (the integrator's history, the reducer's clusters, random generator and
-        controllers, the contact warm starts, the solver's ordering), so that a run continued
-        after it equals one that never tried the step.
+        A step is a transaction: whatever it raises (:class:`SimulationDiverged`, an error in a
+        user's force or path, a ``KeyboardInterrupt`` from Ctrl-C at any point of it) leaves the
+        simulation as it was before it: the state, the statistics and the state of every component
+        (the integrator's history, the reducer's clusters, random generator and controllers, the
+        contact warm starts, the solver's ordering, the monitor), so that a run continued after it
+        equals one that never tried the step. :meth:`_advance` only computes; the step is committed
+        here, in one place.
         """
         saved = self._snapshot()
         try:
-            return self._advance()
+            state, rec = self._advance()
+            self.stats.append(rec)  # the commit (an interrupt between the two is rolled back too)
+            self.state = state
         except BaseException:
             self._restore(saved)
             raise
+        return state
 
     def _snapshot(self):
-        """The state of every component (what a checkpoint saves), for :meth:`_restore`."""
-        return {name: comp.state_dict() for name, comp in self._components().items()}
+        """What :meth:`_restore` puts back: the state, the statistics (the list and its length) and
+        the state of every component (what a checkpoint saves)."""
+        return {"state": self.state, "stats": (self.stats, len(self.stats)),
+                "components": {name: comp.state_dict() for name, comp in self._components().items()}}
 
     def _restore(self, saved):
-        for name, comp in self._components().items():
-            comp.load_state_dict(saved[name])
+        """Put back a :meth:`_snapshot`; Ctrl-C is held back until it is done (a second interrupt
+        would otherwise leave it half restored)."""
+        with _interrupts_held():
+            stats, n = saved["stats"]
+            del stats[n:]
+            self.state, self.stats = saved["state"], stats
+            for name, comp in self._components().items():
+                comp.load_state_dict(saved["components"][name])
 
     def _advance(self):
-        """One step; :meth:`step` restores the components when it raises."""
+        """The next state and its statistics record; it changes the components (the reducer's
+        end of frame included) but neither ``self.state`` nor ``self.stats``, which :meth:`step`
+        commits."""
         t0, c0 = time.perf_counter(), time.process_time()
         s = self.state
         frame = s.frame + 1
@@ -422,13 +458,12 @@ class Simulation:
             rec["max_penetration"] = self.max_penetration(x)
         rec["checks"] = time.perf_counter() - t1
         self.monitor.accept()
-        self.state = State(x, v, frame, s.time + self.dt, result.clusters)
+        state = State(x, v, frame, s.time + self.dt, result.clusters)
         rec["wall"] = time.perf_counter() - t0
         rec["cpu"] = time.process_time() - c0  # the work of every thread of the process: load from elsewhere adds none
         if self.system.free.size:  # a time budget reads the frame's wall time (a reducer with nothing to
             self.integrator.reducer.end_frame(rec)  # solve is not attached)
-        self.stats.append(rec)
-        return self.state
+        return state, rec
 
     def max_penetration(self, x=None):
         """Largest penetration depth (m, >= 0) of a surface vertex into a collider or another body
@@ -494,26 +529,31 @@ class Simulation:
             gravity, damping, colliders, integrator, reducer and its settings, contact model and
             settings, time step), or is damaged (the message names the entry). The simulation is
             then left as it was.
+
+        Whatever else it raises, a ``KeyboardInterrupt`` (Ctrl-C) included, the simulation is
+        likewise left as it was: its state, statistics and every component.
         """
         header, arrays = checkpoint.read(path)
         checkpoint.check_matches(path, header, self._signature())
         values = header["values"]
-        state, stats, saved = self.state, self.stats, self._snapshot()
+        saved = self._snapshot()
         try:
-            self.state = self._loaded_state(checkpoint.unflatten(arrays, values, "state"))
+            state = self._loaded_state(checkpoint.unflatten(arrays, values, "state"))
             for name, comp in self._components().items():
                 loaded = checkpoint.unflatten(arrays, values, name)
-                checkpoint.check_like(name, loaded, saved[name])
+                checkpoint.check_like(name, loaded, saved["components"][name])
                 try:
                     comp.load_state_dict(loaded)
                 except Exception as err:  # whatever a component's loader raises on values it cannot take
                     missing = f"entry {err} is missing" if isinstance(err, KeyError) else f"{type(err).__name__}: {err}"
                     raise ValueError(f"the {name} state is damaged ({missing})") from None
-            self.stats = Stats(header["stats"])
+            self.state, self.stats = state, Stats(header["stats"])  # the commit
         except (TypeError, ValueError) as err:
-            self.state, self.stats = state, stats
             self._restore(saved)
             raise ValueError(f"checkpoint {path} is damaged: {err}") from None
+        except BaseException:  # an interrupt (Ctrl-C) or any other error: nothing half loaded
+            self._restore(saved)
+            raise
         return self.state
 
     def _loaded_state(self, st):
