@@ -307,3 +307,24 @@ def test_run_uses_the_error_budget_by_default_and_says_so(tmp_path, capsys):
     assert "-: not measured (step err: --no-step-error;" in out
     help_text = parser()._subparsers._group_actions[0].choices["run"].format_help()
     assert "default: affinification-budget" in " ".join(help_text.split())
+
+
+def test_a_scene_file_that_ignores_the_reducer_is_refused_not_reported_as_the_method(tmp_path, capsys):
+    f = tmp_path / "deaf.py"
+    f.write_text("import skfem_affine as sa\n"
+                 "def scene(reducer=None, **kw):  # never hands the reducer to the simulation\n"
+                 "    return sa.scenes.cantilever(resolution=1, **kw)\n")
+    for method in ([], ["--method", "affinification"]):  # the default error budget, and fixed thresholds
+        code = main(["run", str(f), "--frames", "2", "--no-paraview", "--out", str(tmp_path / "out")] + method)
+        line = error_line(capsys)
+        assert code == 2
+        assert "scene 'deaf' was given reducer=Affinification(...) but its simulation runs in full space" in line
+    code, s = run_json(capsys, ["run", str(f), "--frames", "2", "--method", "full", "--no-paraview",
+                                "--out", str(tmp_path / "out")])
+    assert code == 0 and s["method"] == "full" and s["status"] == "ok"  # what it does run is measured
+    f.write_text("import skfem_affine as sa\n"
+                 "def scene(reducer=None, **kw):  # its own reducer whatever it is given\n"
+                 "    return sa.scenes.cantilever(resolution=1, reducer=sa.Rigidification(0.1, 0.2), **kw)\n")
+    assert main(["run", str(f), "--frames", "2", "--method", "full", "--no-paraview", "--out", str(tmp_path)]) == 2
+    assert "was given reducer=None (full space) but its simulation runs under its own Rigidification" in \
+        error_line(capsys)

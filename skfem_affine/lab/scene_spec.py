@@ -57,14 +57,26 @@ class SceneSpec:
         return scenes.SCENES[self.name] if not self.is_file else load_scene_file(self.name)
 
     def build(self, reducer=None):
-        """The scene's Simulation. Built-in scenes solve with the reducers' direct solver unless
-        ``solver`` is given, so that every method is timed with the same solver (the reference too)."""
+        """The scene's Simulation, running ``reducer`` (None: full space). Built-in scenes solve with
+        the reducers' direct solver unless ``solver`` is given, so that every method is timed with
+        the same solver (the reference too).
+
+        A run is reported under the method whose reducer it was given, so a scene whose simulation
+        runs another reducer, or none, than the one passed (a file's ``scene(reducer=None, ...)``
+        that never hands it to ``sa.Simulation``) is refused with a ValueError rather than measured
+        under a name that is not what ran."""
         kwargs = dict(self.kwargs)
         if not self.is_file:
             kwargs.setdefault("solver", "direct")
         sim = self.factory()(reducer=reducer, **kwargs)
-        if not hasattr(sim, "stats") or not hasattr(sim, "run"):
+        if not all(hasattr(sim, key) for key in ("stats", "run", "reducer")):
             raise TypeError(f"scene {self.name!r} returned {type(sim).__name__}, not a Simulation")
+        if sim.reducer is not reducer:
+            given = "reducer=None (full space)" if reducer is None else f"reducer={type(reducer).__name__}(...)"
+            ran = "in full space" if sim.reducer is None else f"under its own {type(sim.reducer).__name__}"
+            raise ValueError(f"scene {self.label!r} was given {given} but its simulation runs {ran}: a scene must "
+                             f"pass its reducer on, sa.Simulation(..., reducer=reducer), for its runs to be "
+                             f"measured and reported as the method asked for")
         return sim
 
     def with_kwargs(self, **kwargs):
