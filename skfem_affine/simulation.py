@@ -370,7 +370,12 @@ class Simulation:
         self._colliders = colliders
 
     def run(self, frames):
-        """Advance ``frames`` steps, yielding a copy of the state after each one."""
+        """Advance ``frames`` steps, yielding a copy of the state after each one.
+
+        Each step is a transaction (:meth:`step`): a run that raises or is interrupted (Ctrl-C)
+        stops at the last frame it completed, which ``sim.state`` and ``sim.stats`` then hold, and
+        ``sim.run`` continues from there as if it had never been stopped.
+        """
         frames = integer(frames, "frames", low=0)
         for _ in range(frames):
             self.step()
@@ -384,8 +389,8 @@ class Simulation:
         simulation as it was before it: the state, the statistics and the state of every component
         (the integrator's history, the reducer's clusters, random generator and controllers, the
         contact warm starts, the solver's ordering, the monitor), so that a run continued after it
-        equals one that never tried the step. :meth:`_advance` only computes; the step is committed
-        here, in one place.
+        equals one that never tried the step. The new state and its statistics record are
+        computed first and committed together at the end of the step.
         """
         saved = self._snapshot()
         try:
