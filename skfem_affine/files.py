@@ -1,7 +1,7 @@
 """Files written whole or not at all: a temporary file in the target's folder, renamed over it.
 
 A reader (ParaView, ``np.load``, a resumed run) sees either the previous file or the new one,
-never a part of one: the rename (:func:`os.replace`) is atomic within a folder, and a write that
+never a part of one: the rename (``os.replace``) is atomic within a folder, and a write that
 raises, Ctrl-C included, deletes its temporary file and leaves the target untouched.
 """
 import contextlib

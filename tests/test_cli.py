@@ -319,6 +319,10 @@ def test_a_scene_file_that_ignores_the_reducer_is_refused_not_reported_as_the_me
         line = error_line(capsys)
         assert code == 2
         assert "scene 'deaf' was given reducer=Affinification(...) but its simulation runs in full space" in line
+    out = tmp_path / "sweep"  # a sweep refuses it before it starts a cluster or makes a folder
+    assert main(["sweep", str(f), "--frames", "2", "--grid", "1", "--workers", "1", "--out", str(out)]) == 2
+    assert "was given reducer=Affinification(...) but its simulation runs in full space" in error_line(capsys)
+    assert not out.exists()
     code, s = run_json(capsys, ["run", str(f), "--frames", "2", "--method", "full", "--no-paraview",
                                 "--out", str(tmp_path / "out")])
     assert code == 0 and s["method"] == "full" and s["status"] == "ok"  # what it does run is measured

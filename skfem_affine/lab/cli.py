@@ -411,7 +411,9 @@ def cmd_sweep(args):
             local_workers(args.workers)
         except ValueError as err:
             raise ValueError(str(err).replace(f"workers={args.workers}", f"--workers {args.workers}")) from None
-    spec.build()  # here, so that a scene that cannot be built is one line, not a failure inside the cluster
+    # here, so that a scene that cannot be built, or does not run the method's reducer, is one line, not a
+    # failure of every cell inside the cluster
+    spec.build(reducer=method.reducer())
     frames = _frames(args.frames, spec)
     out = _folder(args, spec)
     table = args.table or os.path.join(out, f"{method.name}.{args.format}")
