@@ -67,6 +67,16 @@ def _interrupts_held():
             handler(signal.SIGINT, caught[0])
 
 
+def _load_component(name, comp, loaded):
+    """``comp.load_state_dict(loaded)``; whatever error its loader raises on values it cannot take
+    becomes a ValueError naming the component."""
+    try:
+        comp.load_state_dict(loaded)
+    except Exception as err:
+        missing = f"entry {err} is missing" if isinstance(err, KeyError) else f"{type(err).__name__}: {err}"
+        raise ValueError(f"the {name} state is damaged ({missing})") from None
+
+
 class SimulationDiverged(RuntimeError):
     """A step failed the divergence policy (:mod:`skfem_affine.monitor`): a non-finite state, a
     failed linear solve, energy created by the step, a body torn apart, or (when asked to raise)
@@ -547,11 +557,7 @@ class Simulation:
             for name, comp in self._components().items():
                 loaded = checkpoint.unflatten(arrays, values, name)
                 checkpoint.check_like(name, loaded, saved["components"][name])
-                try:
-                    comp.load_state_dict(loaded)
-                except Exception as err:  # whatever a component's loader raises on values it cannot take
-                    missing = f"entry {err} is missing" if isinstance(err, KeyError) else f"{type(err).__name__}: {err}"
-                    raise ValueError(f"the {name} state is damaged ({missing})") from None
+                _load_component(name, comp, loaded)
             self.state, self.stats = state, Stats(header["stats"])  # the commit
         except (TypeError, ValueError) as err:
             self._restore(saved)

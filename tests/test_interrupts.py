@@ -143,3 +143,83 @@ def test_a_second_ctrl_c_while_a_step_is_rolled_back_waits_for_the_rollback(monk
     monkeypatch.setattr(sim.integrator, "load_state_dict", load)
     assert _fingerprint(sim) == before
     assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+
+
+def _interrupt_at_line(n, functions):
+    """A trace function that raises KeyboardInterrupt at the n-th line run in the named functions of
+    skfem_affine/simulation.py (Ctrl-C landing between any two of their lines), and the count of
+    lines run so far."""
+    from skfem_affine import simulation
+    count = [0]
+
+    def line(frame, event, arg):
+        if event == "line":
+            count[0] += 1
+            if count[0] == n:
+                raise KeyboardInterrupt
+        return line
+
+    def call(frame, event, arg):
+        code = frame.f_code
+        return line if code.co_filename == simulation.__file__ and code.co_name in functions else None
+
+    return call, count
+
+
+def _interrupted_at_every_line(call, functions):
+    """Run ``call()`` interrupted at its first, second, ... line until it completes; after each
+    interrupt yield whether it had completed before the interrupt landed."""
+    import sys
+    n = 1
+    while True:
+        trace, count = _interrupt_at_line(n, functions)
+        sys.settrace(trace)
+        try:
+            call()
+        except KeyboardInterrupt:
+            yield
+        finally:
+            sys.settrace(None)
+        if count[0] < n:  # it ran to its end without reaching the n-th line
+            return
+        n += 1
+
+
+@pytest.mark.parametrize("scene", sorted(SCENES))
+def test_an_interrupt_between_any_two_lines_of_a_step_is_before_or_after_it(scene):
+    sim = SCENES[scene]()
+    list(sim.run(AT - 1))
+    before, reference = _fingerprint(sim), _reference(scene)
+    lines = 0
+    for _ in _interrupted_at_every_line(sim.step, {"step", "_advance", "_snapshot", "run"}):
+        lines += 1
+        if sim.state.frame == AT - 1:  # rolled back
+            assert _fingerprint(sim) == before
+        else:  # interrupted once the step had been taken on: the step is whole
+            assert sim.state.frame == AT == len(sim.stats)
+            assert np.array_equal(sim.state.x, reference[AT - 1][0])
+            break
+    assert lines > 20  # every line of the step was a place to interrupt it
+    got = [(s.x, s.v) for s in sim.run(FRAMES - sim.state.frame)]
+    for (x, v), (xr, vr) in zip(got, reference[FRAMES - len(got):]):
+        assert np.array_equal(x, xr) and np.array_equal(v, vr)
+
+
+def test_an_interrupt_between_any_two_lines_of_a_load_is_before_or_after_it(tmp_path):
+    scene = "rigidification-pgs"
+    saved = SCENES[scene]()
+    list(saved.run(AT))
+    saved.save(tmp_path / "run.npz")
+    sim = SCENES[scene]()
+    list(sim.run(2))
+    before, reference = _fingerprint(sim), _reference(scene)
+    for _ in _interrupted_at_every_line(lambda: sim.load_state(tmp_path / "run.npz"),
+                                        {"load_state", "_loaded_state", "_load_component", "_snapshot"}):
+        if sim.state.frame == 2:
+            assert _fingerprint(sim) == before
+        else:
+            assert sim.state.frame == AT == len(sim.stats)
+            break
+    got = [(s.x, s.v) for s in sim.run(FRAMES - sim.state.frame)]
+    for (x, v), (xr, vr) in zip(got, reference[FRAMES - len(got):]):
+        assert np.array_equal(x, xr) and np.array_equal(v, vr)
