@@ -167,10 +167,10 @@ class ElasticSystem:
     def _group_materials(self):
         """Group elements by material kind; one vectorised material per group.
 
-        :attr:`groups` holds the bodies' materials. The elements evaluate :attr:`evaluated_groups`:
+        ``groups`` holds the bodies' materials. The elements evaluate ``evaluated_groups``:
         the same, except in bodies with ``volumetric="nodal"``, whose elements carry their
         material's shear part (:func:`~skfem_affine.materials.shear_part`) and whose volumetric
-        energy is :attr:`nodal`'s (:mod:`skfem_affine.nodal_volume`).
+        energy is ``nodal``'s (:mod:`skfem_affine.nodal_volume`).
         """
         mats, index, evaluated = [], [], []
         for b in self.bodies:
@@ -264,7 +264,7 @@ class ElasticSystem:
         return out
 
     def strain_energy(self, x):
-        """Total elastic energy sum_e V_e psi(F_e), and the vertex part of nodal bodies (:attr:`nodal`)."""
+        """Total elastic energy sum_e V_e psi(F_e), and the vertex part of nodal bodies (``nodal``)."""
         F = self.deformation_gradients(x)
         psi = float(sum(np.dot(self.volumes[idx], mat.energy_density(F[idx])) for mat, idx in self.evaluated_groups))
         return psi if self.nodal is None else psi + self.nodal.energy(F)
@@ -304,7 +304,7 @@ class ElasticSystem:
 
         dP/dF and He are zero-length when not asked; the closed-form materials are
         evaluated in the pass, the others (:attr:`_generic`) and the elements of nodal bodies
-        (:meth:`_nodal_tensors`) first.
+        (``_nodal_tensors``) first.
         """
         m = self.m
         P, C = np.empty((m, 3, 3)), np.empty((m if tangent else 0, 9, 9))
@@ -322,7 +322,7 @@ class ElasticSystem:
         return P, C, He, scatter_forces(self.t, fe, self.n)
 
     def _nodal_tensors(self, F, tangent):
-        """P (k, 3, 3) and unprojected dP/dF (k, 9, 9) of the elements of nodal bodies, :attr:`nodal`.elems:
+        """P (k, 3, 3) and unprojected dP/dF (k, 9, 9) of the elements of nodal bodies, ``nodal``.elems:
         their material's shear part plus the vertex pressure terms."""
         v = self.nodal.elems
         P, C = np.empty((v.size, 3, 3)), np.empty((v.size if tangent else 0, 9, 9))

@@ -61,7 +61,8 @@ class ElasticBody:
         (``nu >= 0.45``) then lock, bending far too stiff, and the body warns
         (:class:`~skfem_affine.SimulationWarning`) when built. ``"nodal"``: on the volume ratio of
         each vertex's patch of elements (:mod:`skfem_affine.nodal_volume`), which does not lock;
-        the elements keep the material's shear part. docs/materials.md compares the two.
+        the elements keep the material's shear part. docs/materials.md compares the two. Not with
+        ``prescribed`` vertices nor under ``sa.AdaptiveSubspace`` (ValueError).
     """
 
     def __init__(self, mesh, material, density=1000.0, fixed=None, velocity=None, name=None, prescribed=None,
@@ -79,6 +80,11 @@ class ElasticBody:
         self.density = _positive_per_element(density, m, "density")
         self.fixed = _vertex_mask(fixed, mesh)
         self.prescribed, self.prescribed_vertices = _prescribed(prescribed, mesh, self.fixed)
+        if self.prescribed and self.volumetric == "nodal":
+            # the step's prescribed-velocity term takes H_fp from element blocks, which do not hold
+            # the vertex couplings of the nodal volumetric energy
+            raise ValueError('prescribed vertices are not supported with volumetric="nodal"; fix them '
+                             '(fixed=...) or use volumetric="element"')
         self.velocity = _velocity(velocity, n)
         self.velocity[self.fixed] = 0.0
         for idx in self.prescribed_vertices:

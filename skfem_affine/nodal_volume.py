@@ -47,6 +47,12 @@ class NodalVolume:
         The first Lame parameter of each of those elements.
     n : int
         Number of vertices of the system.
+
+    Attributes
+    ----------
+    vertices : int array
+        The vertices of those elements (the a of the sums); ``rest`` (n,) holds V_a and ``lam``
+        lam_a, one per entry of ``vertices``.
     """
 
     def __init__(self, t, volumes, grads, elems, lam, n):
@@ -85,7 +91,7 @@ class NodalVolume:
         return r.ravel(), c.ravel()
 
     def ratios(self, F):
-        """J_a of :attr:`vertices` from the deformation gradients F (m, 3, 3) of the whole system."""
+        """J_a of the vertices ``vertices`` from the deformation gradients F (m, 3, 3) of the whole system."""
         v = np.tile(self._quarter * determinant(F[self.elems]), 4)   # V_e det F_e / 4 at each vertex
         return np.bincount(self._te.ravel(), weights=v, minlength=self.rest.size)[self.vertices] \
             / self.rest[self.vertices]

@@ -102,6 +102,7 @@ def tip_deflection(mesh, nu, volumetric):
     return -(x[tip, 2] - sysm.p0[tip, 2]).mean()
 
 
+@pytest.mark.slow
 def test_nodal_volume_removes_the_locking_of_a_near_incompressible_cantilever():
     """At nu = 0.49 the nodal treatment deflects, relative to P2, as P1 does at nu = 0.3: what is left
     is the bending error of linear tetrahedra, which does not depend on nu (docs/materials.md)."""
@@ -147,3 +148,14 @@ def test_affinification_reduces_a_nodal_body_within_its_budget():
     assert peak[0] > 0.01                      # it bends
     assert worst[0] <= 1.25 * budget * peak[0]
     assert runs["aff"].summary["dof_ratio"] < 1.0  # it was reduced
+
+
+def test_nodal_bodies_refuse_what_does_not_see_their_vertex_couplings():
+    mesh = beam_mesh(4, 1, 2)
+    clamp = sa.Prescribed(np.flatnonzero(mesh.p[0] < 1e-9), lambda t, X: X)
+    with pytest.raises(ValueError, match='prescribed vertices are not supported with volumetric="nodal"'):
+        sa.ElasticBody(mesh, sa.NeoHookean(E=1e6, nu=0.49), prescribed=clamp, volumetric="nodal")
+    with pytest.raises(ValueError, match="AdaptiveSubspace does not support"):
+        sim = sa.Simulation(body(mesh, 0.49, "nodal", E=1e6), dt=0.01, integrator="implicit_euler",
+                            reducer=sa.AdaptiveSubspace())
+        sim.step()
