@@ -80,13 +80,6 @@ def _sym_eig3(A, V):
 
 
 @njit(cache=True, inline="always")
-def _cross(a, b, out):
-    out[0] = a[1] * b[2] - a[2] * b[1]
-    out[1] = a[2] * b[0] - a[0] * b[2]
-    out[2] = a[0] * b[1] - a[1] * b[0]
-
-
-@njit(cache=True, inline="always")
 def svd3(F, U, s, V, A):
     """Rotation-variant SVD of a 3x3 F: det U = det V = 1, s descending, s[2] may be < 0.
 

@@ -19,11 +19,13 @@ import skfem
 from skfem import Basis, BilinearForm, ElementTetP1, ElementVector, asm
 from skfem.helpers import dot
 
-from skfem_affine._eigensystems import evaluate_elements, internal_force, scatter_forces
+from skfem_affine._eigensystems import GENERIC, evaluate_elements, internal_force, scatter_forces
 from skfem_affine._kernels import deformation_gradients, element_hessians, scatter_add
 from skfem_affine.body import check_bodies
 from skfem_affine.checks import choice
 from skfem_affine.kinematics import deformation_operator, element_dofs
+from skfem_affine.materials import shear_part
+from skfem_affine.nodal_volume import NodalVolume
 from skfem_affine.threads import serial_blas
 
 
@@ -39,6 +41,17 @@ class FrameData:
     H: np.ndarray   # stiffness data on ElasticSystem.pattern (free DOFs)
 
 
+_NONE = np.empty((0, 4, 3))
+
+
+def _restricted(mat, idx, sel):
+    """The material of the group on elements ``idx`` restricted to its elements ``sel`` (a subset)."""
+    if np.ndim(mat.E):  # per-element parameters of a merged material group
+        pos = np.searchsorted(idx, sel)
+        return type(mat)(E=mat.E[pos], nu=mat.nu[pos])
+    return mat
+
+
 class Pattern:
     """CSR pattern of the element matrices restricted to a subset of DOFs.
 
@@ -46,18 +59,26 @@ class Pattern:
     matrix, or -1 when the DOF is dropped (fixed).
     """
 
-    def __init__(self, edofs, dof_map):
+    def __init__(self, edofs, dof_map, couplings=None):
         size = int(dof_map.max()) + 1
         r = dof_map[edofs[:, :, None]]
         c = dof_map[edofs[:, None, :]]
         r, c = np.broadcast_arrays(r, c)
         keep = ((r >= 0) & (c >= 0)).ravel()
         key = r.ravel()[keep] * size + c.ravel()[keep]
+        if couplings is not None:  # DOF pairs beyond the elements' (rows, cols), e.g. NodalVolume.couplings()
+            xr, xc = dof_map[couplings[0]], dof_map[couplings[1]]
+            xkeep = (xr >= 0) & (xc >= 0)
+            key = np.concatenate([key, xr[xkeep] * size + xc[xkeep]])
         ukey, slot = np.unique(key, return_inverse=True)
         # per element-matrix entry, -1: dropped; int32, the width of the CSR indices, halves what the
         # scatter reads (measured in docs/integration.md)
         self.slot = np.full(keep.size, -1, dtype=np.int32)
-        self.slot[keep] = slot
+        self.slot[keep] = slot[:int(keep.sum())]
+        self.coupling_slot = None  # the same for each pair of ``couplings``
+        if couplings is not None:
+            self.coupling_slot = np.full(xkeep.size, -1, dtype=np.int32)
+            self.coupling_slot[xkeep] = slot[int(keep.sum()):]
         rows, cols = ukey // size, ukey % size
         self.indptr = np.concatenate([[0], np.cumsum(np.bincount(rows, minlength=size))])
         self.indices = cols.astype(np.int32)
@@ -137,21 +158,58 @@ class ElasticSystem:
         self.free = np.flatnonzero(~fixed_dofs)
         dof_map = np.full(3 * self.n, -1, dtype=np.int64)
         dof_map[self.free] = np.arange(self.free.size)
-        self.pattern = Pattern(self.edofs, dof_map)
+        self.pattern = Pattern(self.edofs, dof_map, None if self.nodal is None else self.nodal.couplings())
         self._full_pattern = None
         self.mass_kind = mass
         self._assemble_mass()
 
     # ------------------------------------------------------------------ rest data
     def _group_materials(self):
-        """Group elements by material kind; one vectorised material per group."""
-        mats, index = [], []
-        for b, eo in zip(self.bodies, self.element_offsets):
+        """Group elements by material kind; one vectorised material per group.
+
+        ``groups`` holds the bodies' materials. The elements evaluate ``evaluated_groups``:
+        the same, except in bodies with ``volumetric="nodal"``, whose elements carry their
+        material's shear part (:func:`~skfem_affine.materials.shear_part`) and whose volumetric
+        energy is ``nodal``'s (:mod:`skfem_affine.nodal_volume`).
+        """
+        mats, index, evaluated = [], [], []
+        for b in self.bodies:
             index.append(b.material_index + len(mats))
             mats.extend(b.materials)
+            evaluated.extend(shear_part(mt) if b.volumetric == "nodal" else mt for mt in b.materials)
         self.material_list = mats
         self.material_index = np.concatenate(index)
-        self.groups = []
+        self.groups = self._by_kind(mats)
+        nodal_bodies = [i for i, b in enumerate(self.bodies) if b.volumetric == "nodal"]
+        self.nodal = None  # the vertex part of the energy of the bodies with volumetric="nodal"
+        self.evaluated_groups = self.groups
+        if nodal_bodies:
+            self.evaluated_groups = self._by_kind(evaluated)
+            lam = np.zeros(self.m)
+            for mat, elems in self.groups:
+                lam[elems] = mat.lam
+            elems = np.flatnonzero(np.isin(self.body_of_element, nodal_bodies))
+            self.nodal = NodalVolume(self.t, self.volumes, self.grads, elems, lam[elems], self.n)
+        # per-element closed-form code and parameters of the compiled pass; other materials
+        # (user subclasses) give P and dP/dF themselves, group by group
+        self._code = np.zeros(self.m, dtype=np.int64)
+        self._mu, self._lam = np.zeros(self.m), np.zeros(self.m)
+        self._generic = []
+        for mat, elems in self.evaluated_groups:
+            if mat.closed_form():
+                self._code[elems] = mat._code
+                self._mu[elems], self._lam[elems] = mat.mu, mat.kernel_lam
+            else:
+                self._generic.append((mat, elems))
+        # the codes of the compiled pass: the elements of nodal bodies come with their P and dP/dF
+        self._pass_code = self._code
+        if self.nodal is not None:
+            self._pass_code = self._code.copy()
+            self._pass_code[self.nodal.elems] = GENERIC
+
+    def _by_kind(self, mats):
+        """[(material, elements)] with one material per class (merged to per-element (E, nu) if several)."""
+        groups = []
         for cls in dict.fromkeys(type(mt) for mt in mats):
             ids = [i for i, mt in enumerate(mats) if type(mt) is cls]
             elems = np.flatnonzero(np.isin(self.material_index, ids))
@@ -159,18 +217,8 @@ class ElasticSystem:
                 mat = mats[ids[0]]
             else:
                 mat = cls.merged([mats[i] for i in self.material_index[elems]])
-            self.groups.append((mat, elems))
-        # per-element closed-form code and parameters of the compiled pass; other materials
-        # (user subclasses) give P and dP/dF themselves, group by group
-        self._code = np.zeros(self.m, dtype=np.int64)
-        self._mu, self._lam = np.zeros(self.m), np.zeros(self.m)
-        self._generic = []
-        for mat, elems in self.groups:
-            if mat.closed_form():
-                self._code[elems] = mat._code
-                self._mu[elems], self._lam[elems] = mat.mu, mat.kernel_lam
-            else:
-                self._generic.append((mat, elems))
+            groups.append((mat, elems))
+        return groups
 
     def _assemble_mass(self):
         """Consistent mass with scikit-fem per body; lumped = its row sums (rho V / 4)."""
@@ -200,7 +248,8 @@ class ElasticSystem:
     def full_pattern(self):
         """Pattern over all DOFs (fixed included); built on first use."""
         if self._full_pattern is None:
-            self._full_pattern = Pattern(self.edofs, np.arange(3 * self.n))
+            self._full_pattern = Pattern(self.edofs, np.arange(3 * self.n),
+                                         None if self.nodal is None else self.nodal.couplings())
         return self._full_pattern
 
     def deformation_operator(self):
@@ -215,12 +264,20 @@ class ElasticSystem:
         return out
 
     def strain_energy(self, x):
-        """Total elastic energy sum_e V_e psi(F_e)."""
+        """Total elastic energy sum_e V_e psi(F_e), and the vertex part of nodal bodies (``nodal``)."""
         F = self.deformation_gradients(x)
-        return float(sum(np.dot(self.volumes[idx], mat.energy_density(F[idx])) for mat, idx in self.groups))
+        psi = float(sum(np.dot(self.volumes[idx], mat.energy_density(F[idx])) for mat, idx in self.evaluated_groups))
+        return psi if self.nodal is None else psi + self.nodal.energy(F)
 
     def stresses(self, F, tangent=True, project=True):
-        """P (m, 3, 3) and, if asked, dP/dF (m, 3, 3, 3, 3) for all elements."""
+        """P (m, 3, 3) and, if asked, dP/dF (m, 3, 3, 3, 3) for all elements (F of all elements).
+
+        In nodal bodies P includes the vertex pressures and dP/dF their element part
+        (:mod:`skfem_affine.nodal_volume`); the couplings between vertices are not per element.
+        """
+        if self.nodal is not None:
+            P, C, _, _ = self._elements(np.ascontiguousarray(F, dtype=float), tangent, project, blocks=False)
+            return P, (C.reshape(-1, 3, 3, 3, 3) if tangent else None)
         if len(self.groups) == 1:
             mat = self.groups[0][0]
             return mat.stress(F), (mat.stress_derivative(F, project=project) if tangent else None)
@@ -246,7 +303,8 @@ class ElasticSystem:
         """One compiled pass over the elements: P, dP/dF (m, 9, 9), blocks He and the force f.
 
         dP/dF and He are zero-length when not asked; the closed-form materials are
-        evaluated in the pass, the others (:attr:`_generic`) by their own methods first.
+        evaluated in the pass, the others (:attr:`_generic`) and the elements of nodal bodies
+        (``_nodal_tensors``) first.
         """
         m = self.m
         P, C = np.empty((m, 3, 3)), np.empty((m if tangent else 0, 9, 9))
@@ -254,9 +312,46 @@ class ElasticSystem:
             P[idx] = mat.stress(F[idx])
             if tangent:
                 C[idx] = mat.stress_derivative(F[idx], project=False).reshape(-1, 9, 9)
+        if self.nodal is not None:
+            v = self.nodal.elems
+            P[v], Cv = self._nodal_tensors(F, tangent)
+            if tangent:
+                C[v] = Cv
         He, fe = np.empty((m if blocks else 0, 12, 12)), np.empty((m, 4, 3))
-        evaluate_elements(F, self._code, self._mu, self._lam, project, P, C, self._vg, self.grads, He, fe)
+        evaluate_elements(F, self._pass_code, self._mu, self._lam, project, P, C, self._vg, self.grads, He, fe)
         return P, C, He, scatter_forces(self.t, fe, self.n)
+
+    def _nodal_tensors(self, F, tangent):
+        """P (k, 3, 3) and unprojected dP/dF (k, 9, 9) of the elements of nodal bodies, ``nodal``.elems:
+        their material's shear part plus the vertex pressure terms."""
+        v = self.nodal.elems
+        P, C = np.empty((v.size, 3, 3)), np.empty((v.size if tangent else 0, 9, 9))
+        closed = np.flatnonzero(self._code[v] != GENERIC)
+        c = v[closed]
+        Pc, Cc = np.empty((c.size, 3, 3)), np.empty((c.size if tangent else 0, 9, 9))
+        evaluate_elements(np.ascontiguousarray(F[c]), self._code[c], self._mu[c], self._lam[c], False, Pc, Cc,
+                          _NONE, _NONE, np.empty((0, 12, 12)), _NONE)
+        P[closed] = Pc
+        if tangent:
+            C[closed] = Cc
+        for mat, idx in self._generic:
+            sel = np.intersect1d(idx, v)
+            if sel.size:
+                pos, mat = np.searchsorted(v, sel), _restricted(mat, idx, sel)
+                P[pos] = mat.stress(F[sel])
+                if tangent:
+                    C[pos] = mat.stress_derivative(F[sel], project=False).reshape(-1, 9, 9)
+        Pp, Cp = self.nodal.element_terms(F, tangent)
+        P += Pp
+        if tangent:
+            C += Cp
+        return P, C
+
+    def _add_vertex_couplings(self, F, pattern, data):
+        """data (on ``pattern``) plus the vertex couplings of nodal bodies, if any."""
+        if self.nodal is not None:
+            self.nodal.add_hessian(F, pattern.coupling_slot, data)
+        return data
 
     def evaluate(self, x, project=True):
         """Everything one frame needs from the elastic energy at positions x (n, 3).
@@ -268,7 +363,8 @@ class ElasticSystem:
         with serial_blas():
             F = self.deformation_gradients(x)
             P, C, He, f = self._elements(F, project=project)
-            return FrameData(F=F, P=P, C=C, He=He, f=f, H=self.pattern.scatter(He))
+            H = self._add_vertex_couplings(F, self.pattern, self.pattern.scatter(He))
+            return FrameData(F=F, P=P, C=C, He=He, f=f, H=H)
 
     def evaluate_tangent(self, x, project=True):
         """Like :meth:`evaluate` but without element blocks: F, P, (projected) dP/dF and f.
@@ -288,18 +384,20 @@ class ElasticSystem:
             if not np.any(mask):
                 continue
             sel = elems[mask]
-            if np.ndim(mat.E):  # per-element parameters of a merged material group
-                pos = np.searchsorted(idx, sel)
-                mat = type(mat)(E=mat.E[pos], nu=mat.nu[pos])
-            C[mask] = mat.stress_derivative(F[sel], project=False).reshape(-1, 9, 9)
+            C[mask] = _restricted(mat, idx, sel).stress_derivative(F[sel], project=False).reshape(-1, 9, 9)
+        if self.nodal is not None:
+            mask = np.isin(elems, self.nodal.elems)
+            if np.any(mask):
+                C[mask] = self._nodal_tensors(F, True)[1][np.searchsorted(self.nodal.elems, elems[mask])]
         He = np.empty((elems.size, 12, 12))
-        evaluate_elements(np.ascontiguousarray(F[elems]), self._code[elems], self._mu[elems], self._lam[elems],
+        evaluate_elements(np.ascontiguousarray(F[elems]), self._pass_code[elems], self._mu[elems], self._lam[elems],
                           project, np.empty((0, 3, 3)), C, np.ascontiguousarray(self._vg[elems]),
                           np.ascontiguousarray(self.grads[elems]), He, np.empty((0, 4, 3)))
         return He
 
     def partial_stiffness(self, data, elems):
-        """Element blocks of ``elems`` only, and their sum on :attr:`pattern` (the others left out).
+        """Element blocks of ``elems`` only, and their sum on :attr:`pattern` (the others left out;
+        the vertex couplings of nodal bodies, which belong to no element, always in).
 
         ``data.C`` must be the tensor to use (already projected). Returns (He[elems], H data).
         """
@@ -308,7 +406,7 @@ class ElasticSystem:
                          np.ascontiguousarray(self._vg[elems]), np.ascontiguousarray(self.grads[elems]),
                          False, He, True)
         slot = self.pattern.slot.reshape(self.m, 144)[elems].ravel()
-        return He, scatter_add(slot, He.reshape(-1), self.pattern.nnz)
+        return He, self._add_vertex_couplings(data.F, self.pattern, scatter_add(slot, He.reshape(-1), self.pattern.nnz))
 
     def _internal_force(self, P):
         """f = -sum_e V_e P_e grad phi (3n,)."""
@@ -326,9 +424,10 @@ class ElasticSystem:
         if not full:
             d = self.evaluate(x, project)
             return d.f, d.H
-        _, _, He, f = self._elements(self.deformation_gradients(x), project=project)
+        F = self.deformation_gradients(x)
+        _, _, He, f = self._elements(F, project=project)
         pat = self.full_pattern
-        return f, pat.matrix(pat.scatter(He))
+        return f, pat.matrix(self._add_vertex_couplings(F, pat, pat.scatter(He)))
 
     def gravity_force(self, g):
         """External force M g (3n,)."""

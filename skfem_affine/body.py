@@ -3,17 +3,24 @@
 All validation of user input for a body lives here, so that bad input fails
 early with a message that names the problem (and the element or vertex).
 """
+import warnings
+
 import numpy as np
 import skfem
 
 from skfem_affine.kinematics import shape_gradients, signed_volumes
-from skfem_affine.checks import _describe, real_array
+from skfem_affine.checks import _describe, choice, real_array
 from skfem_affine.materials import Material
 from skfem_affine.vertex_sets import vertices_of
 
 # a rest element whose volume is below this fraction of a regular tet with its longest edge
 # is degenerate (its shape gradients would be meaningless)
 _MIN_QUALITY = 1e-9
+
+#: Poisson ratio from which linear tetrahedra with the volumetric energy on the elements lock visibly
+LOCKING_NU = 0.45
+
+VOLUMETRIC = ("element", "nodal")
 
 
 class ElasticBody:
@@ -48,9 +55,19 @@ class ElasticBody:
         Vertices whose positions follow a function of time (``sa.Prescribed(vertices, path)``,
         :mod:`skfem_affine.motion`): a moving clamp. They may not overlap ``fixed`` nor each
         other; they start at ``path(0, X)``.
+    volumetric : {"element", "nodal"}
+        Where the volumetric (lam) part of the energy is evaluated. ``"element"`` (default): in each
+        element with its material, as scikit-fem's P1 elasticity; near-incompressible materials
+        (``nu >= 0.45``) then lock, bending far too stiff, and the body warns
+        (:class:`~skfem_affine.SimulationWarning`) when built. ``"nodal"``: on the volume ratio of
+        each vertex's patch of elements (:mod:`skfem_affine.nodal_volume`), which does not lock;
+        the elements keep the material's shear part. docs/materials.md compares the two. Not with
+        ``prescribed`` vertices nor under ``sa.AdaptiveSubspace`` (ValueError).
     """
 
-    def __init__(self, mesh, material, density=1000.0, fixed=None, velocity=None, name=None, prescribed=None):
+    def __init__(self, mesh, material, density=1000.0, fixed=None, velocity=None, name=None, prescribed=None,
+                 volumetric="element"):
+        self.volumetric = choice(volumetric, "volumetric", VOLUMETRIC)
         self.mesh = _check_mesh(mesh)
         if name is not None and not isinstance(name, str):
             raise TypeError(f"name must be a str or None, got {type(name).__name__}")
@@ -58,9 +75,16 @@ class ElasticBody:
         n, m = mesh.p.shape[1], mesh.t.shape[1]
         self.n_vertices, self.n_elements = n, m
         self.materials, self.material_index = _element_materials(material, mesh)
+        if self.volumetric == "element":
+            _warn_locking(self.materials, self.name)
         self.density = _positive_per_element(density, m, "density")
         self.fixed = _vertex_mask(fixed, mesh)
         self.prescribed, self.prescribed_vertices = _prescribed(prescribed, mesh, self.fixed)
+        if self.prescribed and self.volumetric == "nodal":
+            # the step's prescribed-velocity term takes H_fp from element blocks, which do not hold
+            # the vertex couplings of the nodal volumetric energy
+            raise ValueError('prescribed vertices are not supported with volumetric="nodal"; fix them '
+                             '(fixed=...) or use volumetric="element"')
         self.velocity = _velocity(velocity, n)
         self.velocity[self.fixed] = 0.0
         for idx in self.prescribed_vertices:
@@ -82,6 +106,20 @@ class ElasticBody:
         """Diagonal of the rest bounding box (the length used to normalise errors)."""
         p = self.mesh.p
         return float(np.linalg.norm(p.max(axis=1) - p.min(axis=1)))
+
+
+def _warn_locking(materials, name):
+    """Warn once, naming the stiffening, when linear tetrahedra will lock (nu >= LOCKING_NU)."""
+    from skfem_affine.monitor import SimulationWarning
+    nu = max(float(np.max(m.nu)) for m in materials)
+    if nu >= LOCKING_NU:
+        ratio = 2.0 * nu / (1.0 - 2.0 * nu)  # lam / mu
+        warnings.warn(f"body {name!r}: nu = {nu:g} (lam / mu = {ratio:.3g}) locks linear tetrahedra with "
+                      f"the volumetric energy on the elements: bending and other volume-keeping motions "
+                      f"come out too stiff, deflections too small by a factor that grows with lam / mu "
+                      f"(docs/materials.md, 'Near-incompressible materials'); pass "
+                      f"volumetric=\"nodal\" to ElasticBody for a locking-free treatment",
+                      SimulationWarning, stacklevel=3)
 
 
 def _check_mesh(mesh):

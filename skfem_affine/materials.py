@@ -327,4 +327,11 @@ class Corotational(Material):
         return self._compiled(F, tangent=True)[1].reshape(-1, 3, 3, 3, 3)
 
 
+def shear_part(material):
+    """The material of the same class at lam = 0 (E = 2 mu, nu = 0): its energy without the
+    volumetric stiffness lam, which a body with ``volumetric="nodal"`` puts on its vertices
+    (:mod:`skfem_affine.nodal_volume`)."""
+    return type(material)(E=2.0 * material.mu, nu=np.zeros_like(material.nu))
+
+
 MATERIALS = {cls.name: cls for cls in (StVK, Corotational, NeoHookean)}

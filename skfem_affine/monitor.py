@@ -60,7 +60,8 @@ POLICIES = ("warn", "raise", "ignore")
 
 class SimulationWarning(UserWarning):
     """A frame was accepted with a defect the user asked to be warned about (inverted elements,
-    a Newton solve that did not converge, energy created by the step)."""
+    a Newton solve that did not converge, energy created by the step), or a body was built whose
+    discretisation will be visibly wrong (a near-incompressible material that locks)."""
 
 
 #: h^2 k / m above which the linearized step's round-off is visible (see :func:`stiffness_ratios`)

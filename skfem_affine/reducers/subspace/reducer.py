@@ -244,6 +244,10 @@ class AdaptiveSubspace(Reducer):
         the METIS subdomains and, with ``hessian_init="rest"``, the rest subspace Hessians."""
         t0 = time.perf_counter()
         sysm = model.system
+        if sysm.nodal is not None:  # its subspace Hessians are sums of element blocks
+            raise ValueError('reducer: AdaptiveSubspace does not support bodies with volumetric="nodal" '
+                             '(their stiffness couples vertices beyond the elements); use sa.Affinification '
+                             'or full space')
         self.model, self.system, self.project_hessian = model, sysm, bool(model.project_hessian)
         self.basis = self.basis_spec.build(sysm)
         self.U = self.basis.U[sysm.free]  # (nfree, r)
