@@ -488,3 +488,19 @@ def test_a_budget_the_time_budget_breaks_is_warned_at_the_first_frame_it_is_pass
     passed = [r["frame"] for r in sim.stats if r["estimated_error"] > 0.01]
     assert passed and len(caught) == 1
     assert str(caught[0].message).startswith(f"frame {passed[0]}:")
+
+
+def test_a_frame_is_refused_when_its_carried_error_would_pass_the_budget():
+    """The estimate adds W h delta per frame; G, a slow history, can be under the latest W: a frame is
+    refused when W h delta would take the estimate over the budget, whatever G says."""
+    def near_the_budget(carry):
+        eb = budget.ErrorBudget(0.01, 1e-3, relative_to="metre")
+        eb.advance(0.9, 0.01, 1.0)  # E = 9e-3
+        eb.amplification, eb.carry = 1.0, carry
+        return eb
+    delta = 0.04  # G h delta = 4e-4 (under a quarter budget); W h delta = 1.6e-3 at W = 4
+    eb = near_the_budget(4.0)
+    assert eb.breaks(delta, 0.01)
+    eb.advance(delta, 0.01, 1.0)
+    assert eb.estimate > eb.target  # what the refusal spared
+    assert not near_the_budget(1.0).breaks(delta, 0.01)  # E + h delta stays within the budget

@@ -401,8 +401,11 @@ class ErrorBudget:
         nothing could reduce, then everything does) is refused."""
         if not self.unit > 0:
             return False
-        kick = self.amplification * dt * float(delta) / self.unit
-        return kick > KICK * self.target or math.exp(-dt / self.memory) * self.estimate + kick > self.target
+        step = dt * float(delta) / self.unit
+        kick = self.amplification * step
+        # the estimate after the frame adds W h delta (advance); G, a slow history, may be under the latest W
+        after = math.exp(-dt / self.memory) * self.estimate + max(kick, self.carry * step)
+        return kick > KICK * self.target or after > self.target
 
     def warn_passed(self, frame):
         """After a frame: a :class:`BudgetWarning` naming ``frame`` the first time the estimate is over
