@@ -458,3 +458,49 @@ def test_controller_state_is_plain_numbers_and_restores_a_run():
     assert b.reducer.controllers == state and b.reducer.tau_a == a.reducer.tau_a
     with pytest.raises(ValueError, match="no controller"):
         sa.scenes.cantilever(resolution=2, reducer=sa.Affinification(0.1, 0.2)).reducer.controllers = state
+
+
+def test_an_estimate_over_the_budget_is_warned_once_naming_its_frame():
+    eb = budget.ErrorBudget(0.01, 1e-3, relative_to="metre")
+    eb.advance(0.5, 0.01, 1.0)  # E = 5e-3: within the budget
+    assert not eb.warn_passed(3)
+    eb.advance(2.0, 0.01, 1.0)  # E over 0.01
+    with pytest.warns(budget.BudgetWarning, match="frame 4: the estimated error .* over the error budget 0.01"):
+        assert eb.warn_passed(4)
+    eb.advance(2.0, 0.01, 1.0)
+    assert not eb.warn_passed(5)  # once per run
+    assert eb.warned and "warned" in budget.controllers_state(type("R", (), {"eb": eb})(), ["eb"])["eb"]
+
+
+def test_a_budget_the_time_budget_breaks_is_warned_at_the_first_frame_it_is_passed():
+    """A time budget far below any frame forces every element into bodies and wins over the refusal
+    of frames that would break the error budget: the estimate passes the budget, and the run says so
+    at that frame."""
+    sim = sa.scenes.cantilever(resolution=1, solver="direct", gravity=(0.0, 0.0, 0.0),
+                               reducer=sa.Affinification(target_error=0.01, time_budget=1e-6))
+    x = sim.state.x.copy()
+    s = x[:, 0] / np.ptp(sim.system.p0[:, 0])
+    x[:, 2] -= 0.3 * s ** 2 * (3 - s) / 2  # released from its tip-load shape
+    sim.state.x = x
+    with pytest.warns(budget.BudgetWarning) as caught:
+        for _ in range(12):
+            sim.step()
+    passed = [r["frame"] for r in sim.stats if r["estimated_error"] > 0.01]
+    assert passed and len(caught) == 1
+    assert str(caught[0].message).startswith(f"frame {passed[0]}:")
+
+
+def test_a_frame_is_refused_when_its_carried_error_would_pass_the_budget():
+    """The estimate adds W h delta per frame; G, a slow history, can be under the latest W: a frame is
+    refused when W h delta would take the estimate over the budget, whatever G says."""
+    def near_the_budget(carry):
+        eb = budget.ErrorBudget(0.01, 1e-3, relative_to="metre")
+        eb.advance(0.9, 0.01, 1.0)  # E = 9e-3
+        eb.amplification, eb.carry = 1.0, carry
+        return eb
+    delta = 0.04  # G h delta = 4e-4 (under a quarter budget); W h delta = 1.6e-3 at W = 4
+    eb = near_the_budget(4.0)
+    assert eb.breaks(delta, 0.01)
+    eb.advance(delta, 0.01, 1.0)
+    assert eb.estimate > eb.target  # what the refusal spared
+    assert not near_the_budget(1.0).breaks(delta, 0.01)  # E + h delta stays within the budget

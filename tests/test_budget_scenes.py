@@ -1,10 +1,13 @@
 """An error budget is a promise: on every registered scene, at two budgets, the achieved error
 stays within 1.25 budgets (small resolutions, few frames; docs/budget.md)."""
+import warnings
+
 import numpy as np
 import pytest
 
 import skfem_affine as sa
 from skfem_affine.lab import metrics
+from skfem_affine.reducers import budget
 
 MARGIN = 1.25
 BUDGETS = (0.01, 0.03)  # relative to the response: the default unit
@@ -84,3 +87,17 @@ def test_affinification_on_the_twisting_beam_in_size_units_over_a_longer_run():
         red.step()
         worst = max(worst, metrics.distance_error(red.state.x, full.state.x, full.size))
     assert worst <= MARGIN * 0.01, worst
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason="the rigid update and the full-space linearized step lose a spinning body's "
+                                       "angular momentum differently, which no frame's local error shows "
+                                       "(docs/budget.md, 'What the estimate misses')")
+def test_rigidification_on_a_free_spinning_body_keeps_its_budget_or_says_so():
+    """500 frames of a free body spinning at 2 rad/s: within 1.25 budgets, or a warning at the frame
+    the estimate passes the budget."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", budget.BudgetWarning)
+        errors = achieved("free_body", [sa.Rigidification(target_error=0.01, never_slower=False)], 500)
+    warned = [w for w in caught if issubclass(w.category, budget.BudgetWarning)]
+    assert errors[0] <= MARGIN * 0.01 or warned, errors

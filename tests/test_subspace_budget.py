@@ -1,8 +1,12 @@
 """AdaptiveSubspace's error budget, time budget and never-slower fall-back (reducers/subspace/control.py)."""
+import warnings
+
 import numpy as np
 import pytest
 
 import skfem_affine as sa
+from skfem_affine.lab import metrics
+from skfem_affine.reducers import budget as budgets
 from skfem_affine.reducers.subspace import control
 
 import budget_runs
@@ -227,3 +231,65 @@ def test_trial_steps_get_a_shorter_deadline_and_a_phase_change_asks_for_a_shadow
     assert not c.shadow_due("reduced")
     c.reduced_measured(0.1, shadow=False)  # four times cheaper than where the full cost was measured
     assert c.shadow_due("reduced")
+
+
+def plucked_beam(reducer=None):
+    """The k=1 cantilever (24 tets) released from its tip-load shape (a cubic, 0.3 m at the tip), no gravity."""
+    sim = sa.scenes.cantilever(resolution=1, integrator="implicit_euler", solver="direct", reducer=reducer,
+                               newton_tol=1e-3, gravity=(0.0, 0.0, 0.0))
+    x = sim.state.x.copy()
+    s = x[:, 0] / np.ptp(sim.system.p0[:, 0])
+    x[:, 2] -= 0.3 * s ** 2 * (3 - s) / 2
+    sim.state.x = x
+    return sim
+
+
+def ipc_incline(reducer=None):
+    """A 0.5 m box (48 tets) 0.5 mm above a 20-degree incline (gravity tilted), IPC friction 0.25: it
+    settles on the barrier and slides."""
+    g, theta = 9.81, np.radians(20)
+    return sa.scenes.drop(resolution=1, shape="box", size=0.5, height=5e-4, velocity=(0, 0, 0),
+                          gravity=(g * np.sin(theta), 0, -g * np.cos(theta)), material=sa.NeoHookean(E=1e6, nu=0.35),
+                          integrator="implicit_euler", contact=sa.IPC(friction=0.25), solver="direct",
+                          reducer=reducer, newton_tol=1e-6)
+
+
+def response_error(scene, frames, reducer):
+    """The reduced run's largest vertex distance to the full-space run over its final response, and its stats."""
+    full, red = scene(), scene(reducer)
+    worst = response = 0.0
+    for _ in range(frames):
+        full.step()
+        red.step()
+        response = max(response, metrics.response_amplitude(full.state.x, full.system.p0))
+        worst = max(worst, metrics.distance_m(red.state.x, full.state.x))
+    return worst / response, red.stats
+
+
+def test_a_reduced_step_that_would_break_the_budget_is_refused():
+    """The plucked beam's first reduced steps would take the estimate past the budget (to 2.4 budgets
+    unrefused): they are solved again in full space, and the estimate stays within the budget."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", budgets.BudgetWarning)
+        err, stats = response_error(plucked_beam, 20, subspace(target_error=0.01, never_slower=False, fallback=None))
+    assert any(r["refused"] and r["shadow"] and not r["reduced"] for r in stats)
+    assert any(r["reduced"] for r in stats)
+    assert max(r["estimated_error"] for r in stats) <= 0.01
+    assert err <= MARGIN * 0.01, err
+
+
+def test_steps_solved_in_full_space_take_the_friction_iterations_of_the_full_space_run():
+    """On the incline, the first frames are shadows and refused steps: their full-space solves must be
+    the full-space run's (its lagged friction relagged at the solution), or the box slides off at
+    another speed that no later frame takes back."""
+    red = subspace(target_error=0.01, never_slower=False, fallback=None)
+    full, sim = ipc_incline(), ipc_incline(red)
+    for _ in range(8):
+        full.step()
+        sim.step()
+        if sim.stats[-1]["reduced"]:
+            break
+        assert np.array_equal(sim.state.x, full.state.x)  # every step so far solved in full space
+    assert len(sim.stats) >= 3
+    err, _ = response_error(ipc_incline, 30, subspace(target_error=0.01, never_slower=False, fallback=None))
+    assert err <= MARGIN * 0.01, err

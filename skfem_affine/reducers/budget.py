@@ -73,10 +73,12 @@ shadow frame solves its contact in full space, which a reduced frame does not. W
 decides every fall-back: the two are measured a frame apart, under the same load from elsewhere.
 """
 import math
+import warnings
 
 import numpy as np
 
 from skfem_affine.checks import positive, real
+from skfem_affine.monitor import SimulationWarning
 
 #: The error budget of a reducer given no threshold: 1 % of the response.
 DEFAULT_TARGET_ERROR = 0.01
@@ -99,6 +101,11 @@ RECENT = 4
 #: Frames a shadow frame follows its measured velocity error through the linearized step
 #: (:func:`kick_response`); it stops earlier once the velocity error has died out or turned back.
 PROPAGATION_STEPS = 24
+
+
+class BudgetWarning(SimulationWarning):
+    """A run's estimated error passed its error budget (:meth:`ErrorBudget.warn_passed`): the frames
+    after it are not within the promise."""
 
 
 def error_unit(relative_to):
@@ -306,6 +313,7 @@ class ErrorBudget:
         self.readings = []  # W of the latest shadow frames, newest last, at most RECENT
         self.propagations = 0  # shadow frames that measured (G, W)
         self.stable = False  # the latest shadow frame confirmed the calibration
+        self.warned = False  # the estimate passed the budget and the run said so (:meth:`warn_passed`)
 
     @property
     def goal(self):
@@ -393,8 +401,25 @@ class ErrorBudget:
         nothing could reduce, then everything does) is refused."""
         if not self.unit > 0:
             return False
-        kick = self.amplification * dt * float(delta) / self.unit
-        return kick > KICK * self.target or math.exp(-dt / self.memory) * self.estimate + kick > self.target
+        step = dt * float(delta) / self.unit
+        kick = self.amplification * step
+        # the estimate after the frame adds W h delta (advance); G, a slow history, may be under the latest W
+        after = math.exp(-dt / self.memory) * self.estimate + max(kick, self.carry * step)
+        return kick > KICK * self.target or after > self.target
+
+    def warn_passed(self, frame):
+        """After a frame: a :class:`BudgetWarning` naming ``frame`` the first time the estimate is over
+        the budget (once per run). Reduced frames that would pass it are refused (:meth:`breaks`), so
+        the estimate passes it only through error it cannot take back: error that earlier frames set
+        moving and that keeps growing after them, or frames a time budget kept reduced."""
+        if self.warned or not self.estimate > self.target:
+            return False
+        self.warned = True
+        warnings.warn(BudgetWarning(
+            f"frame {frame}: the estimated error {self.estimate:.3g} is over the error budget {self.target:.3g} "
+            f"(relative to the {self.relative_to}, unit {self.unit:.3g} m); the frames from here on are not "
+            f"within the budget"), stacklevel=3)
+        return True
 
     def decay(self, dt):
         """A frame solved in full space: D only decays."""

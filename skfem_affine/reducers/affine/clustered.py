@@ -392,6 +392,8 @@ class ClusteringReducer(Reducer):
         if self.timer is not None and "wall" in rec:
             rec["time_budget_miss"] = bool(self.timer.observe(rec["wall"], steered=rec.get("reduced", True)))
             rec["min_fraction_next"] = float(self.timer.fraction)
+        if self.error_budget is not None:  # an estimate over the budget is warned at the first frame it is
+            self.error_budget.warn_passed(rec.get("frame"))
         judged, self._judged = self._judged, None
         if self.pays is not None and judged is not None and "wall" in rec:
             self._judge(*frame_cost(judged, rec))

@@ -62,6 +62,7 @@ import scipy.sparse as sp
 from skfem_affine.checks import choice, flag, integer, positive, real
 from skfem_affine import threads
 from skfem_affine.integrators import newton
+from skfem_affine.integrators.newton_integrator import NewtonIntegrator
 from skfem_affine.integrators.problem import StepResult
 from skfem_affine.integrators.potential import IncrementalPotential
 from skfem_affine.reducers.base import Reducer
@@ -301,16 +302,30 @@ class AdaptiveSubspace(Reducer):
         return StepResult(x=x, stats=rec)
 
     def end_frame(self, rec):
-        """The time budget takes the frame's wall time; ``rec["time_budget_miss"]`` records a miss."""
+        """The time budget takes the frame's wall time (``rec["time_budget_miss"]`` records a miss); an
+        estimate over the error budget is warned at the first frame it is (``BudgetWarning``)."""
         timer = None if self.control is None else self.control.timer
         if timer is not None and "wall" in rec:
             rec["time_budget_miss"] = bool(timer.observe(rec["wall"]))
             rec["min_fraction_next"] = float(timer.fraction)
+        budget = None if self.control is None else self.control.error_budget
+        if budget is not None:
+            budget.warn_passed(rec.get("frame"))
 
     def _full_step(self, ip, rec):
-        """Full-space Newton by the fallback solver; returns (x, seconds)."""
+        """Full-space Newton by the fallback solver, with IPC's lagged friction iterations as the
+        full-space run takes them (:class:`~skfem_affine.integrators.newton_integrator.NewtonIntegrator`:
+        the friction's normal forces from the solution while they change), so that a step solved in
+        full space is the full-space run's step; returns (x, seconds)."""
         t0 = self.clock()
         x, _ = newton.newton_solve(ip, self.fallback_solver, rec)
+        relag = getattr(ip.barrier, "relag", None)  # IPCContact's lagged friction (the integrator's interface)
+        if relag is not None:
+            for _ in range(NewtonIntegrator.FRICTION_ITERATIONS):
+                if relag(x) <= NewtonIntegrator.FRICTION_TOL:
+                    break
+                x, _ = newton.newton_solve(ip, self.fallback_solver, rec)
+                rec["friction_iterations"] = rec.get("friction_iterations", 0) + 1
         return x, self.clock() - t0
 
     def _controlled(self, ip, rec):
@@ -344,7 +359,7 @@ class AdaptiveSubspace(Reducer):
             c.pays.full_solved(seconds, rec.get("newton_iters", 1))
         if c.error_budget is not None:
             c.error_budget.decay(ip.h)
-        rec.update(reduced=False, shadow=False, dofs=int(ip.free.size), solver=self.fallback_solver.name,
+        rec.update(reduced=False, shadow=False, refused=False, dofs=int(ip.free.size), solver=self.fallback_solver.name,
                    full_solve=seconds)
         return x
 
@@ -361,10 +376,16 @@ class AdaptiveSubspace(Reducer):
         reduced_seconds = self.clock() - t0
         went_full = x_red is None or step.full  # the result (if any) is a converged full-space one
         rec["reduced_dofs"] = rec.get("dofs", int(free.size))
+        eb = c.error_budget
+        # a reduced step whose estimated error would break the budget is solved again in full space
+        refused = (not shadow and not went_full and eb is not None
+                   and eb.breaks(eb.local(self._proxy(ip, step)), ip.h))
+        shadow = shadow or refused
         x, measured = x_red, None
         if shadow or x_red is None:  # a shadow, or a reduced step out of time: full-space Newton from x_t
             x, measured = self._shadow_step(ip, rec, x_red, shadow)
         rec["shadow"] = bool(shadow)
+        rec["refused"] = bool(refused)
         rec["reduced"] = bool(not shadow and not went_full)
         if c.error_budget is not None:
             self._feed_error_budget(ip, rec, x_red, step, went_full, measured)
@@ -401,7 +422,7 @@ class AdaptiveSubspace(Reducer):
             if eb.estimate <= eb.goal:
                 eb.adapt()
             return
-        estimate = 0.0 if went_full else control.proxy(step.last_g, step.diagonal(), ip.free, self.system.n, h)
+        estimate = 0.0 if went_full else self._proxy(ip, step)
         if measured is not None and measured > control.NOISE * ip.tol * size:
             delta = eb.local(estimate, measured)  # calibrates the proxy
             c.shadows.settled(eb.stable and eb.estimate < eb.goal)
@@ -415,6 +436,10 @@ class AdaptiveSubspace(Reducer):
         # estimate is under the goal (so that steps reduce again), and holds over it
         if not went_full or eb.estimate <= eb.goal:
             eb.adapt(saturated=smallest)
+
+    def _proxy(self, ip, step):
+        """The proxy of a reduced step's local error (m/s, uncalibrated): :func:`control.proxy` at its last iterate."""
+        return control.proxy(step.last_g, step.diagonal(), ip.free, self.system.n, ip.h)
 
     def _error_unit(self, ip):
         """The budget's unit (m) this step (set by :meth:`_controlled`), or the scene size without a budget."""
