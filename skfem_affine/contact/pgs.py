@@ -28,8 +28,7 @@ One frame, in the order of Algorithm 1:
    deepen) and for a gap within the slop (the vertex touches: a rest offset). The slop, 1e-5 of
    a surface edge by default, keeps resting contacts solvable: a gap of a few nanometres that a
    solve leaves on one of an affine body's many coplanar contacts would otherwise ask for a
-   velocity no affine motion gives it alone (the contacts' W has rank 12 per body), and PGS
-   stalls on it at its sweep cap (docs/contact.md).
+   velocity no affine motion gives it alone (the contacts' W has rank 12 per body).
    Restitution is zero. By default (``PGS(solver="block")``) groups of strongly coupled contacts
    are solved together (:func:`block_gauss_seidel`); ``PGS(solver="gauss-seidel")`` runs the plain
    sweeps and ``PGS(solver="anderson")`` accelerates them by Anderson mixing of the last few
@@ -48,7 +47,9 @@ One frame, in the order of Algorithm 1:
    and stops when it is resolved. Its operator ``J_n G M_G^-1 G^T J_n^T = B B^T`` has rank at
    most 6 per body and is never formed: ``B = J_n G C`` with ``C C^T = M_G^-1`` (C block
    diagonal, 6 x 6 per body), and the PGS sweep keeps ``B^T mu``
-   (:func:`projected_gauss_seidel_lowrank`). Bodies with fixed vertices are held by them and are not
+   (:func:`projected_gauss_seidel_lowrank`), with the contact solve's stopping rule and extra sweeps:
+   a correction left above :data:`UNRESOLVED` of the frame's velocity scale marks the frame
+   unresolved (its penetrations would pile up from frame to frame). Bodies with fixed vertices are held by them and are not
    moved by the correction (their penetrations may not deepen, by the velocity constraint).
 
 Friction is the isotropic Coulomb *cone*: each PGS step projects the tangential
@@ -79,8 +80,8 @@ from skfem_affine.reducers.affine.mapping import group_sum
 # The contact model this module implements, as recorded in ``sim.stats`` ("contact_model").
 MODEL = "pgs"
 
-# A frame's contact is unresolved (a warning, ``contact_unresolved`` in ``sim.stats``) when its
-# residual after the PGS solve is above this fraction of the velocity the contacts remove.
+# A frame's contact is unresolved (a warning, ``contact_unresolved`` in ``sim.stats``) when the residual of
+# its PGS solve or of its penetration correction is above this fraction of the velocity the contacts remove.
 UNRESOLVED = 0.01
 
 # The default slop of PGS, in mean surface edge lengths.
