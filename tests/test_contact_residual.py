@@ -89,12 +89,65 @@ def test_sweeps_go_on_while_contact_is_unresolved():
             pass
     assert max(r["pgs_iterations"] for r in sim.stats) > sa.PGS().iterations
     # frames that still miss 1 % of the velocity to remove say so
-    assert all(r["contact_unresolved"] == (r["contact_residual"] > pgs.UNRESOLVED * r["contact_scale"])
-               for r in sim.stats)
+    assert all(r["contact_unresolved"] == _unresolved(r) for r in sim.stats)
     assert sim.state.x[:n, 2].min() > -1e-2                 # at most 1 cm into the floor (measured 5 mm; 9 cm without)
     light = sim.state.x[:n].mean(axis=0)
     assert np.hypot(light[0], light[1]) < 5e-3              # not squeezed out sideways
     assert sim.state.x[n:, 2].min() > 0.1                   # the heavy box still on top of it
+
+
+def _unresolved(rec):
+    """The frame's contact solve or its penetration correction ends above 1 % of its velocity scale."""
+    return (rec["contact_residual"] > pgs.UNRESOLVED * rec["contact_scale"]
+            or rec.get("correction_residual", 0.0) > pgs.UNRESOLVED * rec.get("correction_scale", np.inf))
+
+
+def _stack(gravity=(0, 0, -9.81), **contact):
+    """A 0.2 m stiff box (E = 1e8, density 1e4) resting on a 0.4 m soft one (E = 1e6, density 1): 1250
+    times its mass."""
+    light = sa.ElasticBody(box_mesh(0.4, 2, (0, 0, 0.2)), sa.NeoHookean(E=1e6, nu=0.3), density=1.0)
+    heavy = sa.ElasticBody(box_mesh(0.2, 2, (0, 0, 0.502)), sa.NeoHookean(E=1e8, nu=0.3), density=1e4)
+    return sa.Simulation([light, heavy], dt=0.01, gravity=gravity, colliders=[sa.Plane()],
+                         contact=sa.PGS(friction=0.5, **contact))
+
+
+@pytest.mark.slow
+def test_a_heavy_box_rests_on_a_light_one_for_500_frames():
+    """The penetration correction sweeps on while it leaves more than 1 % of the frame's velocity
+    scale: the light box's penetration into the floor, which the contact solve's small residual
+    feeds every frame, stays bounded instead of piling up, and the stack stands."""
+    sim = _stack()
+    n = sim.bodies[0].mesh.p.shape[1]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", SimulationWarning)  # nothing left unresolved
+        bottoms = np.array([s.x[:n, 2].min() for s in sim.run(500)])
+    assert bottoms.min() > -1e-3                          # measured 0.1 mm (11 mm by frame 450 without)
+    heavy = sim.state.x[n:]
+    assert np.hypot(*heavy[:, :2].mean(axis=0)) < 5e-3    # no drift off the top
+    assert np.ptp(heavy[:, 2]) < 0.2 + 1e-3               # not tilted: its 0.2 m height, upright
+    assert sim.stats.problems()["unresolved_contact_frames"] == 0
+
+
+def test_a_penetration_correction_left_short_is_reported_at_its_first_frame():
+    """Without gravity the contact solve has nothing to remove, but the light box starts 1 mm in the
+    floor with the heavy one resting on it: 20 sweeps of the correction leave most of the push
+    asked for, and the first frame says so."""
+    sim = _stack(gravity=(0, 0, 0), iterations=20, max_iterations=20)
+    n = sim.bodies[0].mesh.p.shape[1]
+    sim.state.x[:, 2] -= 1e-3
+    sim.state.x[n:, 2] -= 2e-3  # the heavy box resting on the light one
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        for _ in sim.run(3):
+            pass
+    said = [str(w.message) for w in caught if issubclass(w.category, SimulationWarning)]
+    assert len(said) == 1 and "contact unresolved at frame 1" in said[0] and "penetration correction" in said[0]
+    first = sim.stats[0]
+    assert first["contact_residual"] <= pgs.UNRESOLVED * first["contact_scale"]  # the velocity solve is fine
+    assert first["correction_residual"] > pgs.UNRESOLVED * first["correction_scale"] and first["contact_unresolved"]
+    assert all(r["contact_unresolved"] == _unresolved(r) for r in sim.stats)
+    assert sim.stats.problems()["unresolved_contact_frames"] == 3
+    assert sim.state.x[:n, 2].min() < -5e-4  # still in the floor
 
 
 def test_max_iterations_is_checked():

@@ -108,9 +108,9 @@ def test_a_gap_within_the_slop_counts_as_touching():
 
 def test_an_affine_stack_at_rest_converges_in_a_few_sweeps():
     """The resting stack, affine: every frame's solve reaches the tolerance in a few sweeps and the
-    stack stays where it rests; without the slop the nanometre gaps each solve leaves on one of
-    the coplanar contacts keep the plain sweeps at their 50-sweep cap above the tolerance (the
-    block sweeps, the default, reach it there too)."""
+    stack stays where it rests; without the slop too, with the plain sweeps: the penetration
+    correction, sweeping on past its cap while it leaves more than 1 % of the frame's velocity
+    scale, removes the nanometre penetrations each solve leaves on the coplanar contacts."""
     runs = {}
     for slop in (None, 0.0):
         sim = _stack(sa.Affinification(1e-4, 2e-4))
@@ -123,5 +123,5 @@ def test_an_affine_stack_at_rest_converges_in_a_few_sweeps():
     rest, centres = runs[None]
     assert all(r["pgs_converged"] for r in rest) and max(r["pgs_iterations"] for r in rest) <= 3  # measured 1
     assert np.abs(centres - runs[0.0][1]).max() < 1e-6  # where the stack rests without the slop
-    capped = runs[0.0][0]
-    assert sum(r["pgs_iterations"] == 50 and not r["pgs_converged"] for r in capped) > len(capped) / 4
+    unslopped = runs[0.0][0]
+    assert all(r["pgs_converged"] for r in unslopped) and max(r["max_penetration"] for r in unslopped) < 1e-8

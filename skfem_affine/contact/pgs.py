@@ -28,8 +28,7 @@ One frame, in the order of Algorithm 1:
    deepen) and for a gap within the slop (the vertex touches: a rest offset). The slop, 1e-5 of
    a surface edge by default, keeps resting contacts solvable: a gap of a few nanometres that a
    solve leaves on one of an affine body's many coplanar contacts would otherwise ask for a
-   velocity no affine motion gives it alone (the contacts' W has rank 12 per body), and PGS
-   stalls on it at its sweep cap (docs/contact.md).
+   velocity no affine motion gives it alone (the contacts' W has rank 12 per body).
    Restitution is zero. By default (``PGS(solver="block")``) groups of strongly coupled contacts
    are solved together (:func:`block_gauss_seidel`); ``PGS(solver="gauss-seidel")`` runs the plain
    sweeps and ``PGS(solver="anderson")`` accelerates them by Anderson mixing of the last few
@@ -48,7 +47,9 @@ One frame, in the order of Algorithm 1:
    and stops when it is resolved. Its operator ``J_n G M_G^-1 G^T J_n^T = B B^T`` has rank at
    most 6 per body and is never formed: ``B = J_n G C`` with ``C C^T = M_G^-1`` (C block
    diagonal, 6 x 6 per body), and the PGS sweep keeps ``B^T mu``
-   (:func:`projected_gauss_seidel_lowrank`). Bodies with fixed vertices are held by them and are not
+   (:func:`projected_gauss_seidel_lowrank`), with the contact solve's stopping rule and extra sweeps:
+   a correction left above :data:`UNRESOLVED` of the frame's velocity scale marks the frame
+   unresolved (its penetrations would pile up from frame to frame). Bodies with fixed vertices are held by them and are not
    moved by the correction (their penetrations may not deepen, by the velocity constraint).
 
 Friction is the isotropic Coulomb *cone*: each PGS step projects the tangential
@@ -79,8 +80,8 @@ from skfem_affine.reducers.affine.mapping import group_sum
 # The contact model this module implements, as recorded in ``sim.stats`` ("contact_model").
 MODEL = "pgs"
 
-# A frame's contact is unresolved (a warning, ``contact_unresolved`` in ``sim.stats``) when its
-# residual after the PGS solve is above this fraction of the velocity the contacts remove.
+# A frame's contact is unresolved (a warning, ``contact_unresolved`` in ``sim.stats``) when the residual of
+# its PGS solve or of its penetration correction is above this fraction of the velocity the contacts remove.
 UNRESOLVED = 0.01
 
 # The default slop of PGS, in mean surface edge lengths.
@@ -410,13 +411,16 @@ def anderson_gauss_seidel(W, u0, lam, mu, iterations, tolerance, max_iterations=
 
 
 @njit(cache=True)
-def projected_gauss_seidel_lowrank(indptr, indices, data, ncols, u0, lam, iterations, tolerance):
+def projected_gauss_seidel_lowrank(indptr, indices, data, ncols, u0, lam, iterations, tolerance, max_iterations=0,
+                                   loose=0.0, floor=0.0):
     """Frictionless PGS on 0 <= lam _|_ u = u0 + B B^T lam >= 0 with the rows of B as CSR.
 
     W = B B^T is never formed: the sweep keeps w = B^T lam (one entry per column of B, e.g.
     6 per rigid body), so row i costs its own nonzeros, ``u_i = u0_i + B_i w`` and ``W_ii = |B_i|^2``.
     Stops when ``|min(u_i, W_ii lam_i)|`` is at most ``tolerance`` times the largest approach
-    ``-u0_i`` (as :func:`projected_gauss_seidel`). ``lam`` is updated in place; returns w (ncols,).
+    ``-u0_i`` (at least ``floor``), or after ``iterations`` sweeps; beyond them, up to ``max_iterations``,
+    sweeps go on while it is above ``loose`` times that scale (as :func:`projected_gauss_seidel`). ``lam`` is
+    updated in place; returns w (ncols,).
     """
     k = lam.size
     w = np.zeros(ncols)
@@ -427,8 +431,9 @@ def projected_gauss_seidel_lowrank(indptr, indices, data, ncols, u0, lam, iterat
         for p in range(indptr[i], indptr[i + 1]):
             diag[i] += data[p] * data[p]
             w[indices[p]] += data[p] * lam[i]
+    scale = max(scale, floor)
     goal = tolerance * scale
-    for sweep in range(iterations):
+    for sweep in range(max(iterations, max_iterations)):
         worst = 0.0
         for i in range(k):
             if diag[i] <= 0.0:
@@ -448,7 +453,7 @@ def projected_gauss_seidel_lowrank(indptr, indices, data, ncols, u0, lam, iterat
                 for p in range(indptr[i], indptr[i + 1]):
                     u += data[p] * w[indices[p]]
                 worst = max(worst, abs(min(u, diag[i] * lam[i])))
-        if worst <= goal:
+        if worst <= goal or (sweep + 1 >= iterations and worst <= loose * scale):
             break
     return w
 
@@ -944,8 +949,10 @@ class Contact:
             B.sort_indices()
             mu = np.zeros(cs.size)
             w = projected_gauss_seidel_lowrank(B.indptr, B.indices, B.data, B.shape[1], u1, mu,
-                                               int(st.iterations), float(st.tolerance))
+                                               int(st.iterations), float(st.tolerance), st.sweep_limit, UNRESOLVED,
+                                               rec["contact_scale"])
             self.correction = G @ (C @ w)
+            self._report_correction(u1, B @ w, np.asarray(B.multiply(B).sum(axis=1)).ravel(), mu, problem.frame, rec)
         local = lam.reshape(-1, 3)
         world = np.einsum("kij,ki->kj", cs.frames(), local)
         order = np.argsort(cs.key)
@@ -981,6 +988,29 @@ class Contact:
                           f"{residual:.3g} m/s, {residual / scale:.2g} of the {scale:.3g} m/s the contacts remove "
                           f"(bodies may sink into each other; raise PGS(max_iterations=...); further frames are counted "
                           f"in sim.stats['contact_unresolved'], not warned)", SimulationWarning, stacklevel=5)
+
+
+    def _report_correction(self, u1, Bw, diag, mu, frame, rec):
+        """The split impulse's residual into ``rec``; the frame unresolved (a warning, once per run) when
+        it is above :data:`UNRESOLVED` times the frame's velocity scale (as the contact solve's).
+
+        ``correction_residual`` (m/s): the largest ``|min(u_n, W_nn mu_n)|`` of its frictionless
+        problem (``u = u1 + B w``, ``W_nn = |B_n|^2`` in ``diag``); ``correction_scale`` (m/s): the largest push asked for,
+        ``-u1_n``, or the contact solve's ``contact_scale`` when larger. A correction left short keeps that share of its penetrations, which then pile up
+        from frame to frame (a heavy body on a light one sinks the light one into the floor).
+        """
+        acting = diag > 0.0  # a row no rigid motion moves is skipped by the solve
+        residual = float(np.abs(np.minimum(u1 + Bw, diag * mu))[acting].max(initial=0.0))
+        scale = max(float(np.maximum(-u1[acting], 0.0).max(initial=0.0)), rec["contact_scale"])
+        rec.update(correction_residual=residual, correction_scale=scale)
+        if residual > UNRESOLVED * scale:
+            rec["contact_unresolved"] = True
+            if not self.warned:
+                self.warned = True
+                warnings.warn(f"contact unresolved at frame {frame}: the penetration correction leaves {residual:.3g} m/s "
+                              f"of the {scale:.3g} m/s push it was asked for (penetrations pile up from frame to frame; "
+                              f"further frames are counted in sim.stats['contact_unresolved'], not warned)",
+                              SimulationWarning, stacklevel=5)
 
 
 def make_contact(model, colliders, settings):

@@ -114,6 +114,24 @@ class BodyBlocks:
             self.blocks.append((handle, idx))
         self.complements = (np.concatenate(keep), parts) if parts else None
 
+    def state_dict(self):
+        """Each body's handle's ordering history (:meth:`~skfem_affine.solvers.Pardiso.state_dict`):
+        whether a block's pattern is known decides whether its touched unknowns go last at any
+        number, and the ordering how its factorisation rounds."""
+        out = {"bodies": np.array(sorted(self.handles), dtype=np.int64)}
+        for b in sorted(self.handles):
+            out.update({f"{b}.{k}": v for k, v in self.handles[b].state_dict().items()})
+        return out
+
+    def load_state_dict(self, state):
+        bodies = np.asarray(state["bodies"], dtype=np.int64).reshape(-1)
+        if bodies.size and (bodies.min() < 0 or np.any(np.diff(bodies) <= 0)):
+            raise ValueError(f"blocks bodies must be sorted distinct body indices, got {bodies.tolist()}")
+        self.handles, self.blocks, self.complements = {}, [], None
+        for b in bodies.tolist():
+            handle = self.handles[b] = Pardiso()
+            handle.load_state_dict({k[len(f"{b}."):]: v for k, v in state.items() if k.startswith(f"{b}.")})
+
     def solve(self, b):
         b = np.asarray(b, dtype=float)
         x = np.zeros_like(b)

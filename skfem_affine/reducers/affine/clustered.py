@@ -277,16 +277,25 @@ class ClusteringReducer(Reducer):
         self.rng.bit_generator.state = state
 
     def state_dict(self):
+        """The listed attributes and the factorisations' histories later frames depend on: the
+        frame solver's (e.g. an AMG hierarchy, a Pardiso ordering), the per-body blocks' and the
+        full-space handle's orderings."""
         state = super().state_dict()
-        if hasattr(self.solver, "state_dict"):  # e.g. an AMG hierarchy reused across frames
-            state.update({f"solver.{k}": v for k, v in self.solver.state_dict().items()})
+        for prefix, part in self._solver_parts().items():
+            state.update({f"{prefix}.{k}": v for k, v in part.state_dict().items()})
         return state
 
     def load_state_dict(self, state):
         super().load_state_dict(state)
-        solver = {k[7:]: v for k, v in state.items() if k.startswith("solver.")}
-        if solver and hasattr(self.solver, "load_state_dict"):
-            self.solver.load_state_dict(solver)
+        for prefix, part in self._solver_parts().items():
+            saved = {k[len(prefix) + 1:]: v for k, v in state.items() if k.startswith(prefix + ".")}
+            if saved:  # files written before a part saved its state lack it
+                part.load_state_dict(saved)
+
+    def _solver_parts(self):
+        """The solvers whose state a checkpoint keeps, by key prefix."""
+        parts = {"solver": self.solver, "blocks": self.blocks, "full_handle": self.full_handle}
+        return {k: v for k, v in parts.items() if hasattr(v, "state_dict")}
 
     def __init__(self, tau_e, *, min_fraction=0.0, seeding="random", preconditioner="ichol", seed=0, solver=None,
                  target_error=None, time_budget=None, never_slower=None, shadow_every=10, memory=0.5,
