@@ -398,3 +398,57 @@ def test_the_same_scene_in_si_and_mm_tonne_s_moves_the_same(contact, gravity):
     assert si.contact_model == mm.contact_model == ("ipc" if contact is None else "ipc-barrier")
     assert x_m[:, :, 2].min() < 0.152 - 0.15 + 2 * si.integrator.barrier.dhat  # it reached the plane
     assert np.abs(x_mm - x_m).max() < 1e-8 * si.size  # (a wrong barrier: 1e-4 of the size and more)
+
+
+# ---------------------------------------------------------------------------- accepted states
+def thrown_boxes(offset=0.0):
+    """Two 0.3 m boxes thrown at each other at 8 and 15 m/s (0.46 m closer per step of 0.02 s,
+    0.4 m apart), the lower one over a plane, the upper one ``offset`` aside: IPC between them by
+    default."""
+    def box(z, vz, off):
+        mesh = sa.scenes.box_mesh((0.3, 0.3, 0.3), (2, 2, 2), center=(off, 0.5 * off, z))
+        return sa.ElasticBody(mesh, sa.NeoHookean(E=1e5, nu=0.3), density=1000.0, velocity=(0.0, 0.0, vz))
+    return sa.Simulation([box(0.3, 8.0, 0.0), box(1.0, -15.0, offset)], dt=0.02, gravity=(0, 0, -9.81),
+                         integrator="implicit_euler", colliders=[sa.Plane()])
+
+
+@pytest.mark.filterwarnings("ignore:Newton stopped")  # 50 iterations at frame 2
+def inside_tets(points, X, t):
+    """Mask (k,) of the points (k, 3) strictly inside a tetrahedron of the mesh (X (n, 3), t (4, m))."""
+    A = np.stack([X[t[i]] - X[t[0]] for i in (1, 2, 3)], axis=2)                  # (m, 3, 3)
+    lam = np.einsum("mij,kmj->kmi", np.linalg.inv(A), points[:, None, :] - X[t[0]][None])
+    bary = np.concatenate([1.0 - lam.sum(axis=2, keepdims=True), lam], axis=2)   # (k, m, 4)
+    return (bary > 1e-9).all(axis=2).any(axis=1)
+
+
+def test_thrown_boxes_keep_apart():
+    """Every accepted state is intersection-free (ipctk's exact test, and no vertex inside the other
+    box); the frictionless, tilting contact sends the boxes sliding off each other sideways."""
+    sim = thrown_boxes()
+    contact, n0 = sim.integrator.barrier, sim.bodies[0].mesh.p.shape[1]
+    assert sim.contact_model == "ipc"
+    for s in sim.run(2):
+        assert contact.intersection_free(s.x.reshape(-1))
+        for a, b in [(s.x[:n0], s.x[n0:]), (s.x[n0:], s.x[:n0])]:
+            assert not np.any(inside_tets(b, a, sim.bodies[0].mesh.t))
+        assert sim.stats[-1]["max_penetration"] == sim.max_penetration() == 0.0
+    assert contact.gaps(s.x.reshape(-1))["surface"] < contact.dhat  # they touched
+
+
+def test_a_step_that_ends_intersecting_is_refused_naming_the_frame():
+    """Without the line search's CCD bound, Newton steps the thrown boxes into each other: the step
+    is refused (never accepted with a warning), the simulation stays at the frame before."""
+    sim = thrown_boxes(offset=0.05)  # (aligned edges would meet at distance zero: an infinite barrier)
+    contact = sim.integrator.barrier
+    contact.max_step = lambda x, dx: 1.0  # the CCD bound switched off
+    with pytest.raises(sa.SimulationDiverged, match="intersects.* at frame 1"):
+        sim.step()
+    assert sim.state.frame == 0 and len(sim.stats) == 0
+
+
+def test_max_penetration_measures_bodies_under_a_newton_integrator():
+    sim = thrown_boxes()
+    x = sim.state.x.copy()
+    n0 = sim.bodies[0].mesh.p.shape[1]
+    x[n0:, 2] -= 0.4 + 0.05        # the upper box 5 cm into the lower one
+    assert sim.max_penetration(x) >= 0.05 - 1e-12

@@ -114,6 +114,10 @@ class Barrier:
                              "(the barrier's range), or use integrator='linearized', whose PGS contact pushes "
                              "penetrations out")
 
+    def intersection_free(self, x):
+        """True when every free vertex of the flat state x lies strictly outside every collider."""
+        return all(bool(np.all(d > 0)) for d, _ in self._query(x))
+
     def _query(self, x):
         pts = x.reshape(-1, 3)[self.vertices]
         for c in self.colliders:
