@@ -397,7 +397,7 @@ def test_the_same_scene_in_si_and_mm_tonne_s_moves_the_same(contact, gravity):
     mm, x_mm = falling_blocks(1e-3, 1e3, contact, gravity)
     assert si.contact_model == mm.contact_model == ("ipc" if contact is None else "ipc-barrier")
     assert x_m[:, :, 2].min() < 0.152 - 0.15 + 2 * si.integrator.barrier.dhat  # it reached the plane
-    assert np.abs(x_mm - x_m).max() < 1e-8 * si.size  # (a wrong barrier: 1e-4 of the size and more)
+    assert np.abs(x_mm - x_m).max() < 1e-8 * si.size
 
 
 # ---------------------------------------------------------------------------- accepted states
