@@ -33,6 +33,10 @@ After every step the :class:`~skfem_affine.Simulation` hands the new state to a 
   (a :class:`SimulationWarning` naming the frame, once per run; every frame records its gain
   relative to :math:`S_t` as ``energy_gain``): neither scheme creates energy without external
   work, so such a step is wrong even when it is not a blow-up;
+* **a step whose state intersects** under the Newton integrators' contact (the barrier's or IPC's
+  ``intersection_free``: a vertex on or inside a collider, or, under IPC, two surfaces crossing
+  each other): the line search's CCD bound keeps every iterate intersection-free, so such a state
+  is never accepted, whatever Newton's convergence;
 * **a step that tears a body apart**: a vertex whose displacement in one step, relative to its
   body's mean displacement, exceeds the body's rest diagonal (a rigid motion of a body never
   does unless it turns by more than about 60 degrees in one step).
@@ -192,6 +196,9 @@ class Monitor:
     def check(self, frame, x0, x, v, rec, barrier=None):
         """Check the step x0 -> (x, v) of ``frame``; raises :class:`Diverged` with the cause, warns or
         raises per the policies, and records ``energy`` and ``inverted_elements`` into ``rec``."""
+        if barrier is not None and not barrier.intersection_free(x.reshape(-1)):
+            raise Diverged("the step's state intersects (surfaces through each other, or a vertex through a "
+                           "collider), which contact must never accept; a smaller dt")
         self._tearing(x0, x)
         F = None
         if self.check_energy or self.on_inverted != "ignore":

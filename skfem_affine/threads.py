@@ -25,12 +25,18 @@ Decisions:
   few cores they take the cores from the compiled passes that follow the solve (the element
   evaluation, the checks, a reduced frame after a shadow frame's full solve). A
   ``KMP_BLOCKTIME`` the user set is kept.
+* **ipctk (IPC contact) runs on one thread** inside the package (:func:`ipctk_threads`, a context
+  manager that restores the previous count on exit): its parallel loops (broad phase, barrier
+  and friction assembly) split their work as the threads come free, so the sums come out in a
+  different order from run to run, and contact amplifies that round-off into visibly different
+  trajectories. One thread makes repeated runs and resumes bit-identical.
 * Nothing here writes the environment or starts a thread at import.
 
 The measurements behind these choices are in ``docs/threads.md``.
 """
 import contextlib
 import os
+import sys
 import threading
 from concurrent.futures import ThreadPoolExecutor
 
@@ -170,6 +176,28 @@ def mkl_max_threads():
         return None
     counts = [lib.num_threads for lib in mkl.lib_controllers]
     return max(counts) if counts else None
+
+
+#: Threads of ipctk's loops inside the package (one: see the module docstring).
+IPCTK_THREADS = 1
+
+
+@contextlib.contextmanager
+def ipctk_threads(n=IPCTK_THREADS):
+    """Context in which ipctk runs on n threads; the previous count is restored on exit.
+
+    A no-op when ipctk has not been imported (the IPC contact model imports it).
+    """
+    ipctk = sys.modules.get("ipctk")
+    if ipctk is None:
+        yield
+        return
+    before = ipctk.get_num_threads()
+    ipctk.set_num_threads(int(n))
+    try:
+        yield
+    finally:
+        ipctk.set_num_threads(before)
 
 
 def background(fn, *args):

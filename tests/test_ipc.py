@@ -323,3 +323,135 @@ def test_sliding_from_a_start_inside_dhat_decelerates_by_coulomb(gap):
     t = n * h
     assert s.v[:, 0].mean() == pytest.approx(v0 - mu * g * t, rel=0.02)
     assert s.x[:, 0].mean() == pytest.approx(v0 * t - 0.5 * mu * g * t * t, rel=0.03)
+
+
+# ---------------------------------------------------------------------------- reproducibility
+@pytest.fixture
+def ipctk_on_two_threads():
+    """ipctk's own default on a multi-core machine: its loops on several threads."""
+    before = ipctk.get_num_threads()
+    ipctk.set_num_threads(2)
+    yield
+    ipctk.set_num_threads(before)
+
+
+def test_contact_sums_are_bit_identical_on_repeated_calls(ipctk_on_two_threads):
+    """ipctk's parallel loops sum in the order its threads finish; the contact model runs them on
+    the package's thread count (skfem_affine.threads.ipctk_threads), so the same state gives the
+    same gradient and Hessian to the last bit, whatever ipctk's count outside."""
+    sim = sa.scenes.stacked_beams(resolution=1, n=3, gap=5e-4, integrator="implicit_euler",
+                                  contact=sa.IPC(friction=0.5))
+    contact = sim.integrator.barrier
+    x = sim.state.x.reshape(-1) + 1e-5 * np.random.default_rng(0).standard_normal(3 * sim.system.n)
+    contact.begin_step(x)
+    assert len(contact._collisions(x)) > 50
+
+    def fresh(f):
+        contact._cache = (None, None)  # the collisions built again
+        return f(x)
+
+    g, H, e = fresh(contact.gradient), fresh(contact.hessian).toarray(), fresh(contact.energy)
+    for _ in range(30):
+        assert np.array_equal(fresh(contact.gradient), g)
+        assert np.array_equal(fresh(contact.hessian).toarray(), H)
+        assert fresh(contact.energy) == e
+    assert ipctk.get_num_threads() == 2  # the caller's count is left as it was
+
+
+@pytest.mark.parametrize("integrator", ["implicit_euler", "bdf2"])
+def test_two_runs_with_ipc_friction_between_bodies_are_bit_identical(ipctk_on_two_threads, integrator):
+    def run():
+        sim = sa.scenes.stacked_beams(resolution=1, n=3, gap=5e-3, integrator=integrator,
+                                      contact=sa.IPC(friction=0.5))
+        return np.array([s.x for s in sim.run(7)])
+    a, b = run(), run()
+    assert np.array_equal(a, b)
+
+
+# ---------------------------------------------------------------------------- units
+def falling_blocks(scale_m, scale_kg, contact, gravity):
+    """Two blocks (0.2 m and 0.3 m, E 1e5 Pa, 1000 kg/m^3) falling onto a plane and onto each
+    other, in the unit system of length ``scale_m`` (m) and mass ``scale_kg`` (kg) per unit
+    (SI: 1, 1; mm-tonne-s: 1e-3, 1e3, so that E is in MPa, density in t/mm^3, g 9810 mm/s^2).
+    Without gravity they are thrown down (contact=False: the lower block alone, with the
+    colliders' barrier)."""
+    L, E_unit = 1.0 / scale_m, scale_m / scale_kg  # lengths in units; Pa = kg / (m s^2) in units
+    def block(size, z, vz, off=0.0):
+        mesh = sa.scenes.box_mesh((size * L,) * 3, (2, 2, 2), center=(off * L, 0.5 * off * L, z * L))
+        return sa.ElasticBody(mesh, sa.NeoHookean(E=1e5 * E_unit, nu=0.3), density=1000.0 * scale_m ** 3 / scale_kg,
+                              velocity=(0.0, 0.0, vz * L))
+    g = (0.0, 0.0, -9.81 * L if gravity else 0.0)
+    bodies = [block(0.3, 0.152, 0.0 if gravity else -0.5), block(0.2, 0.42, 0.0 if gravity else -1.0, off=0.03)]
+    sim = sa.Simulation(bodies if contact is not False else bodies[:1], dt=0.01, gravity=g,
+                        integrator="implicit_euler", colliders=[sa.Plane()], contact=contact)
+    return sim, np.array([s.x for s in sim.run(12)]) * scale_m
+
+
+@pytest.mark.parametrize("gravity", [True, False])
+@pytest.mark.parametrize("contact", [None, False], ids=["ipc", "barrier"])
+def test_the_same_scene_in_si_and_mm_tonne_s_moves_the_same(contact, gravity):
+    """The default barrier stiffness comes from the scene's own scales (its gravity, or mass, dt and
+    dhat without gravity): in mm-tonne-s the trajectories are the SI ones to round-off. ``contact=None``
+    with two bodies is ipctk's IPC; ``contact=False`` with one body the colliders' barrier."""
+    si, x_m = falling_blocks(1.0, 1.0, contact, gravity)
+    mm, x_mm = falling_blocks(1e-3, 1e3, contact, gravity)
+    assert si.contact_model == mm.contact_model == ("ipc" if contact is None else "ipc-barrier")
+    assert x_m[:, :, 2].min() < 0.152 - 0.15 + 2 * si.integrator.barrier.dhat  # it reached the plane
+    assert np.abs(x_mm - x_m).max() < 1e-8 * si.size
+
+
+# ---------------------------------------------------------------------------- accepted states
+def thrown_boxes(offset=0.0):
+    """Two 0.3 m boxes thrown at each other at 8 and 15 m/s (0.46 m closer per step of 0.02 s,
+    0.4 m apart), the lower one over a plane, the upper one ``offset`` aside: IPC between them by
+    default."""
+    def box(z, vz, off):
+        mesh = sa.scenes.box_mesh((0.3, 0.3, 0.3), (2, 2, 2), center=(off, 0.5 * off, z))
+        return sa.ElasticBody(mesh, sa.NeoHookean(E=1e5, nu=0.3), density=1000.0, velocity=(0.0, 0.0, vz))
+    return sa.Simulation([box(0.3, 8.0, 0.0), box(1.0, -15.0, offset)], dt=0.02, gravity=(0, 0, -9.81),
+                         integrator="implicit_euler", colliders=[sa.Plane()])
+
+
+def inside_tets(points, X, t):
+    """Mask (k,) of the points (k, 3) strictly inside a tetrahedron of the mesh (X (n, 3), t (4, m))."""
+    A = np.stack([X[t[i]] - X[t[0]] for i in (1, 2, 3)], axis=2)                  # (m, 3, 3)
+    lam = np.einsum("mij,kmj->kmi", np.linalg.inv(A), points[:, None, :] - X[t[0]][None])
+    bary = np.concatenate([1.0 - lam.sum(axis=2, keepdims=True), lam], axis=2)   # (k, m, 4)
+    return (bary > 1e-9).all(axis=2).any(axis=1)
+
+
+@pytest.mark.slow
+@pytest.mark.filterwarnings("ignore:Newton stopped")  # 50 iterations at frame 2
+def test_thrown_boxes_keep_apart():
+    """Every accepted state is intersection-free (ipctk's exact test, and no vertex inside the other
+    box); the frictionless, tilting contact sends the boxes sliding off each other sideways."""
+    sim = thrown_boxes()
+    contact, n0 = sim.integrator.barrier, sim.bodies[0].mesh.p.shape[1]
+    assert sim.contact_model == "ipc"
+    for s in sim.run(2):
+        assert contact.intersection_free(s.x.reshape(-1))
+        for a, b in [(s.x[:n0], s.x[n0:]), (s.x[n0:], s.x[:n0])]:
+            assert not np.any(inside_tets(b, a, sim.bodies[0].mesh.t))
+        assert sim.stats[-1]["max_penetration"] == sim.max_penetration() == 0.0
+    assert contact.gaps(s.x.reshape(-1))["surface"] < contact.dhat  # they touched
+    apart = s.x[:n0, :2].mean(axis=0) - s.x[n0:, :2].mean(axis=0)
+    assert np.linalg.norm(apart) > 0.1  # sliding off each other sideways
+
+
+def test_a_step_that_ends_intersecting_is_refused_naming_the_frame():
+    """Without the line search's CCD bound, Newton steps the thrown boxes into each other: the step
+    is refused (never accepted with a warning), the simulation stays at the frame before."""
+    sim = thrown_boxes(offset=0.05)  # (aligned edges would meet at distance zero: an infinite barrier)
+    contact = sim.integrator.barrier
+    contact.max_step = lambda x, dx: 1.0  # the CCD bound switched off
+    with pytest.raises(sa.SimulationDiverged, match="intersects.* at frame 1"):
+        sim.step()
+    assert sim.state.frame == 0 and len(sim.stats) == 0
+
+
+def test_max_penetration_measures_bodies_under_a_newton_integrator():
+    sim = thrown_boxes()
+    x = sim.state.x.copy()
+    n0 = sim.bodies[0].mesh.p.shape[1]
+    x[n0:, 2] -= 0.4 + 0.05        # the upper box 5 cm into the lower one
+    assert sim.max_penetration(x) >= 0.05 - 1e-12

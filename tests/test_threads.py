@@ -186,3 +186,21 @@ def test_pardiso_leaves_intel_openmp_threads_sleeping_unless_the_user_set_blockt
     env["KMP_BLOCKTIME"] = "50"
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
     assert out.stdout.split()[-1] == "50"  # the user's setting is kept
+
+
+def test_ipctk_threads_sets_the_count_and_restores_the_previous_one():
+    ipctk = pytest.importorskip("ipctk")
+    before = ipctk.get_num_threads()
+    ipctk.set_num_threads(2)
+    try:
+        with threads.ipctk_threads():
+            assert ipctk.get_num_threads() == threads.IPCTK_THREADS == 1
+            with threads.ipctk_threads(2):
+                assert ipctk.get_num_threads() == 2
+            assert ipctk.get_num_threads() == 1
+        assert ipctk.get_num_threads() == 2
+        with pytest.raises(RuntimeError), threads.ipctk_threads():
+            raise RuntimeError("restored on the way out")
+        assert ipctk.get_num_threads() == 2
+    finally:
+        ipctk.set_num_threads(before)

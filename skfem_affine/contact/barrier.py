@@ -16,9 +16,11 @@ infinite for :math:`d \le 0`, so that a line search that keeps E finite never le
 cross a collider. Gradient :math:`\kappa b'(d) n`; Hessian :math:`\kappa b''(d) n n^T`
 (b'' > 0: positive semi-definite), which drops the collider-curvature term
 :math:`\kappa b'(d) \nabla^2 d` (exact for planes). Defaults: :math:`\hat d` = 1e-3 of the scene
-size, :math:`\kappa` = 100 m_avg 9.81 / :math:`\hat d` (m_avg the mean vertex mass), so that the
-barrier's stiffness scales with a vertex's weight and a body resting under gravity settles inside
-the barrier's range (measured in docs/subspace.md, "Contact").
+size, :math:`\kappa` = 100 m_avg a / :math:`\hat d` (:func:`stiffness_force`: m_avg the mean vertex
+mass, a the scene's acceleration scale), so that the barrier's stiffness scales with a vertex's
+weight and a body resting under gravity settles inside the barrier's range (measured in
+docs/subspace.md, "Contact"). Every default comes from the scene's own scales, so the same scene in
+another unit system (mm-tonne-s) moves the same.
 
 The barrier is built once per run from the model (``model.system``, ``model.size``) and the
 colliders; it holds no simulation.
@@ -27,6 +29,19 @@ import numpy as np
 
 from skfem_affine.checks import positive
 from skfem_affine.contact.colliders import check_colliders
+
+
+def stiffness_force(system, gravity, dhat, dt):
+    r"""The force scale of the default barrier stiffness (N): :math:`100\, m_{avg}\, a`.
+
+    ``m_avg`` is the mean lumped vertex mass of ``system`` and ``a`` the scene's acceleration
+    scale: the magnitude of ``gravity`` (3,), or, without gravity (None or zero),
+    :math:`\hat d / h^2`, the acceleration that moves a vertex by ``dhat`` in one step ``dt``. The
+    force of a vertex at half of ``dhat`` is then about 430 vertex weights (under gravity).
+    """
+    g = 0.0 if gravity is None else float(np.linalg.norm(gravity))
+    a = g if g > 0 else dhat / (dt * dt)
+    return 100.0 * float(system.lumped_mass.mean()) * a
 
 
 def barrier(d, dhat):
@@ -49,21 +64,22 @@ class Barrier:
     Parameters
     ----------
     model : Model
-        The run's fixed data; ``model.system`` and ``model.size`` are read.
+        The run's fixed data; ``model.system``, ``model.size``, ``model.gravity`` and ``model.dt``
+        are read.
     colliders : list of colliders
         Objects with ``query(points) -> (distance, normal)``.
     dhat : float, optional
         Barrier range (default 1e-3 of ``model.size``).
     kappa : float, optional
-        Barrier stiffness (default 100 m_avg 9.81 / dhat).
+        Barrier stiffness (N/m; default :func:`stiffness_force` / dhat).
     """
 
     def __init__(self, model, colliders, dhat=None, kappa=None):
         sysm = model.system
         self.colliders = check_colliders(colliders)
         self.dhat = 1e-3 * model.size if dhat is None else positive(dhat, "barrier distance dhat")
-        m_avg = float(sysm.lumped_mass.mean())
-        self.kappa = 100.0 * m_avg * 9.81 / self.dhat if kappa is None else positive(kappa, "barrier stiffness kappa")
+        self.kappa = (stiffness_force(sysm, model.gravity, self.dhat, model.dt) / self.dhat if kappa is None
+                      else positive(kappa, "barrier stiffness kappa"))
         self.vertices = np.flatnonzero(~sysm.fixed)
         # positions of each free vertex's diagonal 3 x 3 block in the free-DOF pattern
         pat = sysm.pattern
@@ -97,6 +113,10 @@ class Barrier:
                              + "; ".join(problems) + f". Move the bodies out by at least dhat = {self.dhat:.3g} m "
                              "(the barrier's range), or use integrator='linearized', whose PGS contact pushes "
                              "penetrations out")
+
+    def intersection_free(self, x):
+        """True when every free vertex of the flat state x lies strictly outside every collider."""
+        return all(bool(np.all(d > 0)) for d, _ in self._query(x))
 
     def _query(self, x):
         pts = x.reshape(-1, 3)[self.vertices]

@@ -42,6 +42,7 @@ but their DOFs are dropped from gradients and Hessians. Because contact couples 
 not mesh neighbours, :meth:`IPCContact.hessian` is a sparse matrix on the free DOFs, to be added
 to the elastic Hessian: ``A = pattern.matrix(data) + weight * contact.hessian(x)``.
 """
+import functools
 from dataclasses import dataclass
 
 import ipctk
@@ -49,8 +50,10 @@ import numpy as np
 import scipy.sparse as sp
 
 from skfem_affine.checks import choice, flag, integer, nonnegative, positive, real
+from skfem_affine.contact.barrier import stiffness_force
 from skfem_affine.contact.colliders import Plane, check_colliders
 from skfem_affine.contact.geometry import boundary_surface
+from skfem_affine.threads import ipctk_threads
 
 
 @dataclass(frozen=True)
@@ -62,8 +65,10 @@ class IPC:
     dhat : float, optional
         Barrier activation distance (m); default 1e-3 of the scene size (bounding-box diagonal).
     kappa : float, optional
-        Barrier stiffness (N, ipctk's physical barrier); default ``100 m_avg 9.81`` with m_avg the
-        mean vertex mass: the force of a vertex at half of ``dhat`` is about 430 times its weight.
+        Barrier stiffness (N, ipctk's physical barrier); default ``100 m_avg a``
+        (:func:`~skfem_affine.contact.barrier.stiffness_force`) with m_avg the mean vertex mass and
+        a the scene's gravity magnitude (``dhat / dt^2`` without gravity): the force of a vertex at
+        half of ``dhat`` is about 430 times its weight.
     friction : float
         Coulomb coefficient mu >= 0 (the same spelling as ``sa.PGS(friction=...)``).
     epsv : float, optional
@@ -150,14 +155,25 @@ def smooth_friction(y, epsv):
 
 
 # ---------------------------------------------------------------------------- the contact model
+def _package_threads(method):
+    """``method`` with ipctk on the package's thread count (:func:`skfem_affine.threads.ipctk_threads`),
+    so that its sums come out the same on every run."""
+    @functools.wraps(method)
+    def wrapped(*args, **kwargs):
+        with ipctk_threads():
+            return method(*args, **kwargs)
+    return wrapped
+
+
 class IPCContact:
     """IPC contact of one model: barrier, lagged friction and CCD on the free DOFs.
 
     Parameters
     ----------
-    model : Simulation, object with ``system``, ``dt`` and ``size``, or ElasticSystem
+    model : Simulation, object with ``system``, ``dt``, ``size`` and ``gravity``, or ElasticSystem
         ``system`` is the :class:`~skfem_affine.assembly.ElasticSystem`; given the system
-        itself, pass ``dt``; the size is then its bounding-box diagonal.
+        itself, pass ``dt``; the size is then its bounding-box diagonal, and the default barrier
+        stiffness the one of a scene without gravity.
     colliders : list of colliders
         Static obstacles (``query(points) -> (distance, normal)``), through their signed distances.
     settings : IPC, optional
@@ -173,6 +189,7 @@ class IPCContact:
         intersection-free start.
     """
 
+    @_package_threads
     def __init__(self, model, colliders=(), settings=None, x0=None, dt=None):
         settings = IPC() if settings is None else settings
         if not isinstance(settings, IPC):
@@ -189,8 +206,8 @@ class IPCContact:
         self.size = float(np.linalg.norm(np.ptp(sysm.p0, axis=0)) if size is None else size)
         self.colliders = check_colliders(colliders)
         self.dhat = 1e-3 * self.size if settings.dhat is None else settings.dhat
-        m_avg = float(sysm.lumped_mass.mean())
-        self.kappa = 100.0 * m_avg * 9.81 if settings.kappa is None else settings.kappa
+        self.kappa = (stiffness_force(sysm, getattr(model, "gravity", None), self.dhat, self.h)
+                      if settings.kappa is None else settings.kappa)
         self.mu = settings.friction
         self.epsv = 1e-3 * self.size if settings.epsv is None else settings.epsv
 
@@ -238,6 +255,7 @@ class IPCContact:
         """Collision-mesh vertex positions (V, 3) of the flat state x."""
         return np.asfortranarray(x.reshape(-1, 3)[self.surface])
 
+    @_package_threads
     def _collisions(self, x):
         """ipctk's normal collisions at x (cached for the last x)."""
         cx, cc = self._cache
@@ -254,6 +272,7 @@ class IPCContact:
             d, nrm = c.query(V)
             yield np.asarray(d, float), np.asarray(nrm, float)
 
+    @_package_threads
     def gaps(self, x):
         """Smallest gaps: surface to surface (inf beyond dhat) and to each collider (by index)."""
         V = self.vertices(x)
@@ -265,6 +284,7 @@ class IPCContact:
             out[f"collider {i}"] = float(d.min())
         return out
 
+    @_package_threads
     def check_start(self, x):
         """Raise ValueError unless x is intersection-free with every gap > 0 (IPC's precondition)."""
         V = self.vertices(x)
@@ -277,6 +297,7 @@ class IPCContact:
                              f"(at least dhat = {self.dhat:.3g} is a good start)")
 
     # ------------------------------------------------------------------ lagged friction
+    @_package_threads
     def begin_step(self, x_t, x_hat=None, c=1.0):
         """Freeze the friction of the step starting at x_t (flat (3n,)).
 
@@ -336,6 +357,7 @@ class IPCContact:
             yield act, self.mu * lam, u, np.linalg.norm(u, axis=1), nrm
 
     # ------------------------------------------------------------------ potential
+    @_package_threads
     def energy(self, x):
         """Barrier plus friction energy C(x); inf at a zero gap (and inside a collider)."""
         V = self.vertices(x)
@@ -350,6 +372,7 @@ class IPCContact:
                 e += c * self.h * float(np.sum(ml * smooth_friction(y, self.epsv)[0]))
         return e if np.isfinite(e) else np.inf
 
+    @_package_threads
     def _surface_gradient(self, x):
         V = self.vertices(x)
         g = np.asarray(self.barrier.gradient(self._collisions(x), self.mesh, V), float).reshape(-1, 3)
@@ -375,6 +398,7 @@ class IPCContact:
         r, c, v = self._hessian_coo(x, project)
         return sp.csr_matrix((v, (r, c)), shape=(self.nfree, self.nfree))
 
+    @_package_threads
     def _hessian_coo(self, x, project):
         """The contact Hessian's entries (rows, cols, values) on the free DOFs (duplicates summed later)."""
         V = self.vertices(x)
@@ -445,6 +469,7 @@ class IPCContact:
         and ``hessian`` counts it once."""
         return np.zeros(self.system.pattern.nnz)
 
+    @_package_threads
     def vertex_energy(self, x):
         """Contact energy C(x) per vertex (n,): the shares of the adaptive-subspace oracle (eq. 7).
 
@@ -478,6 +503,7 @@ class IPCContact:
         return full
 
     # ------------------------------------------------------------------ CCD
+    @_package_threads
     def max_step(self, x, dx):
         """Largest alpha in [0, 1] such that x + t dx is intersection-free for t in [0, alpha].
 
@@ -522,6 +548,7 @@ class IPCContact:
         return float(t.min())
 
     # ------------------------------------------------------------------ checks
+    @_package_threads
     def intersection_free(self, x):
         """True when the surface has no intersection and every vertex lies outside every collider."""
         V = self.vertices(x)
@@ -529,13 +556,10 @@ class IPCContact:
             return False
         return all(d.min() > 0 for d, _ in self._sdf(V))
 
+    @_package_threads
     def step_collision_free(self, x0, x1):
         """ipctk's CCD check of the straight surface path x0 -> x1 (bodies against bodies)."""
         if not self.mesh.num_faces:
             return True
         return bool(ipctk.is_step_collision_free(self.mesh, self.vertices(x0), self.vertices(x1)))
 
-
-def make_ipc(model, colliders, settings=None):
-    """The model's :class:`IPCContact` (``settings`` an :class:`IPC`, default ``IPC()``)."""
-    return IPCContact(model, colliders, settings, x0=model.state.x if hasattr(model, "state") else None)
