@@ -140,6 +140,9 @@ def _controller(api):
     found = _STATE[api]
     if found is None:
         try:
+            # numpy and scipy each bring an OpenBLAS of their own, and a selection limits only the libraries
+            # loaded when it is made: scipy's (scipy.linalg's solves) is loaded first
+            import scipy.linalg  # noqa: F401
             from threadpoolctl import ThreadpoolController
             found = ThreadpoolController().select(internal_api=api)
         except Exception:  # threadpoolctl missing, or an unusual library set-up
@@ -150,7 +153,7 @@ def _controller(api):
 
 
 def serial_blas():
-    """Context in which numpy's and scipy's OpenBLAS run on one thread (MKL untouched)."""
+    """Context in which numpy's and scipy's OpenBLAS (each its own library) run on one thread (MKL untouched)."""
     openblas = _controller("openblas")
     return openblas.limit(limits=1) if openblas else contextlib.nullcontext()
 

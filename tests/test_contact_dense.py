@@ -91,6 +91,34 @@ def test_bodies_in_contact_take_w_from_their_blocks_in_the_run():
     assert np.abs(sims[DENSE_MAX].state.x - sims[0].state.x).max() < bound
 
 
+@pytest.mark.parametrize("reducer", [None, sa.Affinification(tau_a=1.0, tau_e=2.0)])
+def test_dense_blocks_run_on_one_blas_thread(monkeypatch, reducer):
+    """The blocks' Cholesky factors, triangular solves and Cholesky solves of a frame's contact run with
+    every OpenBLAS (numpy's and scipy's) on one thread, whatever the thread count outside."""
+    from threadpoolctl import ThreadpoolController, threadpool_limits
+
+    openblas = ThreadpoolController().select(internal_api="openblas").lib_controllers  # numpy's and scipy's
+    assert len(openblas) >= 1
+    seen = []
+
+    def spied(fn):
+        def call(*args, **kwargs):
+            seen.append((fn.__name__, max(lib.num_threads for lib in openblas)))
+            return fn(*args, **kwargs)
+        return call
+
+    monkeypatch.setattr(scipy.linalg, "solve_triangular", spied(scipy.linalg.solve_triangular))
+    monkeypatch.setattr(scipy.linalg, "cho_solve", spied(scipy.linalg.cho_solve))
+    monkeypatch.setattr(np.linalg, "cholesky", spied(np.linalg.cholesky))
+    sim = _stack(reducer)
+    with threadpool_limits(limits=2, user_api="blas"):
+        for _ in range(6):
+            sim.step()
+    assert sum(r["delassus_dense"] for r in sim.stats) > 0
+    assert {name for name, _ in seen} >= {"solve_triangular", "cho_solve", "cholesky"}
+    assert all(count == 1 for _, count in seen), seen
+
+
 @pytest.mark.parametrize("reducer, largest", [("full", 60), ("affine", 40)])
 def test_small_and_large_blocks_in_one_frame(reducer, largest):
     """The mixed pile (affine and elastic boxes, a pinned one, one far off) with the blocks of at most

@@ -149,6 +149,27 @@ def test_serial_blas_and_blas_threads_restore_the_counts():
         assert blas_counts("openblas") == before
 
 
+def test_serial_blas_limits_scipys_openblas_loaded_after_numpys():
+    """numpy and scipy each bring an OpenBLAS; serial_blas first used before scipy.linalg is imported
+    (numpy's alone loaded) still limits scipy's, which runs scipy.linalg's solves."""
+    code = ("import numpy as np\n"
+            "from skfem_affine import threads\n"
+            "np.ones(4) @ np.ones(4)\n"
+            "with threads.serial_blas():\n"
+            "    pass\n"
+            "import scipy.linalg\n"
+            "from threadpoolctl import threadpool_info\n"
+            "with threads.serial_blas():\n"
+            "    inside = [lib['num_threads'] for lib in threadpool_info() if lib['internal_api'] == 'openblas']\n"
+            "print('libraries', len(inside), 'threads', max(inside))\n")
+    env = {**os.environ, "OPENBLAS_NUM_THREADS": "2"}
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=300,
+                         cwd=os.path.dirname(os.path.dirname(skfem_affine.__file__)))
+    assert out.returncode == 0, out.stderr[-2000:]
+    words = out.stdout.split()
+    assert int(words[1]) >= 1 and words[3] == "1", out.stdout
+
+
 def test_mkl_threads_restore_and_leave_openblas_alone():
     pytest.importorskip("pypardiso")
     from skfem_affine.solvers import Pardiso

@@ -17,7 +17,6 @@ from skfem_affine.contact.blocks import BlockSolver
 from skfem_affine.contact.dense import DenseBlocks, used_unknowns
 from skfem_affine.contact.schur import inverse_on_positions
 from skfem_affine.solvers import SuperLU, direct_solver
-from skfem_affine.threads import serial_blas
 
 # A body's block of more than SCHUR_BLOCK_MIN unknowns takes Z from its own Schur complement (when
 # the SchurInverse accepts); smaller ones are solved with the others. Below BLOCK_DIRECT_MIN
@@ -183,6 +182,11 @@ class Resolvent:
     (:class:`~skfem_affine.contact.dense.DenseBlocks`). ``columns_solved``: the right-hand sides
     solved by the last :meth:`delassus`; ``schur_unknowns``: the unknowns whose Z came from Schur
     complements; ``dense_unknowns``: those of the blocks whose part came from their dense factors.
+
+    Its dense work (the blocks' Cholesky factors, triangular solves and products) is small: call
+    :meth:`delassus` and :meth:`apply` under the contact solve's thread policy,
+    :func:`~skfem_affine.threads.serial_blas` (:meth:`~skfem_affine.contact.pgs.Contact.resolve`
+    enters it once per frame).
     """
 
     def __init__(self, operator, block=64, cache=None, touched=True, schur=None, bodies=None, dense=0):
@@ -378,11 +382,10 @@ class Resolvent:
                       for s, e, rows, Jt, unit in plans]
         if not parts:
             return W
-        with serial_blas():  # small products: spinning BLAS threads would cost more than they do
-            for rows, Jt, X, unit in parts:
-                if sp.issparse(Jt) and 10 * Jt.nnz >= Jt.shape[0] * Jt.shape[1]:  # e.g. an affine body's 12 unknowns
-                    Jt = Jt.toarray()
-                _add_symmetric(W, rows, np.ascontiguousarray(Jt @ (Jt @ X).T if unit else Jt @ X))
+        for rows, Jt, X, unit in parts:
+            if sp.issparse(Jt) and 10 * Jt.nnz >= Jt.shape[0] * Jt.shape[1]:  # e.g. an affine body's 12 unknowns
+                Jt = Jt.toarray()
+            _add_symmetric(W, rows, np.ascontiguousarray(Jt @ (Jt @ X).T if unit else Jt @ X))
         return W
 
     def apply(self, lam):

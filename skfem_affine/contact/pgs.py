@@ -76,6 +76,7 @@ from skfem_affine.contact.schur import SchurInverse
 from skfem_affine.contact.geometry import Detector
 from skfem_affine.monitor import SimulationWarning
 from skfem_affine.reducers.affine.mapping import group_sum
+from skfem_affine.threads import serial_blas
 
 # The contact model this module implements, as recorded in ``sim.stats`` ("contact_model").
 MODEL = "pgs"
@@ -913,8 +914,16 @@ class Contact:
         """PGS contact solve after the elastic step (Algorithm 1): returns dv_c on the free DOFs.
 
         ``result.dv`` is the elastic step's velocity change and ``result.operator`` its
-        factorised system, through which the Delassus operator is applied.
+        factorised system, through which the Delassus operator is applied. Its dense products, solves
+        and factorisations are small: the whole solve runs on one OpenBLAS thread
+        (:func:`~skfem_affine.threads.serial_blas`), whose idle workers would otherwise spin on the
+        cores each call needs.
         """
+        with serial_blas():
+            return self._resolve(problem, result, rec)
+
+    def _resolve(self, problem, result, rec):
+        """:meth:`resolve`, under the thread policy."""
         cs, dv = self.current, result.dv
         self.correction = None
         if cs is None:
