@@ -40,6 +40,7 @@ from skfem_affine.monitor import Diverged, Monitor, SimulationWarning, warn_stif
 from skfem_affine.reducers.base import Reducer
 from skfem_affine.reducers.full import FullSpace
 from skfem_affine.solvers import SolverError, make_solver
+from skfem_affine.summary import Summary
 
 INTEGRATORS = ("linearized",) + newton.SCHEMES
 
@@ -143,7 +144,8 @@ class Stats(list):
         """Frames, wall time, mean DOFs and phase totals; under an error budget also the largest
         estimated error in the budget's unit (``max_estimated_error``), in metres
         (``max_estimated_error_m``) and the unit it was read in at the end (``error_unit_m``: the
-        response so far, the scene size, or 1)."""
+        response so far, the scene size, or 1). A :class:`~skfem_affine.summary.Summary`: a dict
+        that prints as a table."""
         wall = self.total("wall")
         out = {"frames": len(self), "wall_s": wall, "frames_per_s": len(self) / wall if wall else float("inf"),
                "mean_dofs": self.mean("dofs"), **{f"{k}_s": v for k, v in self.phase_totals().items()}}
@@ -152,7 +154,7 @@ class Stats(list):
             out["max_estimated_error"] = max(r["estimated_error"] for r in budgeted)
             out["max_estimated_error_m"] = max(r["estimated_error"] * r.get("error_unit", 0.0) for r in budgeted)
             out["error_unit_m"] = budgeted[-1].get("error_unit")
-        return out
+        return Summary(out)
 
 
 class Simulation:

@@ -44,13 +44,15 @@ to the elastic Hessian: ``A = pattern.matrix(data) + weight * contact.hessian(x)
 """
 from dataclasses import dataclass
 
-import ipctk
 import numpy as np
 import scipy.sparse as sp
 
+from skfem_affine._extras import Optional
 from skfem_affine.checks import choice, flag, integer, nonnegative, positive, real
 from skfem_affine.contact.colliders import Plane, check_colliders
 from skfem_affine.contact.geometry import boundary_surface
+
+ipctk = Optional("ipctk", "sa.IPC (the Newton integrators' contact, their default with several bodies)", "ipc")
 
 
 @dataclass(frozen=True)
