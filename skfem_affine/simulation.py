@@ -20,6 +20,7 @@ import numpy as np
 
 import skfem_affine
 from skfem_affine import checkpoint, stress
+from skfem_affine._json import jsonable
 
 from skfem_affine.assembly import ElasticSystem
 from skfem_affine.body import check_bodies
@@ -478,7 +479,7 @@ class Simulation:
             rec = {}
             for k, val in r.items():
                 try:
-                    rec[k] = checkpoint._jsonable(val)
+                    rec[k] = jsonable(val)
                 except TypeError:  # a statistic that is no plain value is not kept
                     pass
             stats.append(rec)
