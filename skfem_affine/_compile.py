@@ -23,6 +23,7 @@ def scenes():
            ("contact between bodies", sa.scenes.stacked_beams(resolution=1)),
            ("contact between reduced bodies", sa.scenes.stacked_beams(resolution=1, reducer=sa.Affinification(
                tau_a=0.5, tau_e=1.0))),
+           ("reduced bodies pushed out of each other", _pressed_ball(sa)),
            ("Newton with the barrier", sa.scenes.cantilever(
                resolution=1, integrator="implicit_euler", colliders=[sa.Plane(point=(0, 0, -1.0), normal=(0, 0, 1))])),
            ("adaptive subspace", sa.scenes.cantilever(
@@ -38,6 +39,17 @@ def scenes():
         out.append(("IPC between bodies", sa.scenes.stacked_beams(resolution=1, integrator="implicit_euler",
                                                                    contact=sa.IPC())))
     return out
+
+
+def _pressed_ball(sa):
+    """A stiff ball starting inside a soft pad on a plane, reduced: the split impulse that pushes
+    penetrations out (low-rank PGS) and the oracle's coarse guess over several bodies."""
+    ball = sa.ElasticBody(sa.scenes.ball_mesh(0.2, 1, center=(0.0, 0.0, 0.25)), material=sa.NeoHookean(E=1e7, nu=0.3),
+                          density=1500.0)
+    pad = sa.ElasticBody(sa.scenes.box_mesh((1.0, 1.0, 0.2), (3, 3, 1), center=(0.0, 0.0, 0.1)),
+                         material=sa.NeoHookean(E=2e4, nu=0.3), density=200.0)
+    return sa.Simulation([ball, pad], dt=0.01, gravity=(0, 0, -9.81), colliders=[sa.Plane()],
+                         reducer=sa.Affinification(tau_a=0.5, tau_e=1.0))
 
 
 def warm_up(frames=3, stream=None):

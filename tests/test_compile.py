@@ -33,7 +33,7 @@ COUNT = textwrap.dedent("""
                               material=sa.NeoHookean(E=2e4, nu=0.3), density=200.0)
     runs = [sa.Simulation([ball, mattress], dt=0.01, gravity=(0, 0, -9.81), colliders=[sa.Plane()],
                           reducer=sa.Affinification(tau_a=0.5, tau_e=1.0)),
-            sa.scenes.pills(resolution=1), sa.scenes.drop(resolution=2, reducer=sa.Affinification()),
+            sa.scenes.pills(resolution=1, reducer=sa.Affinification()), sa.scenes.drop(resolution=2, reducer=sa.Affinification()),
             sa.scenes.cantilever(resolution=2, material=sa.Corotational(E=1e5, nu=0.3)),
             sa.scenes.cantilever(resolution=2, material=sa.StVK(E=1e5, nu=0.3), integrator="bdf2")]
     for sim in runs:
