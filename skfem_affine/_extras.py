@@ -6,7 +6,7 @@ numba and threadpoolctl. The rest come with the extras of ``pyproject.toml``:
 * ``fast``: MKL Pardiso (pypardiso) and METIS (pymetis) for its nested-dissection orderings;
 * ``ipc``: IPC contact from ipctk (``sa.IPC``, and so the Newton integrators with several bodies);
 * ``subspace``: METIS (pymetis) for the subdomains of ``sa.AdaptiveSubspace``;
-* ``lab``: dask and distributed (``skfem-affine sweep``), tqdm (progress bars on a terminal;
+* ``lab``: dask, distributed and cloudpickle (``skfem-affine sweep``), tqdm (progress bars on a terminal;
   without it, the plain progress lines of a log) and h5py (XDMF meshes);
 * ``parquet``: pyarrow, for sweep tables as Parquet (CSV needs nothing).
 
@@ -16,7 +16,7 @@ line and imports it at its first attribute look-up, so that the module imports w
 import importlib
 
 #: The optional packages and the extra that installs each (tests hide these to check the core).
-EXTRA_OF = {"pypardiso": "fast", "ipctk": "ipc", "pymetis": "subspace", "dask": "lab", "distributed": "lab",
+EXTRA_OF = {"pypardiso": "fast", "ipctk": "ipc", "pymetis": "subspace", "dask": "lab", "distributed": "lab", "cloudpickle": "lab",
             "tqdm": "lab", "h5py": "lab", "pyarrow": "parquet"}
 
 

@@ -19,7 +19,7 @@ from test_readme import EXTRA, PAGES, RUN, where
 ROOT = os.path.normpath(os.path.join(os.path.dirname(__file__), ".."))
 
 #: The packages of the extras (pyproject.toml's optional dependencies).
-OPTIONAL = ("pypardiso", "ipctk", "pymetis", "dask", "distributed", "tqdm", "h5py", "pyarrow")
+OPTIONAL = ("pypardiso", "ipctk", "pymetis", "dask", "distributed", "cloudpickle", "tqdm", "h5py", "pyarrow")
 
 #: Prepended to a child's code: every import of an optional package fails as if it were not installed.
 HIDE = textwrap.dedent(f"""
@@ -158,6 +158,14 @@ def test_sweep_names_the_lab_extra(monkeypatch):
     hide(monkeypatch, "dask", "distributed")
     with pytest.raises(MissingExtra, match="sweep") as err:
         sweep.connect(workers=1)
+    assert_names_extra(err, "lab")
+
+
+def test_sweep_cells_name_the_lab_extra(monkeypatch):
+    from skfem_affine.lab import cells
+    hide(monkeypatch, "cloudpickle")
+    with pytest.raises(MissingExtra, match="sweep's cells") as err:
+        cells.cloudpickle.dumps(len)
     assert_names_extra(err, "lab")
 
 
