@@ -1,5 +1,5 @@
 """``python -m skfem_affine`` (also installed as ``skfem-affine``): the lab's commands (:mod:`skfem_affine.lab.cli`),
-and ``compile``, which compiles every numba kernel into the disk cache (:mod:`skfem_affine._compile`)."""
+and ``compile``, which compiles every numba kernel into the disk cache (``skfem_affine._compile``)."""
 import sys
 
 

@@ -26,7 +26,7 @@ UNITS = {"wall_s": "s", "max_estimated_error_m": "m", "error_unit_m": "m"}
 
 
 def number(value):
-    """``value`` with :data:`DIGITS` significant digits; counts (integers, and mean DOFs) as integers."""
+    """``value`` with ``DIGITS`` significant digits; counts (integers, and mean DOFs) as integers."""
     if value is None:
         return "-"
     if isinstance(value, int):
@@ -35,11 +35,11 @@ def number(value):
 
 
 class Summary(dict):
-    """Frames, wall time, DOFs and per-phase totals of a run (see :meth:`~skfem_affine.Stats.summary`).
+    """Frames, wall time, DOFs and per-phase totals of a run (``sim.stats.summary()``).
 
     A dict (``summary["wall_s"]``, ``json.dumps(summary)``) whose text is a two-column table:
     one row per entry, phase totals in seconds with their share of the wall time, at
-    :data:`DIGITS` significant digits.
+    ``DIGITS`` significant digits.
     """
 
     def rows(self):
