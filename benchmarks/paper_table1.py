@@ -148,8 +148,8 @@ NOT_RUN = {"Explorer": "no mesh", "Pills coarse": "no mesh of that size", "Pills
 def reducers(row, fraction):
     """Affinification and rigidification at the paper's thresholds of the row (rigidification: tau_r = tau_a)."""
     tau_e, tau_a = PAPER[row][12], PAPER[row][13]
-    return [sa.Affinification(tau_a=tau_a, tau_e=tau_e, min_affine_fraction=fraction),
-            sa.Rigidification(tau_r=tau_a, tau_e=tau_e, min_rigid_fraction=fraction)]
+    return [sa.Affinification(tau_a=tau_a, tau_e=tau_e, min_fraction=fraction),
+            sa.Rigidification(tau_r=tau_a, tau_e=tau_e, min_fraction=fraction)]
 
 
 def run_interleaved(build, reducer_list, frames, **kwargs):

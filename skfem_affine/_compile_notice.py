@@ -13,8 +13,8 @@ folder), with no guess at numba's cache file names. Importing this module instal
 import sys
 import threading
 
-MESSAGE = ("skfem-affine: compiling the numba kernels, once (about 30 s; they are cached on disk "
-           "for later runs) ...")
+MESSAGE = ("skfem-affine: compiling the numba kernels this run uses, once (they are cached on disk; "
+           "`python -m skfem_affine compile` compiles all of them at once) ...")
 
 _PACKAGE = __name__.split(".")[0]
 

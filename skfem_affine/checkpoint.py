@@ -34,6 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
+from skfem_affine._json import jsonable
 from skfem_affine.files import replacing
 
 FORMAT = "skfem-affine-checkpoint"
@@ -83,24 +84,11 @@ def settings_of(obj):
         if key.startswith("_") or callable(value):
             continue
         try:
-            out[key] = _jsonable(value)
+            out[key] = jsonable(value)
         except TypeError:
             default = type(value).__repr__ is object.__repr__
             out[key] = type(value).__name__ if default else repr(value)
     return out
-
-
-def _jsonable(value):
-    """A JSON-serialisable copy of a non-array value (numpy scalars become Python numbers)."""
-    if isinstance(value, np.generic):
-        return value.item()
-    if isinstance(value, dict):
-        return {str(k): _jsonable(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_jsonable(v) for v in value]
-    if value is None or isinstance(value, (bool, int, float, str)):
-        return value
-    raise TypeError(f"checkpoint values must be arrays, numbers, strings, lists or dicts, got {type(value).__name__}")
 
 
 def flatten(components):
@@ -112,7 +100,7 @@ def flatten(components):
             if isinstance(val, np.ndarray):
                 arrays[name] = val
             else:
-                values[name] = _jsonable(val)
+                values[name] = jsonable(val)
     return arrays, values
 
 

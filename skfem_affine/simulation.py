@@ -23,6 +23,7 @@ import numpy as np
 
 import skfem_affine
 from skfem_affine import checkpoint, stress
+from skfem_affine._json import jsonable
 
 from skfem_affine.assembly import ElasticSystem
 from skfem_affine.body import check_bodies
@@ -43,6 +44,7 @@ from skfem_affine.monitor import Diverged, Monitor, SimulationWarning, warn_stif
 from skfem_affine.reducers.base import Reducer
 from skfem_affine.reducers.full import FullSpace
 from skfem_affine.solvers import SolverError, make_solver
+from skfem_affine.summary import Summary
 
 INTEGRATORS = ("linearized",) + newton.SCHEMES
 
@@ -174,7 +176,8 @@ class Stats(list):
         """Frames, wall time, mean DOFs and phase totals; under an error budget also the largest
         estimated error in the budget's unit (``max_estimated_error``), in metres
         (``max_estimated_error_m``) and the unit it was read in at the end (``error_unit_m``: the
-        response so far, the scene size, or 1)."""
+        response so far, the scene size, or 1). A :class:`~skfem_affine.summary.Summary`: a dict
+        that prints as a table."""
         wall = self.total("wall")
         out = {"frames": len(self), "wall_s": wall, "frames_per_s": len(self) / wall if wall else float("inf"),
                "mean_dofs": self.mean("dofs"), **{f"{k}_s": v for k, v in self.phase_totals().items()}}
@@ -183,7 +186,7 @@ class Stats(list):
             out["max_estimated_error"] = max(r["estimated_error"] for r in budgeted)
             out["max_estimated_error_m"] = max(r["estimated_error"] * r.get("error_unit", 0.0) for r in budgeted)
             out["error_unit_m"] = budgeted[-1].get("error_unit")
-        return out
+        return Summary(out)
 
 
 class Simulation:
@@ -526,7 +529,7 @@ class Simulation:
             rec = {}
             for k, val in r.items():
                 try:
-                    rec[k] = checkpoint._jsonable(val)
+                    rec[k] = jsonable(val)
                 except TypeError:  # a statistic that is no plain value is not kept
                     pass
             stats.append(rec)

@@ -23,6 +23,7 @@ import scipy.sparse.linalg as spla
 from scipy.linalg import lapack
 
 from skfem_affine import threads
+from skfem_affine._extras import require
 from skfem_affine.checks import choice, flag, integer, positive, real_array
 
 AMG_MIN_DOFS = 5000
@@ -67,7 +68,12 @@ def positive_definite(n, L, info):
     return L
 
 
+#: What needs pypardiso, for the error that names its extra.
+PARDISO_FEATURE = "the Pardiso solver (solver='pardiso')"
+
+
 def has_pardiso():
+    """Whether pypardiso (the ``fast`` extra) imports and finds MKL."""
     try:
         import pypardiso  # noqa: F401
         return True
@@ -376,7 +382,7 @@ class _PardisoLibrary:
     def __init__(self):
         import os
 
-        import pypardiso
+        pypardiso = require("pypardiso", PARDISO_FEATURE, "fast")
         self._ps = pypardiso.PyPardisoSolver(mtype=self.MTYPE)
         # pypardiso searches site-packages for MKL on every instance unless PYPARDISO_MKL_RT (its
         # documented override) names the library: set it once MKL is found, so later solvers skip it
@@ -734,8 +740,8 @@ def make_solver(solver):
     if isinstance(solver, str):
         if solver not in SOLVERS:
             raise ValueError(f"unknown solver {solver!r}; choose one of {sorted(SOLVERS)}")
-        if solver == "pardiso" and not has_pardiso():
-            raise ValueError("solver 'pardiso' needs the optional package pypardiso (pip install skfem-affine[fast])")
+        if solver == "pardiso":
+            require("pypardiso", PARDISO_FEATURE, "fast")
         return SOLVERS[solver]()
     if isinstance(solver, type):
         raise TypeError(f"solver must be a name or a solver instance, got the class {solver.__name__}: "

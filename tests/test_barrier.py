@@ -93,6 +93,7 @@ def test_curved_collider_is_not_penetrated():
     assert 0 < lowest.min() < 0.01
 
 
+@pytest.mark.slow
 def test_adaptive_subspace_with_contact_stays_outside_and_a_stiff_body_is_not_enriched():
     eps = 1e-3
     runs = {}
@@ -132,6 +133,7 @@ def test_a_cube_sliding_rigidly_down_a_frictionless_ramp_gets_no_enrichment():
     assert max(late[np.inf]) > 0.0  # the error alone would have enriched
 
 
+@pytest.mark.slow
 def test_raising_the_nodal_threshold_on_a_drop_enriches_less_and_leaves_a_larger_residual():
     """Fig. 12's trend on a small drop scene with contact (mean over the frames after impact)."""
     ratio, residual = [], []

@@ -26,6 +26,7 @@ SCENES = {"cantilever": (sa.scenes.cantilever, 90, {"resolution": 3}),
           "drop": (sa.scenes.drop, 90, {"resolution": 1, "shape": "box"})}
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", sorted(SCENES))
 def test_error_budget_holds_on_scenes_it_was_not_tuned_on(name):
     scene, frames, kwargs = SCENES[name]

@@ -79,6 +79,7 @@ def test_the_fall_back_decides_the_same_under_any_load():
     assert "full" in _decisions(red, frames, loaded, "wall")  # the same load, judged on the wall clock
 
 
+@pytest.mark.slow
 def test_the_fall_back_judges_the_cpu_time_simulation_step_measures():
     red = sa.Affinification()
     sim = _stack(red, cells=1)

@@ -75,6 +75,7 @@ def test_compare_json_and_outputs(tmp_path, capsys):
     assert np.all(mesh.cell_data["material"][0] == 0)
 
 
+@pytest.mark.slow
 def test_sweep_json(tmp_path, capsys):
     argv = ["sweep", "--resolution", "1", "--frames", "4", "--grid", "2", "--tau-range", "0.01", "0.3",
             "--workers", "1", "--threads", "--no-step-error", "--paired-timing", "--out", str(tmp_path)]

@@ -64,6 +64,7 @@ def test_scaling_on_files_that_are_no_mesh_is_one_line(tmp_path):
         assert out.stdout == ""  # refused before the header: no run started
 
 
+@pytest.mark.slow
 def test_a_scene_that_calls_sys_exit_is_an_error_not_a_success(tmp_path):
     (tmp_path / "exits.py").write_text("import sys\n\ndef scene(reducer=None, **kwargs):\n    sys.exit(0)\n")
     (tmp_path / "leaves.py").write_text("import sys\nsys.exit(0)\n")

@@ -241,6 +241,7 @@ def test_zero_restitution_drop_never_gains_energy(reducer):
     ("stacked_beams", dict(resolution=2, n=2), 1e-3),          # 1 mm: 0.25 % of the beams' width
     ("pills", dict(n=8, resolution=1, solver="superlu"), 0.01),  # 1 cm: 10 % of a pill's radius
 ])
+@pytest.mark.slow
 def test_stacks_run_200_frames_without_deep_interpenetration(scene, kwargs, tolerance):
     sim = sa.scenes.SCENES[scene](**kwargs)
     deepest = 0.0

@@ -152,6 +152,7 @@ def test_crossing_bars_do_not_pass_through_each_other(speed, reducer):
     assert np.linalg.norm(sim.state.v, axis=1).max() < speed
 
 
+@pytest.mark.slow
 def test_a_small_fast_body_does_not_tunnel_through_a_thin_plate():
     # a stiff 0.1 m cube at 200 m/s (2 m per step) against a soft 2 cm plate pinned at its rim,
     # one element thick (a softer cube is crushed flat into the plate: inverted elements)

@@ -38,6 +38,7 @@ def _solve(solver, W, u0, tolerance=1e-12, cap=20000):
     return lam, sweeps
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("problem", [_coupled(3), _coupled(4), _rigid(5), _rigid(6)])
 def test_anderson_reaches_the_gauss_seidel_solution(problem):
     W, u0 = problem

@@ -41,6 +41,7 @@ def test_two_runs_in_one_process_are_identical(name):
         assert np.array_equal(xa, xb) and np.array_equal(va, vb)
 
 
+@pytest.mark.slow
 def test_amg_hierarchies_are_reproducible_and_leave_the_global_random_state_alone():
     n = 3000
     A = sp.diags([-1.0, 2.001, -1.0], [-1, 0, 1], shape=(n, n)).tocsr()

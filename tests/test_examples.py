@@ -25,6 +25,7 @@ def test_every_example_is_tested():
     assert set(f for f in os.listdir(EXAMPLES) if f.endswith(".py")) <= tested
 
 
+@pytest.mark.slow
 def test_engineer_beam_example_agrees_with_scikit_fem_and_beam_theory(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     g = run("engineer_beam.py")
@@ -107,6 +108,7 @@ def test_contact_drop_example():
     assert d.min() > -1e-3
 
 
+@pytest.mark.slow
 def test_contact_stacking_example():
     g = run("contact_stacking.py")
     assert g["beam_tops"] == pytest.approx([0.4, 0.8], abs=0.02)

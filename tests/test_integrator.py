@@ -255,6 +255,7 @@ def test_multiple_bodies_are_independent_without_contact():
     assert xb[:, 2].mean() == pytest.approx(expected, abs=1e-9)
 
 
+@pytest.mark.slow
 def test_heterogeneous_materials():
     mesh = beam_mesh(2)
     mats = [sa.NeoHookean(E=1e5, nu=0.3), sa.NeoHookean(E=1e7, nu=0.3), sa.StVK(E=1e6, nu=0.2)]

@@ -153,6 +153,7 @@ def test_element_blocks_of_a_subset_equal_the_full_evaluation():
     assert np.abs(He - d.He[elems]).max() <= 1e-12 * np.abs(d.He).max()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("sweeps", [0, 1, 2, 4])
 def test_svd_of_interleaved_lanes(sweeps):
     """svd3_lanes: F = U diag(s) V^T with proper rotations, s descending, s[2] carrying det F's sign;

@@ -341,9 +341,8 @@ POLICY = [
         ("seeding", "choice"), ("preconditioner", "choice"), ("shadow_every", "count"), ("memory", "positive"),
         ("refresh_tol", "nonnegative"), ("refresh_background", "flag"), ("refresh", "choice"))],
     (sa.Affinification, "tau_a", "nonnegative", True), (sa.Affinification, "min_body_elements", "count", False),
-    (sa.Affinification, "pinned_bodies", "flag", False), (sa.Affinification, "min_affine_fraction", "fraction", True),
+    (sa.Affinification, "pinned_bodies", "flag", False),
     (sa.Rigidification, "tau_r", "nonnegative", True), (sa.Rigidification, "warmup_frames", "count0", False),
-    (sa.Rigidification, "min_rigid_fraction", "fraction", True),
     *[(sa.AdaptiveSubspace, arg, kind, none) for arg, kind, none in (
         ("eps_nodal", "threshold", True), ("eps_modal", "threshold", True), ("eps_progress", "threshold", False),
         ("eps_down", "threshold", False), ("subdomains", "count", False), ("newton_tol", "positive", True),

@@ -3,7 +3,8 @@
 Each block runs on its own (a fresh namespace, in an empty temporary working folder), so it must
 define everything it uses, as when pasted into a new interpreter. A block that is not meant to
 run (a fragment, or one that needs files the repository does not ship) says so and why in its
-fence, ```python no-run: <why>; keep those rare.
+fence, ```python no-run: <why>; keep those rare. A block that needs an optional extra names it,
+```python extra: <name> (tests/test_extras.py runs the others with only the core installed).
 """
 import glob
 import os
@@ -11,10 +12,15 @@ import re
 
 import pytest
 
+from skfem_affine._extras import EXTRA_OF
+
+EXTRAS = set(EXTRA_OF.values())
+
 ROOT = os.path.normpath(os.path.join(os.path.dirname(__file__), ".."))
 PAGES = [os.path.join(ROOT, "README.md")] + sorted(glob.glob(os.path.join(ROOT, "docs", "*.md")))
 FENCE = re.compile(r"^```python(?P<info>[^\n`]*)\n(?P<code>.*?)^```[ \t]*$", re.MULTILINE | re.DOTALL)
 NO_RUN = re.compile(r"no-run\b\s*:?\s*(?P<why>.*)")
+EXTRA = re.compile(r"extra:\s*(?P<extra>[a-z]+)$")
 
 
 def blocks(path):
@@ -48,8 +54,10 @@ def test_a_block_not_run_says_why():
         m = NO_RUN.match(info)
         if m:
             assert len(m.group("why").split()) >= 3, f"{where(path, line)}: ```python no-run: <why> (a reason)"
+        elif EXTRA.match(info):
+            assert EXTRA.match(info).group("extra") in EXTRAS, f"{where(path, line)}: no extra {info!r}"
         else:
-            assert info == "", f"{where(path, line)}: unknown fence info {info!r} (only 'no-run: <why>')"
+            assert info == "", f"{where(path, line)}: unknown fence info {info!r} ('no-run: <why>', 'extra: <name>')"
 
 
 @pytest.fixture

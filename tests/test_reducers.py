@@ -87,7 +87,7 @@ def test_options_run(seeding, preconditioner):
 
 def test_resource_limiting_forces_a_fraction_affine():
     sim = sa.scenes.cantilever(resolution=3, reducer=sa.Affinification(tau_a=0.0, tau_e=0.0,
-                                                                        min_affine_fraction=0.5), E=1e5, damping=None)
+                                                                        min_fraction=0.5), E=1e5, damping=None)
     for s in sim.run(10):
         pass
     assert np.mean(s.clusters >= 0) > 0.3
@@ -103,7 +103,7 @@ def test_bad_reducer_arguments():
     with pytest.raises(ValueError, match="preconditioner"):
         sa.Affinification(preconditioner="jacobi")
     with pytest.raises(ValueError, match="fraction"):
-        sa.Affinification(min_affine_fraction=2)
+        sa.Affinification(min_fraction=2)
     with pytest.raises(ValueError, match="warmup"):
         sa.Rigidification(warmup_frames=-1)
     with pytest.raises(ValueError, match="min_body_elements"):
@@ -143,12 +143,12 @@ def test_rigidification_metric_is_the_squared_strain_rate_at_the_midpoint():
     assert np.all(strain_rates(sysm, x, spin, sim.dt) < 1e-24)
 
 
-def test_shared_arguments_have_one_name_and_the_old_names_still_work():
-    assert sa.Affinification(min_affine_fraction=0.3).min_fraction == 0.3
-    assert sa.Rigidification(min_rigid_fraction=0.2).min_fraction == 0.2
+def test_shared_arguments_have_one_name():
     assert sa.Affinification(0.1, 0.2, min_fraction=0.4).min_fraction == 0.4
-    with pytest.raises(ValueError, match="not both"):
-        sa.Affinification(min_fraction=0.1, min_affine_fraction=0.2)
+    assert sa.Rigidification(min_fraction=0.2).min_fraction == 0.2
+    for cls, old in ((sa.Affinification, "min_affine_fraction"), (sa.Rigidification, "min_rigid_fraction")):
+        with pytest.raises(TypeError, match=old):  # the names before min_fraction are gone
+            cls(**{old: 0.3})
     with pytest.raises(ValueError, match="min_fraction"):
         sa.Rigidification(min_fraction=-0.1)
     with pytest.raises(TypeError):  # beyond the thresholds, arguments are keyword-only

@@ -2,6 +2,7 @@
 (the contact solver's guess for a contact that carried none last frame) as a push on a body at rest,
 only on a body an impact hits (oracle.explicit_impulse)."""
 import numpy as np
+import pytest
 
 import skfem_affine as sa
 from skfem_affine.lab.scenes import box_mesh
@@ -40,6 +41,7 @@ def _run(frames, rest_from, compare=True):
     return reduced, error, changed
 
 
+@pytest.mark.slow
 def test_a_resting_box_keeps_its_clusters_frame_to_frame():
     # settled by frame 60 (largest speed 4e-8 m/s); measured: one cluster, unchanged from frame 66
     sim, error, changed = _run(80, 70)
@@ -105,6 +107,7 @@ def test_without_contacts_the_offered_impulse_is_kept():
     assert oracle.explicit_impulse(Problem()) == 0.0
 
 
+@pytest.mark.slow
 def test_a_frame_in_the_last_frames_clusters_reuses_its_mapping_bit_for_bit():
     """Affine bodies' G depends on their clusters alone (rows from the rest positions): a frame with
     the last frame's clusters reuses its mapping, numbering and order; a frame whose clusters changed

@@ -3,6 +3,7 @@ become affine under the error budget and stay at rest."""
 import dataclasses
 
 import numpy as np
+import pytest
 
 import skfem_affine as sa
 from skfem_affine.lab.scenes import box_mesh
@@ -22,6 +23,7 @@ def _centres(sim):
     return np.array([x[:n].mean(axis=0), x[n:].mean(axis=0)])
 
 
+@pytest.mark.slow
 def test_a_resting_stack_turns_affine_under_the_error_budget_and_stays_at_rest():
     # the default budget, 1 % of the response: the stack's response is its few mm of settling, so
     # the budget is strict, and the boxes turn affine once at rest (measured: whole from frame 52)
@@ -45,6 +47,7 @@ def test_a_resting_stack_turns_affine_under_the_error_budget_and_stays_at_rest()
     assert np.abs(_centres(reduced) - _centres(full)).max() < 2e-6
 
 
+@pytest.mark.slow
 def test_a_resting_stack_stays_at_rest_under_the_default_budget():
     """The stack of one-cell boxes (12 tets), reduced under the default budget (without the fall-back
     to full space, which such a small scene takes): once settled, 200 frames more at rest move
@@ -63,6 +66,7 @@ def test_a_resting_stack_stays_at_rest_under_the_default_budget():
     assert lowest > -1e-6
 
 
+@pytest.mark.slow
 def test_a_resting_stack_turns_affine_at_the_papers_thresholds_and_stays_at_rest():
     sim = _stack(sa.Affinification(1e-4, 2e-4))
     for _ in sim.run(60):
@@ -106,6 +110,7 @@ def test_a_gap_within_the_slop_counts_as_touching():
     assert sa.PGS(slop=0.0).slop == 0.0
 
 
+@pytest.mark.slow
 def test_an_affine_stack_at_rest_converges_in_a_few_sweeps():
     """The resting stack, affine: every frame's solve reaches the tolerance in a few sweeps and the
     stack stays where it rests; without the slop too, with the plain sweeps: the penetration

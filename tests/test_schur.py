@@ -184,6 +184,7 @@ def test_stress_script_survives_varied_calls_in_a_subprocess():
     assert "survived 60 calls" in run.stdout
 
 
+@pytest.mark.slow
 def test_routes_script_gives_z_from_every_route_to_round_off_in_a_subprocess():
     """benchmarks/delassus_routes.py: Z from the Schur complement and from Pardiso's partial solve against the
     unit columns, and the frame's own solve on those factorisations (new MKL modes: run apart)."""
@@ -195,6 +196,7 @@ def test_routes_script_gives_z_from_every_route_to_round_off_in_a_subprocess():
     assert len(errors) == 4 and max(errors) < 1e-12, run.stdout
 
 
+@pytest.mark.slow
 def test_stress_script_survives_the_schur_factorisation_serving_the_frames_solves_in_a_subprocess():
     """benchmarks/schur_stress.py --frame-solves: mode iparm(36) = 2, whose factorisation also solves the
     whole system (phase 33), with new patterns, sets, values and thread counts call to call."""
@@ -215,6 +217,7 @@ def test_a_state_without_its_served_flags_or_last_pattern_is_refused():
         SchurInverse().load_state_dict(dict(state, schur_seen=np.arange(3)))
 
 
+@pytest.mark.slow
 def test_bound_script_gives_z_of_the_partial_solve_as_s_inverse_in_a_subprocess():
     """benchmarks/delassus_bound.py on the smallest stacked beams: per body, the partial solve's Z against
     S^-1 from the factorisation with the touched unknowns last, and Pardiso's flop counts reported."""

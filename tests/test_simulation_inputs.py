@@ -45,7 +45,7 @@ def test_bodies_and_frames(body):
     (lambda: sa.Affinification(tau_a="1e-4"), TypeError, "tau_a"),
     (lambda: sa.Affinification(tau_a=-1.0), ValueError, "tau_a"),
     (lambda: sa.Affinification(min_fraction=1.5), ValueError, "min_fraction"),
-    (lambda: sa.Affinification(min_affine_fraction=-0.1), ValueError, "min_affine_fraction"),
+    (lambda: sa.Affinification(min_fraction=-0.1), ValueError, "min_fraction"),
     (lambda: sa.Affinification(preconditioner="ilu"), ValueError, "preconditioner must be one of"),
     (lambda: sa.Affinification(seeding="best"), ValueError, "seeding must be one of"),
     (lambda: sa.Affinification(seed=1.5), ValueError, "seed must be an integer"),

@@ -38,6 +38,7 @@ def error_run(scene, frames, reducer):
     return budget_runs.error_run(scene(), scene(reducer), frames)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name, scene, frames", [("cantilever", cantilever, 40), ("ipc-drop", ipc_drop, 30)])
 def test_error_budget_holds_and_the_estimate_is_recorded(name, scene, frames):
     eps = {}

@@ -70,6 +70,7 @@ def test_contact_energy_enters_the_oracles_nodal_shares():
     assert np.allclose(point - so.point_gradients(ip, x), g_contact.reshape(-1, 3))
 
 
+@pytest.mark.slow
 def test_enrichment_follows_contact_with_the_ground():
     """At and after impact the vertices within dhat of the plane are enriched; each state is
     intersection-free and within 1 % of the scene size of full-space IPC Newton."""
@@ -92,6 +93,7 @@ def test_enrichment_follows_contact_with_the_ground():
     assert any(r["enriched_ratio"] > 0 for r in sim.stats) and all(r["reduced"] for r in sim.stats)
 
 
+@pytest.mark.slow
 def test_enrichment_follows_contact_between_bodies():
     """A cube landing on another: in the steps that start in body-body contact, most vertices of
     the contact are enriched; in the falling cube, which touches nothing else, its far half (more
@@ -137,6 +139,7 @@ def test_falls_back_when_the_coupled_system_outgrows_the_full_one():
             sa.AdaptiveSubspace(fallback=bad)
 
 
+@pytest.mark.slow
 def test_the_fallback_solves_in_full_space_and_returns_when_enrichment_is_released():
     """fallback=0: as soon as the oracle enriches, the step continues by full-space Newton
     (``rec["reduced"]`` False) and gives full Newton's trajectory; without fallback the same

@@ -28,6 +28,7 @@ def misbehaving(tau_a, tau_e):
 MISBEHAVING = runners.Method("misbehaving", misbehaving, (0.01, 0.01))
 
 
+@pytest.mark.slow
 def test_sweep_on_a_local_cluster_skips_finished_cells_and_records_failures(tmp_path, monkeypatch):
     table = str(tmp_path / "sweep.csv")
     kwargs = dict(frames=8, method=EXPLODING, grid=2, tau_range=(0.01, 0.3), table=table, workers=2,
@@ -56,6 +57,7 @@ def test_sweep_on_a_local_cluster_skips_finished_cells_and_records_failures(tmp_
     assert {k: r["cell_s"] for r in more if (k := (r["tau_a"], r["tau_e"])) in old} == pytest.approx(old)
 
 
+@pytest.mark.slow
 def test_sweep_on_an_existing_scheduler(tmp_path):
     from dask.distributed import LocalCluster
     with LocalCluster(n_workers=1, threads_per_worker=1, processes=False, dashboard_address=":0") as cluster:
@@ -68,6 +70,7 @@ def test_sweep_on_an_existing_scheduler(tmp_path):
 
 
 
+@pytest.mark.slow
 def test_a_crashing_or_hanging_cell_is_recorded_and_the_sweep_goes_on(tmp_path):
     table = str(tmp_path / "sweep.csv")
     t0 = time.perf_counter()
@@ -85,6 +88,7 @@ def test_a_crashing_or_hanging_cell_is_recorded_and_the_sweep_goes_on(tmp_path):
     assert [r["status"] for r in again] == [r["status"] for r in rows]  # recorded: not recomputed
 
 
+@pytest.mark.slow
 def test_cells_are_keyed_by_the_scene_files_contents(tmp_path):
     scene = tmp_path / "beam.py"
     scene.write_text("import skfem_affine as sa\n"

@@ -39,6 +39,7 @@ def test_no_compiled_kernel_uses_numba_parallel_regions():
     assert parallel == []
 
 
+@pytest.mark.slow
 def test_a_simulation_never_launches_numba_threading_layer():
     """In a fresh process: full-space and affinification frames, the forces' pass, the oracle."""
     code = ("import numpy as np\n"
@@ -196,6 +197,7 @@ def test_importing_writes_no_environment_and_starts_no_thread():
     assert out.returncode == 0, out.stderr[-2000:]
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not skfem_affine.solvers.has_pardiso(), reason="pypardiso (MKL, Intel OpenMP) not installed")
 def test_pardiso_leaves_intel_openmp_threads_sleeping_unless_the_user_set_blocktime():
     code = ("import ctypes, skfem_affine as sa\n"

@@ -45,15 +45,17 @@ to the elastic Hessian: ``A = pattern.matrix(data) + weight * contact.hessian(x)
 import functools
 from dataclasses import dataclass
 
-import ipctk
 import numpy as np
 import scipy.sparse as sp
 
+from skfem_affine._extras import Optional
 from skfem_affine.checks import choice, flag, integer, nonnegative, positive, real
 from skfem_affine.contact.barrier import stiffness_force
 from skfem_affine.contact.colliders import Plane, check_colliders
 from skfem_affine.contact.geometry import boundary_surface
 from skfem_affine.threads import ipctk_threads
+
+ipctk = Optional("ipctk", "sa.IPC (the Newton integrators' contact, their default with several bodies)", "ipc")
 
 
 @dataclass(frozen=True)

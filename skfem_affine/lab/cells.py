@@ -23,7 +23,9 @@ import threading
 import time
 from multiprocessing.connection import Connection
 
-import cloudpickle
+from skfem_affine._extras import Optional
+
+cloudpickle = Optional("cloudpickle", "skfem-affine sweep's cells", "lab")
 
 
 class CellCrashed(RuntimeError):

@@ -23,6 +23,7 @@ import sys
 import time
 import traceback
 
+from skfem_affine._json import jsonable
 from skfem_affine.lab.methods import COMPARED, METHODS
 
 SUMMARY_KEYS = ("scene", "method", "frames", "elements", "vertices", "wall_s", "speedup", "dof_ratio",
@@ -30,23 +31,10 @@ SUMMARY_KEYS = ("scene", "method", "frames", "elements", "vertices", "wall_s", "
 
 
 # ---------------------------------------------------------------- helpers
-def _jsonable(value):
-    import numpy as np
-    if isinstance(value, dict):
-        return {str(k): _jsonable(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_jsonable(v) for v in value]
-    if isinstance(value, (np.integer,)):
-        return int(value)
-    if isinstance(value, (float, np.floating)):
-        return float(value) if math.isfinite(value) else None
-    return value
-
-
 def _emit(args, summary):
     """The one JSON object (``--json``); otherwise nothing (human output is printed as we go)."""
     if args.json:
-        print(json.dumps(_jsonable(summary)), flush=True)
+        print(json.dumps(jsonable(summary, finite=True)), flush=True)
 
 
 def _say(args, *text):

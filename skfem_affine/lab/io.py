@@ -7,6 +7,7 @@ from xml.sax.saxutils import quoteattr
 import meshio
 import numpy as np
 
+from skfem_affine._extras import EXTRA_OF, MissingExtra, message
 from skfem_affine.checks import flag
 from skfem_affine.files import replacing
 
@@ -259,7 +260,9 @@ def _read(path):
     try:
         with contextlib.redirect_stdout(said), contextlib.redirect_stderr(said):
             return meshio.read(path)
-    except ModuleNotFoundError as err:  # a reader's package missing from a broken install (h5py for XDMF)
+    except ModuleNotFoundError as err:  # a reader's package missing (h5py for XDMF, of the 'lab' extra)
+        if err.name in EXTRA_OF:
+            raise MissingExtra(message(f"reading {path}", EXTRA_OF[err.name]), name=err.name) from None
         raise ImportError(f"reading {path} needs the package {err.name} (pip install {err.name})") from err
     except (Exception, SystemExit) as err:  # noqa: BLE001 (whatever a reader raises on a damaged file)
         reason = " ".join(said.getvalue().split()) or f"{type(err).__name__}: {err}"

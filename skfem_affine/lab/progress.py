@@ -16,13 +16,16 @@ LOG_SECONDS = 30.0
 def bar(total, desc, enabled, unit="frame"):
     """A progress counter: ``update(n)`` and ``close()``.
 
-    A tqdm bar when ``enabled`` and stderr is a terminal, :class:`LogProgress` lines when
-    ``enabled`` and it is not, else an object that ignores updates.
+    A tqdm bar when ``enabled`` and stderr is a terminal (and tqdm, of the ``lab`` extra, is
+    installed), :class:`LogProgress` lines when ``enabled`` otherwise, else an object that ignores updates.
     """
     if not enabled:
         return NoProgress()
     if _is_terminal(sys.stderr):
-        from tqdm import tqdm
+        try:
+            from tqdm import tqdm
+        except ModuleNotFoundError:  # tqdm comes with the 'lab' extra: without it, the log's lines
+            return LogProgress(total, desc, unit)
         return tqdm(total=total, desc=desc, unit=unit, leave=False)
     return LogProgress(total, desc, unit)
 

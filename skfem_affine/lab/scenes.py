@@ -607,15 +607,15 @@ def blob_mesh(resolution=2, radius=0.3, bumps=0.25):
     return skfem.MeshTet(np.ascontiguousarray(radius * p * (1.0 + bumps * s)), ball.t)
 
 
-def armadillo(resolution=2, mesh=None, size=0.6, speed=3.0, min_affine_fraction=1 / 3, frames=300, **kwargs):
+def armadillo(resolution=2, mesh=None, size=0.6, speed=3.0, min_fraction=1 / 3, frames=300, **kwargs):
     """A resource-limited run: a closed soft body thrown onto a plane (paper Fig. 16 "Armadillo").
 
     Every element deforms on impact, and the reducer must still keep at least
-    ``min_affine_fraction`` of the elements affine (resource limiting, sec. 3.5: the
+    ``min_fraction`` of the elements affine (resource limiting, sec. 3.5: the
     paper keeps a third). Procedural by default (:func:`blob_mesh`, a lumpy closed body)
     or ``mesh``: a skfem.MeshTet or a mesh file, scaled to ``size`` (largest extent).
     Unless ``reducer`` is given, the simulation uses
-    ``Affinification(tau_a=4e-13, tau_e=6e-12, min_affine_fraction=min_affine_fraction)``,
+    ``Affinification(tau_a=4e-13, tau_e=6e-12, min_fraction=min_fraction)``,
     the paper's near-zero thresholds, so only the resource limit makes bodies affine;
     a reducer passed in keeps its own settings. The body starts just above the plane
     moving down at ``speed`` (m/s). Defaults: Neo-Hookean E = 5e4, nu = 0.35, density
@@ -625,7 +625,7 @@ def armadillo(resolution=2, mesh=None, size=0.6, speed=3.0, min_affine_fraction=
     size, speed = _lengths(size=size), _heights(speed=speed)
     sim_kw, body_kw = _contact_scene_kwargs(kwargs, 0.5, Plane())
     if "reducer" not in sim_kw:
-        sim_kw["reducer"] = Affinification(tau_a=4e-13, tau_e=6e-12, min_affine_fraction=min_affine_fraction)
+        sim_kw["reducer"] = Affinification(tau_a=4e-13, tau_e=6e-12, min_fraction=min_fraction)
     m = blob_mesh(resolution) if mesh is None else _mesh_from(mesh)
     p = m.p - 0.5 * (m.p.max(axis=1) + m.p.min(axis=1))[:, None]
     p *= float(size) / np.ptp(p, axis=1).max()

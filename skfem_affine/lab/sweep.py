@@ -18,6 +18,7 @@ import time
 
 import numpy as np
 
+from skfem_affine._extras import require
 from skfem_affine.checks import integer
 from skfem_affine.lab import cells
 from skfem_affine.lab.methods import get_method
@@ -136,7 +137,8 @@ def connect(scheduler=None, workers=None, processes=True):
     """
     import logging
 
-    from dask.distributed import Client, LocalCluster
+    distributed = require("dask.distributed", "skfem-affine sweep (dask)", "lab")
+    Client, LocalCluster = distributed.Client, distributed.LocalCluster
     if scheduler:
         return Client(scheduler), None
     with _interrupts_ignored_by_children():

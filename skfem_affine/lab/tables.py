@@ -12,6 +12,8 @@ import io
 import os
 from contextlib import contextmanager
 
+from skfem_affine._extras import require
+
 
 class FileFormatError(ValueError):
     """A results file (table, cached reference) that cannot be read: truncated, corrupt or not UTF-8."""
@@ -36,7 +38,7 @@ def write_table(rows, path):
     try:
         if path.endswith(".parquet"):
             pq = _pyarrow_parquet()
-            import pyarrow as pa
+            pa = require("pyarrow", PARQUET, "parquet")
             pq.write_table(pa.Table.from_pylist([{c: r.get(c) for c in columns} for r in rows]), tmp)
         else:
             with open(tmp, "w", newline="", encoding="utf-8") as fh:
@@ -122,9 +124,9 @@ def merge_rows(path, rows, key):
     return merged
 
 
+#: What needs pyarrow, for the error that names its extra.
+PARQUET = "a .parquet table (a .csv table needs nothing)"
+
+
 def _pyarrow_parquet():
-    try:
-        import pyarrow.parquet as pq
-    except ImportError:
-        raise ImportError("Parquet tables need pyarrow (pip install pyarrow); or use a .csv table") from None
-    return pq
+    return require("pyarrow.parquet", PARQUET, "parquet")

@@ -45,7 +45,7 @@ class Affinification(ClusteringReducer):
         the frames itself), off with explicit thresholds.
     min_fraction : float
         Resource limiting (sec. 3.5): at least this fraction of the elements is forced into
-        clusters. ``min_affine_fraction`` is its older name.
+        clusters.
     seeding : {"random", "index", "temporal"}
     preconditioner : {"ichol", "amg"}
         Factorisation of A_p (eq. 14) used by the one-iteration PCG oracle.
@@ -94,12 +94,12 @@ class Affinification(ClusteringReducer):
 
     def __init__(self, tau_a=None, tau_e=None, *, target_error=None, relative_to=None, time_budget=None, never_slower=None,
                  min_fraction=None, seeding="random", preconditioner="ichol", seed=0, solver=None,
-                 min_body_elements=2, min_affine_fraction=None, shadow_every=10, memory=0.5, refresh=False,
+                 min_body_elements=2, shadow_every=10, memory=0.5, refresh=False,
                  refresh_tol=0.2, refresh_background=False, pinned_bodies=False):
         self.tau_a, tau_e, target_error = resolve_thresholds(tau_a, tau_e, target_error, "tau_a", relative_to)
         # >= 2: singletons are always dissolved
         self.min_body_elements = integer(min_body_elements, "min_body_elements", low=2)
-        super().__init__(tau_e, min_fraction=forced_fraction(min_fraction, min_affine_fraction, "min_affine_fraction"),
+        super().__init__(tau_e, min_fraction=forced_fraction(min_fraction),
                          seeding=seeding, preconditioner=preconditioner, seed=seed, solver=solver,
                          target_error=target_error, time_budget=time_budget, never_slower=never_slower,
                          shadow_every=shadow_every, memory=memory, refresh=refresh, refresh_tol=refresh_tol,

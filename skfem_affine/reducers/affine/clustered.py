@@ -66,14 +66,9 @@ def check_threshold(value, name):
     return real(value, f"threshold {name}", low=0.0)
 
 
-def forced_fraction(min_fraction, old_value, old_name):
-    """The resource-limit fraction from ``min_fraction`` or its older keyword ``old_name``."""
-    if old_value is not None:
-        if min_fraction is not None:
-            raise ValueError(f"give min_fraction or its older name {old_name}, not both")
-        min_fraction = old_value
-    name = "min_fraction" if old_value is None else old_name
-    return 0.0 if min_fraction is None else real(min_fraction, name, low=0.0, high=1.0)
+def forced_fraction(min_fraction):
+    """The resource-limit fraction ``min_fraction`` checked (0 to 1); 0 when None."""
+    return 0.0 if min_fraction is None else real(min_fraction, "min_fraction", low=0.0, high=1.0)
 
 
 def resolve_thresholds(tau, tau_e, target_error, name, relative_to=None):

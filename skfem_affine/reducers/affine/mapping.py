@@ -23,6 +23,7 @@ import scipy.sparse as sp
 from numba import njit
 
 from skfem_affine import _compile_notice  # noqa: F401 (one stderr line when the cached kernels compile)
+from skfem_affine._extras import require
 
 
 def group_sum(groups, values, n_groups):
@@ -271,8 +272,8 @@ def nested_dissection_rank(system):
     P = sp.csr_matrix((np.ones(vind.size), vind, vptr), shape=(nv, nv))
     P.setdiag(0)  # METIS takes no self-loops
     P.eliminate_zeros()
+    pymetis = require("pymetis", "the Pardiso solver's METIS ordering of reduced frames", "fast")
     try:
-        import pymetis
         _, iperm = pymetis.nested_dissection(adjacency=pymetis.CSRAdjacency(P.indptr, P.indices))
         iperm = np.asarray(iperm, dtype=np.int64)
     except Exception:  # tiny or edgeless graphs: the given order

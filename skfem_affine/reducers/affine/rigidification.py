@@ -41,7 +41,6 @@ class Rigidification(ClusteringReducer):
         Frames an element must stay calm before it may turn rigid.
     min_fraction : float
         Resource limiting: at least this fraction of the elements (the calmest) is eligible.
-        ``min_rigid_fraction`` is its older name.
     seeding, preconditioner, seed, solver, refresh, refresh_tol, refresh_background
         As for :class:`~skfem_affine.Affinification`, in the same order.
     """
@@ -55,11 +54,11 @@ class Rigidification(ClusteringReducer):
 
     def __init__(self, tau_r=None, tau_e=None, *, target_error=None, relative_to=None, time_budget=None, never_slower=None,
                  warmup_frames=3, min_fraction=None, seeding="random", preconditioner="ichol", seed=0, solver=None,
-                 min_rigid_fraction=None, shadow_every=10, memory=0.5, refresh=False, refresh_tol=0.2,
+                 shadow_every=10, memory=0.5, refresh=False, refresh_tol=0.2,
                  refresh_background=False):
         self.tau_r, tau_e, target_error = resolve_thresholds(tau_r, tau_e, target_error, "tau_r", relative_to)
         self.warmup_frames = integer(warmup_frames, "warmup_frames", low=0)
-        super().__init__(tau_e, min_fraction=forced_fraction(min_fraction, min_rigid_fraction, "min_rigid_fraction"),
+        super().__init__(tau_e, min_fraction=forced_fraction(min_fraction),
                          seeding=seeding, preconditioner=preconditioner, seed=seed, solver=solver,
                          target_error=target_error, time_budget=time_budget, never_slower=never_slower,
                          shadow_every=shadow_every, memory=memory, refresh=refresh, refresh_tol=refresh_tol,

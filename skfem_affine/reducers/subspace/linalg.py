@@ -9,6 +9,7 @@ import numpy as np
 import scipy.linalg as sla
 import scipy.sparse as sp
 
+from skfem_affine._extras import require
 from skfem_affine.integrators.potential import vdot
 from skfem_affine.solvers import SolverError
 
@@ -19,7 +20,8 @@ def metis_parts(system, nparts):
     nparts = int(min(max(nparts, 1), n))
     if nparts == 1:
         return np.zeros(n, dtype=np.int64)
-    import pymetis
+    pymetis = require("pymetis", "sa.AdaptiveSubspace's subdomains (METIS partitions; subdomains=1 needs none)",
+                      "subspace")
     t = system.t
     pairs = np.concatenate([t[[a, b]] for a in range(4) for b in range(4) if a != b], axis=1)
     G = sp.csr_matrix((np.ones(pairs.shape[1]), (pairs[0], pairs[1])), shape=(n, n))
