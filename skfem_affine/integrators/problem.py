@@ -4,10 +4,12 @@ A frame of the linearized backward Euler integrator solves, on the free DOFs,
 
 .. math::
     A\,\Delta\dot x = b, \qquad A = c_M M + c_K H, \qquad
-    b = h\big(f - \alpha M \dot x - (\beta + h) H \dot x\big),
+    b = h\big(f - \alpha M \dot x - (\beta + h) H \dot x - H e\big),
 
 with :math:`c_M = 1 + h\alpha`, :math:`c_K = h\beta + h^2` (Rayleigh damping
-D = -(alpha M + beta H), H = -df/dx the stiffness, f the internal force plus gravity).
+D = -(alpha M + beta H), H = -df/dx the stiffness, f the internal force plus gravity, e the
+stretch the linear position update gives the free bodies' rotation,
+:mod:`~skfem_affine.integrators.rotation`; e = 0 recovers eq. 2).
 :func:`system_coefficients` is the one place these coefficients are derived.
 
 * :class:`Model`: what is fixed over a run (system, h, damping, gravity, scene size).
@@ -19,6 +21,7 @@ D = -(alpha M + beta H), H = -df/dx the stiffness, f the internal force plus gra
 """
 import time
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 import scipy.sparse as sp
@@ -90,6 +93,12 @@ class Model:
     def coefficients(self):
         """(c_M, c_K) of A = c_M M + c_K H (:func:`system_coefficients`)."""
         return system_coefficients(self.dt, self.damping)
+
+    @cached_property
+    def rotation_stretch(self):
+        """The free bodies' :class:`~skfem_affine.integrators.rotation.RotationStretch` (built on first use)."""
+        from skfem_affine.integrators.rotation import RotationStretch
+        return RotationStretch(self.system)
 
     def evaluate(self, x):
         """Forces, dP/dF, element blocks and H at positions x (n, 3) (:meth:`ElasticSystem.evaluate`)."""
@@ -165,14 +174,20 @@ class StepProblem:
         return self.model.system
 
     def rhs(self, v):
-        """b = h (f - alpha M v - (beta + h) H v) on the free DOFs (eq. 2), v (n, 3) all vertices.
+        """b = h (f - alpha M v - (beta + h) H v - H e) on the free DOFs (eq. 2), v (n, 3) all vertices.
 
-        With prescribed vertices, minus their coupling (:func:`skfem_affine.motion.coupling`).
+        f - h H v - H e is eq. 2's Taylor term f + h K v of f(x_t + h v), with e the stretch the
+        linear position update gives the free bodies' rotation (:mod:`~skfem_affine.integrators.rotation`;
+        no term when no free body turns). With prescribed vertices, minus their coupling
+        (:func:`skfem_affine.motion.coupling`).
         """
         m = self.model
         h, d, sysm = m.dt, m.damping, m.system
         vf = v.reshape(-1)[sysm.free]
         b = h * (self.data.f[sysm.free] - d.alpha * (sysm.Mff @ vf) - (d.beta + h) * (self.Hmat @ vf))
+        e = m.rotation_stretch(self.x, v, h)
+        if e is not None:
+            b -= h * (self.Hmat @ e)
         if self._coupling is not None:
             b -= self._coupling
         return b
