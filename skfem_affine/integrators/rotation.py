@@ -26,6 +26,9 @@ held by fixed vertices get no term. A body whose turn is too small for e to show
 (theta^2 / 2 below the double-precision epsilon) gets none either.
 """
 import numpy as np
+from numba import njit
+
+from skfem_affine import _compile_notice  # noqa: F401 (one stderr line when the cached kernels compile)
 
 
 class RotationStretch:
@@ -40,44 +43,101 @@ class RotationStretch:
         held = np.zeros(len(system.bodies), dtype=bool)
         held[system.body_of_vertex[system.fixed]] = True
         self.vertices = np.flatnonzero(~held[system.body_of_vertex])  # the free bodies' vertices
-        _, self.body = np.unique(system.body_of_vertex[self.vertices], return_inverse=True)
+        _, body = np.unique(system.body_of_vertex[self.vertices], return_inverse=True)
+        self.body = body.astype(np.int64)
         self.k = int(self.body.max()) + 1 if self.vertices.size else 0
-        self.mass = system.lumped_mass[self.vertices]
-        self.body_mass = np.bincount(self.body, weights=self.mass, minlength=self.k)
+        self.mass = np.ascontiguousarray(system.lumped_mass[self.vertices], dtype=float)
         self.n, self.free = system.n, system.free
 
-    def _sum(self, values):
-        """Per-body sums of per-vertex values (len(vertices), j) -> (k, j)."""
-        return np.stack([np.bincount(self.body, weights=values[:, j], minlength=self.k)
-                         for j in range(values.shape[1])], axis=1)
-
     def angular_velocities(self, x, v):
-        """(k, 3) each free body's angular velocity w = I^-1 L about its centre of mass (lumped mass),
-        and (len(vertices), 3) the vertices' positions r relative to it."""
-        m = self.mass[:, None]
-        xs, vs = x[self.vertices], v[self.vertices]
-        c = self._sum(m * xs) / self.body_mass[:, None]
-        r = xs - c[self.body]
-        L = self._sum(m * np.cross(r, vs))
-        rr = self._sum(m * np.einsum("ni,nj->nij", r, r).reshape(-1, 9)).reshape(-1, 3, 3)
-        inertia = np.trace(rr, axis1=1, axis2=2)[:, None, None] * np.eye(3) - rr
-        return np.linalg.solve(inertia, L[:, :, None])[:, :, 0], r
+        """(k, 3) each free body's centre of mass c and (k, 3) its angular velocity w = I^-1 L about
+        c (lumped mass), from positions and velocities (n, 3)."""
+        c, w = np.zeros((self.k, 3)), np.zeros((self.k, 3))
+        _spins(np.ascontiguousarray(x, dtype=float), np.ascontiguousarray(v, dtype=float), self.vertices,
+               self.body, self.mass, c, w)
+        return c, w
 
     def __call__(self, x, v, h):
         """e on the free DOFs, (n_free,), from positions and velocities (n, 3) and the step h;
         None when no free body turns enough for it to show."""
         if not self.k:
             return None
-        w, r = self.angular_velocities(np.asarray(x, float), np.asarray(v, float))
-        theta = h * np.linalg.norm(w, axis=1)
-        turning = 0.5 * theta * theta > np.finfo(float).eps
-        if not np.any(turning):
+        c, w = self.angular_velocities(x, v)
+        out = np.zeros(3 * self.n)
+        if not _stretch(np.ascontiguousarray(x, dtype=float), self.vertices, self.body, c, w, float(h),
+                        np.finfo(float).eps, out):
             return None
-        theta = np.where(turning, theta, 0.0)
-        a = np.divide(w, np.where(turning, theta / h, 1.0)[:, None])[self.body]
-        th = theta[self.body][:, None]
-        axial = np.einsum("ni,ni->n", a, r)[:, None] * a
-        e = (th - np.sin(th)) * np.cross(a, r) + 2.0 * np.sin(0.5 * th) ** 2 * (r - axial)
-        out = np.zeros((self.n, 3))
-        out[self.vertices] = e
-        return out.reshape(-1)[self.free]
+        return out[self.free]
+
+
+@njit(cache=True)
+def _spins(x, v, vertices, body, mass, c, w):
+    """c[b], w[b]: centre of mass and angular velocity I^-1 L of each body b (lumped mass)."""
+    k = c.shape[0]
+    total = np.zeros(k)
+    for i in range(vertices.size):
+        b, m = body[i], mass[i]
+        total[b] += m
+        for j in range(3):
+            c[b, j] += m * x[vertices[i], j]
+    for b in range(k):
+        for j in range(3):
+            c[b, j] /= total[b]
+    L, q = np.zeros((k, 3)), np.zeros((k, 3, 3))  # q = sum m r r^T
+    for i in range(vertices.size):
+        b, m, p = body[i], mass[i], vertices[i]
+        r0, r1, r2 = x[p, 0] - c[b, 0], x[p, 1] - c[b, 1], x[p, 2] - c[b, 2]
+        L[b, 0] += m * (r1 * v[p, 2] - r2 * v[p, 1])
+        L[b, 1] += m * (r2 * v[p, 0] - r0 * v[p, 2])
+        L[b, 2] += m * (r0 * v[p, 1] - r1 * v[p, 0])
+        r = (r0, r1, r2)
+        for a in range(3):
+            for d in range(3):
+                q[b, a, d] += m * r[a] * r[d]
+    for b in range(k):
+        tr = q[b, 0, 0] + q[b, 1, 1] + q[b, 2, 2]
+        I = -q[b]
+        for a in range(3):
+            I[a, a] += tr
+        # the inverse of the symmetric 3 x 3 inertia by cofactors
+        c00 = I[1, 1] * I[2, 2] - I[1, 2] * I[2, 1]
+        c01 = I[0, 2] * I[2, 1] - I[0, 1] * I[2, 2]
+        c02 = I[0, 1] * I[1, 2] - I[0, 2] * I[1, 1]
+        c11 = I[0, 0] * I[2, 2] - I[0, 2] * I[2, 0]
+        c12 = I[0, 2] * I[1, 0] - I[0, 0] * I[1, 2]
+        c22 = I[0, 0] * I[1, 1] - I[0, 1] * I[1, 0]
+        det = I[0, 0] * c00 + I[0, 1] * c01 + I[0, 2] * c02
+        w[b, 0] = (c00 * L[b, 0] + c01 * L[b, 1] + c02 * L[b, 2]) / det
+        w[b, 1] = (c01 * L[b, 0] + c11 * L[b, 1] + c12 * L[b, 2]) / det
+        w[b, 2] = (c02 * L[b, 0] + c12 * L[b, 1] + c22 * L[b, 2]) / det
+
+
+@njit(cache=True)
+def _stretch(x, vertices, body, c, w, h, eps, out):
+    """out[3 p + j] = e of vertex p (module docstring) for the bodies that turn (theta^2 / 2 > eps);
+    returns whether any does."""
+    k = c.shape[0]
+    theta, axis = np.zeros(k), np.zeros((k, 3))
+    turning = False
+    for b in range(k):
+        norm = np.sqrt(w[b, 0] ** 2 + w[b, 1] ** 2 + w[b, 2] ** 2)
+        if 0.5 * (h * norm) ** 2 > eps:
+            theta[b] = h * norm
+            for j in range(3):
+                axis[b, j] = w[b, j] / norm
+            turning = True
+    if not turning:
+        return False
+    for i in range(vertices.size):
+        b, p = body[i], vertices[i]
+        th = theta[b]
+        if th == 0.0:
+            continue
+        a0, a1, a2 = axis[b, 0], axis[b, 1], axis[b, 2]
+        r0, r1, r2 = x[p, 0] - c[b, 0], x[p, 1] - c[b, 1], x[p, 2] - c[b, 2]
+        along = a0 * r0 + a1 * r1 + a2 * r2
+        tangent, normal = th - np.sin(th), 2.0 * np.sin(0.5 * th) ** 2
+        out[3 * p] = tangent * (a1 * r2 - a2 * r1) + normal * (r0 - along * a0)
+        out[3 * p + 1] = tangent * (a2 * r0 - a0 * r2) + normal * (r1 - along * a1)
+        out[3 * p + 2] = tangent * (a0 * r1 - a1 * r0) + normal * (r2 - along * a2)
+    return True
