@@ -20,7 +20,7 @@ stretch the linear position update gives the free bodies' rotation,
   the frame's mapping, clusters and statistics.
 """
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import cached_property
 
 import numpy as np
@@ -173,6 +173,29 @@ class StepProblem:
     def system(self):
         return self.model.system
 
+    def without_elements(self, inside):
+        """This frame with the elements ``inside`` (m,) bool left out of f and H (the interiors of rigid
+        bodies, whose internal forces are self-equilibrated and whose strain a rigid motion keeps).
+
+        H is summed anew over the other elements' blocks (so those inside are never read); f loses
+        the inside elements' internal forces. ``targets``' coupling is kept (no element wholly
+        inside a body has a prescribed vertex)."""
+        from skfem_affine._kernels import scatter_add
+        sysm, data = self.system, self.data
+        outer = np.flatnonzero(~inside)
+        elems = np.flatnonzero(inside)
+        slot = sysm.pattern.slot.reshape(sysm.m, 144)[outer].ravel()
+        H = scatter_add(slot, np.ascontiguousarray(data.He[outer]).reshape(-1), sysm.pattern.nnz)
+        # internal force of an element: -V_e P_e grad phi_k on its vertex k
+        fe = -np.einsum("e,eij,ekj->eki", sysm.volumes[elems], data.P[elems], sysm.grads[elems])
+        f_inside = np.zeros((sysm.n, 3))
+        np.add.at(f_inside, sysm.t[:, elems].T, fe)
+        data = replace(data, f=data.f - f_inside.reshape(-1), H=H)
+        out = StepProblem(self.model, self.x, self.v, self.frame, data, sysm.pattern.matrix(H), self.contact_impulse,
+                          self.contacts, self.targets, self.f_ext, self.support_impulse)
+        out._coupling = self._coupling
+        return out
+
     def rhs(self, v):
         """b = h (f - alpha M v - (beta + h) H v - H e) on the free DOFs (eq. 2), v (n, 3) all vertices.
 
@@ -285,6 +308,12 @@ class StepResult:
         if self.mapping is not None:
             return self.mapping.positions(x, v, dt)
         return x + dt * v
+
+    def velocities(self, x, v, x_new):
+        """v_{t+1} (n, 3) at x_new from the solved v: v, or the mapping's own (rigid bodies keep L)."""
+        if self.mapping is not None:
+            return self.mapping.velocities(x, v, x_new)
+        return v
 
 
 def merge_stats(rec, stats):
