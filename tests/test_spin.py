@@ -57,8 +57,8 @@ def _rigid_spinner(E, warmup_frames=3, stretch=1.0):
 
 @pytest.mark.parametrize("E", [1e5, 1e8])
 def test_a_free_rigid_body_keeps_its_angular_momentum(E):
-    """One rigid body for 497 of 500 frames (elastic for its 3 warm-up frames): |L| kept to 1 %, the
-    vector L to 1 % of |L0|, the centre moving at constant velocity."""
+    """One rigid body for 497 of 500 frames (elastic for its 3 warm-up frames): the vector L kept to 1 %
+    of |L0|, the centre moving at constant velocity, the energy of its rigid frames constant to 1e-6."""
     sim = _rigid_spinner(E)
     m = sim.system.lumped_mass[:, None]
     L0 = (m * np.cross(sim.state.x - (m * sim.state.x).sum(0) / m.sum(), sim.state.v)).sum(0)
@@ -68,6 +68,7 @@ def test_a_free_rigid_body_keeps_its_angular_momentum(E):
     L = (m * np.cross(s.x - (m * s.x).sum(0) / m.sum(), s.v)).sum(0)
     assert np.linalg.norm(L - L0) <= 0.01 * np.linalg.norm(L0)
     assert (m * s.v).sum(0) / m.sum() == pytest.approx((0.1, 0.0, 0.0), abs=1e-9)
+    assert sim.stats[-1]["energy"] == pytest.approx(sim.stats[3]["energy"], rel=1e-6)
 
 
 def test_a_rigid_body_interior_adds_nothing():
