@@ -180,6 +180,7 @@ class StepProblem:
         H is summed anew over the other elements' blocks (so those inside are never read); f loses
         the inside elements' internal forces. ``targets``' coupling is kept (no element wholly
         inside a body has a prescribed vertex)."""
+        from skfem_affine._eigensystems import scatter_forces
         from skfem_affine._kernels import scatter_add
         sysm, data = self.system, self.data
         outer = np.flatnonzero(~inside)
@@ -187,10 +188,9 @@ class StepProblem:
         slot = sysm.pattern.slot.reshape(sysm.m, 144)[outer].ravel()
         H = scatter_add(slot, np.ascontiguousarray(data.He[outer]).reshape(-1), sysm.pattern.nnz)
         # internal force of an element: -V_e P_e grad phi_k on its vertex k
-        fe = -np.einsum("e,eij,ekj->eki", sysm.volumes[elems], data.P[elems], sysm.grads[elems])
-        f_inside = np.zeros((sysm.n, 3))
-        np.add.at(f_inside, sysm.t[:, elems].T, fe)
-        data = replace(data, f=data.f - f_inside.reshape(-1), H=H)
+        fe = -np.einsum("e,eij,ekj->eki", sysm.volumes[elems], data.P[elems], sysm.grads[elems], optimize=True)
+        f_inside = scatter_forces(np.ascontiguousarray(sysm.t[:, elems]), fe, sysm.n)
+        data = replace(data, f=data.f - f_inside, H=H)
         out = StepProblem(self.model, self.x, self.v, self.frame, data, sysm.pattern.matrix(H), self.contact_impulse,
                           self.contacts, self.targets, self.f_ext, self.support_impulse)
         out._coupling = self._coupling
