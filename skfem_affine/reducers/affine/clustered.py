@@ -673,7 +673,8 @@ class ClusteringReducer(Reducer):
         if n_bodies:
             vp = problem.v.copy()
             vp.reshape(-1)[free] += d
-            # a rigid body's interior adds nothing to its 6 DOFs: not evaluated (exact rigid-body dynamics)
+            # a rigid body's interior adds nothing to its 6 DOFs (self-equilibrated forces, strain a rigid motion
+            # keeps): left out of its reduced system, so that it moves by rigid-body dynamics
             reduced = problem.without_elements(reduction.interior_elements(vcluster, sysm.t)) \
                 if self.kind is reduction.RIGID else problem
             Ar = reduction.reduced_matrix(model, reduced.data, gmap, upper=self.upper)
