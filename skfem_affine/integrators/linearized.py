@@ -2,7 +2,7 @@ r"""Linearized backward Euler (affinification paper eq. 1-2, Algorithm 1), optio
 
 One frame: find contacts at x_t, build the :class:`~skfem_affine.integrators.problem.StepProblem`
 (f and H at x_t), let the reducer solve it, resolve contact with the reducer's factorised
-operator, then v += dv and x = x + h v (or the mapping's own position update).
+operator, then v += dv and x = x + h v (or the mapping's own update of positions and velocities).
 
 With ``newton_iters > 1`` (full space only) the step is iterated, with a backtracking line
 search on the incremental potential
@@ -87,8 +87,10 @@ class LinearizedEuler:
             self.uncorrected = self._positions(result, state.x, v, targets)
             w = v.copy()
             w.reshape(-1)[free] += correction
-            return self._positions(result, state.x, w, targets), v, result
-        return self._positions(result, state.x, v, targets), v, result
+            x_new = self._positions(result, state.x, w, targets)
+        else:
+            x_new = self._positions(result, state.x, v, targets)
+        return x_new, result.velocities(state.x, v, x_new), result
 
     def _positions(self, result, x, v, targets):
         """x_{t+1}: the reducer's position update, and prescribed vertices exactly on their path."""

@@ -4,10 +4,12 @@ A frame of the linearized backward Euler integrator solves, on the free DOFs,
 
 .. math::
     A\,\Delta\dot x = b, \qquad A = c_M M + c_K H, \qquad
-    b = h\big(f - \alpha M \dot x - (\beta + h) H \dot x\big),
+    b = h\big(f - \alpha M \dot x - (\beta + h) H \dot x - H e\big),
 
 with :math:`c_M = 1 + h\alpha`, :math:`c_K = h\beta + h^2` (Rayleigh damping
-D = -(alpha M + beta H), H = -df/dx the stiffness, f the internal force plus gravity).
+D = -(alpha M + beta H), H = -df/dx the stiffness, f the internal force plus gravity, e the
+stretch the linear position update gives the free bodies' rotation,
+:mod:`~skfem_affine.integrators.rotation`; e = 0 recovers eq. 2).
 :func:`system_coefficients` is the one place these coefficients are derived.
 
 * :class:`Model`: what is fixed over a run (system, h, damping, gravity, scene size).
@@ -18,7 +20,8 @@ D = -(alpha M + beta H), H = -df/dx the stiffness, f the internal force plus gra
   the frame's mapping, clusters and statistics.
 """
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
+from functools import cached_property
 
 import numpy as np
 import scipy.sparse as sp
@@ -90,6 +93,12 @@ class Model:
     def coefficients(self):
         """(c_M, c_K) of A = c_M M + c_K H (:func:`system_coefficients`)."""
         return system_coefficients(self.dt, self.damping)
+
+    @cached_property
+    def rotation_stretch(self):
+        """The free bodies' :class:`~skfem_affine.integrators.rotation.RotationStretch` (built on first use)."""
+        from skfem_affine.integrators.rotation import RotationStretch
+        return RotationStretch(self.system)
 
     def evaluate(self, x):
         """Forces, dP/dF, element blocks and H at positions x (n, 3) (:meth:`ElasticSystem.evaluate`)."""
@@ -164,15 +173,44 @@ class StepProblem:
     def system(self):
         return self.model.system
 
-    def rhs(self, v):
-        """b = h (f - alpha M v - (beta + h) H v) on the free DOFs (eq. 2), v (n, 3) all vertices.
+    def without_elements(self, inside):
+        """This frame with the elements ``inside`` (m,) bool left out of f and H (the interiors of rigid
+        bodies, whose internal forces are self-equilibrated and whose strain a rigid motion keeps).
 
-        With prescribed vertices, minus their coupling (:func:`skfem_affine.motion.coupling`).
+        H is summed anew over the other elements' blocks (so those inside are never read); f loses
+        the inside elements' internal forces. ``targets``' coupling is kept (no element wholly
+        inside a body has a prescribed vertex)."""
+        from skfem_affine._eigensystems import scatter_forces
+        from skfem_affine._kernels import scatter_add
+        sysm, data = self.system, self.data
+        outer = np.flatnonzero(~inside)
+        elems = np.flatnonzero(inside)
+        slot = sysm.pattern.slot.reshape(sysm.m, 144)[outer].ravel()
+        H = scatter_add(slot, np.ascontiguousarray(data.He[outer]).reshape(-1), sysm.pattern.nnz)
+        # internal force of an element: -V_e P_e grad phi_k on its vertex k
+        fe = -np.einsum("e,eij,ekj->eki", sysm.volumes[elems], data.P[elems], sysm.grads[elems], optimize=True)
+        f_inside = scatter_forces(np.ascontiguousarray(sysm.t[:, elems]), fe, sysm.n)
+        data = replace(data, f=data.f - f_inside, H=H)
+        out = StepProblem(self.model, self.x, self.v, self.frame, data, sysm.pattern.matrix(H), self.contact_impulse,
+                          self.contacts, self.targets, self.f_ext, self.support_impulse)
+        out._coupling = self._coupling
+        return out
+
+    def rhs(self, v):
+        """b = h (f - alpha M v - (beta + h) H v - H e) on the free DOFs (eq. 2), v (n, 3) all vertices.
+
+        f - h H v - H e is eq. 2's Taylor term f + h K v of f(x_t + h v), with e the stretch the
+        linear position update gives the free bodies' rotation (:mod:`~skfem_affine.integrators.rotation`;
+        no term when no free body turns). With prescribed vertices, minus their coupling
+        (:func:`skfem_affine.motion.coupling`).
         """
         m = self.model
         h, d, sysm = m.dt, m.damping, m.system
         vf = v.reshape(-1)[sysm.free]
         b = h * (self.data.f[sysm.free] - d.alpha * (sysm.Mff @ vf) - (d.beta + h) * (self.Hmat @ vf))
+        e = m.rotation_stretch(self.x, v, h)
+        if e is not None:
+            b -= h * (self.Hmat @ e)
         if self._coupling is not None:
             b -= self._coupling
         return b
@@ -270,6 +308,12 @@ class StepResult:
         if self.mapping is not None:
             return self.mapping.positions(x, v, dt)
         return x + dt * v
+
+    def velocities(self, x, v, x_new):
+        """v_{t+1} (n, 3) at x_new from the solved v: v, or the mapping's own (rigid bodies keep L)."""
+        if self.mapping is not None:
+            return self.mapping.velocities(x, v, x_new)
+        return v
 
 
 def merge_stats(rec, stats):

@@ -679,8 +679,12 @@ class ClusteringReducer(Reducer):
         if n_bodies:
             vp = problem.v.copy()
             vp.reshape(-1)[free] += d
-            Ar = reduction.reduced_matrix(model, problem.data, gmap, upper=self.upper)
-            br = G.T @ problem.rhs(vp)
+            # a rigid body's interior adds nothing to its 6 DOFs (self-equilibrated forces, strain a rigid motion
+            # keeps): left out of its reduced system, so that it moves by rigid-body dynamics
+            reduced = problem.without_elements(reduction.interior_elements(vcluster, sysm.t)) \
+                if self.kind is reduction.RIGID else problem
+            Ar = reduction.reduced_matrix(model, reduced.data, gmap, upper=self.upper)
+            br = G.T @ reduced.rhs(vp)
             if self.vertex_rank is not None:
                 if "order" not in kept:
                     kept["order"] = gmap.elimination_order(self.vertex_rank)

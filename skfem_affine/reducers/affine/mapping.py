@@ -241,6 +241,10 @@ class Mapping:
         """x_{t+1} (n, 3) from x_t and v_{t+1}: the body kind's update (:meth:`BodyKind.positions`)."""
         return self.kind.positions(self, x, v, dt)
 
+    def velocities(self, x, v, x_new):
+        """v_{t+1} (n, 3) at x_new from the solved v (:meth:`BodyKind.velocities`)."""
+        return self.kind.velocities(self, x, v, x_new)
+
     def elimination_order(self, vertex_rank):
         """A fill-reducing order of the reduced DOFs inherited from the full mesh's order.
 
@@ -292,6 +296,12 @@ def rigid_mapping(free, vcluster, x, mass, n_bodies):
     """G for rigid bodies (6 DOFs each): rows of :func:`rigid_rows` about the current centres of mass."""
     Gam, com = rigid_rows(vcluster, x, mass, n_bodies)
     return Mapping(free, vcluster, Gam, n_bodies, RIGID, mass=mass, centres=com)
+
+
+def interior_elements(vcluster, t):
+    """(m,) bool: the elements whose four vertices belong to one body."""
+    vt = vcluster[t]
+    return (vt[0] >= 0) & np.all(vt == vt[0], axis=0)
 
 
 def discrepancy(G, q, v):
@@ -425,6 +435,10 @@ class BodyKind:
         """x_{t+1} = x + h v (symplectic Euler, Algorithm 1)."""
         return x + dt * v
 
+    def velocities(self, mapping, x, v, x_new):
+        """v_{t+1} at the new positions x_new, from the solved v at x_t: v itself."""
+        return v
+
 
 class AffineBody(BodyKind):
     """12 DOFs: translation and the 9 entries of the affine matrix (row-major), about the rest centre."""
@@ -450,29 +464,61 @@ class RigidBody(BodyKind):
     def offsets(self, Gam):
         return np.stack([Gam[:, 1, 5], Gam[:, 2, 3], Gam[:, 0, 4]], axis=1)
 
-    def positions(self, mapping, x, v, dt):
-        """x + h v for elastic vertices; exact rotation about the centre for rigid ones."""
-        x_new = x + dt * v
+    @staticmethod
+    def _motion(mapping, x, v):
+        """The rigid vertices, their bodies, masses and offsets r from the centres, and each body's
+        centre velocity and angular velocity w = I^-1 L about its centre, from the (rigid) vertex
+        velocities v (n, 3) at x."""
         vc = mapping.vcluster
-        if not np.any(vc >= 0):
-            return x_new
         red = np.flatnonzero(vc >= 0)
         c = vc[red]
         n_bodies = mapping.centres.shape[0]
-        com = mapping.centres
         m = mapping.mass[red]
         mt = np.bincount(c, weights=m, minlength=n_bodies)
         vcom = group_sum(c, m[:, None] * v[red], n_bodies) / mt[:, None]
-        r = x[red] - com[c]
-        # angular velocity from the (rigid) vertex velocities: I w = sum m r x (v - v_c)
+        r = x[red] - mapping.centres[c]
         L = group_sum(c, m[:, None] * np.cross(r, v[red] - vcom[c]), n_bodies)
-        rr = np.einsum("vi,vi->v", r, r)
-        I = group_sum(c, m[:, None, None] * (rr[:, None, None] * np.eye(3) - r[:, :, None] * r[:, None, :]),
-                      n_bodies)
-        w = np.linalg.solve(I + 1e-300 * np.eye(3), L[..., None])[..., 0]
+        return red, c, m, r, vcom, np.linalg.solve(_inertia(c, m, r, n_bodies), L[..., None])[..., 0], L
+
+    def positions(self, mapping, x, v, dt):
+        """x + h v for elastic vertices; exact rotation about the centre for rigid ones."""
+        x_new = x + dt * v
+        if not np.any(mapping.vcluster >= 0):
+            return x_new
+        red, c, m, r, vcom, w, L = self._motion(mapping, x, v)
+        # turn by the mean of w at x_t and w = I^-1 L at the body turned by h w (L kept): the rotation
+        # then follows a torque-free body's precession to second order, its energy drifting less
+        I = _inertia(c, m, r, mapping.centres.shape[0])
         R = rotation(dt * w)
-        x_new[red] = com[c] + dt * vcom[c] + np.einsum("vij,vj->vi", R[c], r)
+        w_end = np.linalg.solve(R @ I @ np.swapaxes(R, 1, 2), L[..., None])[..., 0]
+        R = rotation(0.5 * dt * (w + w_end))
+        x_new[red] = mapping.centres[c] + dt * vcom[c] + np.einsum("vij,vj->vi", R[c], r)
         return x_new
+
+    def velocities(self, mapping, x, v, x_new):
+        """v_{t+1} of rigid vertices at their new positions x_new: the centre velocity and the angular
+        momentum L = I(x_t) w of v at x_t kept, w_{t+1} = I(x_new)^-1 L, v_i = v_c + w_{t+1} x r_i(x_new).
+
+        A rigid body's rotation turns its inertia; carrying w unchanged (or the vertex velocities of
+        x_t) to the turned body would change L without a torque."""
+        if not np.any(mapping.vcluster >= 0):
+            return v
+        red, c, m, _, vcom, _, L = self._motion(mapping, x, v)
+        n_bodies = mapping.centres.shape[0]
+        mt = np.bincount(c, weights=m, minlength=n_bodies)
+        centres = group_sum(c, m[:, None] * x_new[red], n_bodies) / mt[:, None]
+        r = x_new[red] - centres[c]
+        w = np.linalg.solve(_inertia(c, m, r, n_bodies), L[..., None])[..., 0]
+        v_new = v.copy()
+        v_new[red] = vcom[c] + np.cross(w[c], r)
+        return v_new
+
+
+def _inertia(c, m, r, n_bodies):
+    """Inertia tensors sum m (|r|^2 I - r r^T) of the bodies c of vertices with masses m, offsets r."""
+    rr = np.einsum("vi,vi->v", r, r)
+    I = group_sum(c, m[:, None, None] * (rr[:, None, None] * np.eye(3) - r[:, :, None] * r[:, None, :]), n_bodies)
+    return I + 1e-300 * np.eye(3)
 
 
 AFFINE, RIGID = AffineBody(), RigidBody()
@@ -622,7 +668,7 @@ def reduced_matrix(model, data, gmap, upper=False):
     K9 = None
     if data.He is None:
         vt = vcluster[sysm.t]  # (4, m)
-        inside = (vt[0] >= 0) & np.all(vt == vt[0], axis=0) if (gmap.kind.interior_exact and n_bodies) else np.zeros(sysm.m, bool)
+        inside = interior_elements(vcluster, sysm.t) if (gmap.kind.interior_exact and n_bodies) else np.zeros(sysm.m, bool)
         _, Hdata = sysm.partial_stiffness(data, np.flatnonzero(~inside))
         if np.any(inside):
             e_in = np.flatnonzero(inside)
