@@ -198,7 +198,7 @@ class Mapping:
     vcluster : (n,) int array
         Body of each vertex, -1 elastic.
     Gam : (n, 3, width) array
-        The rows Gamma_i of reduced vertices (:meth:`BodyKind.rows`).
+        The rows Gamma_i of reduced vertices, built from ``BodyKind.basis``.
     n_bodies : int
     kind : BodyKind
         :data:`AFFINE` or :data:`RIGID`.
