@@ -23,7 +23,6 @@ import sys
 import time
 import traceback
 
-from skfem_affine._json import jsonable
 from skfem_affine.lab.methods import COMPARED, METHODS
 
 SUMMARY_KEYS = ("scene", "method", "frames", "elements", "vertices", "wall_s", "speedup", "dof_ratio",
@@ -34,6 +33,7 @@ SUMMARY_KEYS = ("scene", "method", "frames", "elements", "vertices", "wall_s", "
 def _emit(args, summary):
     """The one JSON object (``--json``); otherwise nothing (human output is printed as we go)."""
     if args.json:
+        from skfem_affine._json import jsonable  # numpy: not imported for --help
         print(json.dumps(jsonable(summary, finite=True)), flush=True)
 
 

@@ -214,6 +214,8 @@ class ClusteringReducer(Reducer):
 
     #: The controllers' attribute names; their state is plain numbers (checkpoints save it).
     CONTROLLERS = ("error_budget", "timer", "pays", "shadows")
+    #: No controller until :meth:`attach` sets them up from the reducer's budgets.
+    error_budget = timer = pays = shadows = None
     #: The largest vertex speed when a probe of the fall-back last found bodies settling (0: none; -1:
     #: the coming probe is the early one it allowed, whose failure does not allow another).
     settling_speed = 0.0
